@@ -1,0 +1,26 @@
+// flat_bench: timing and peak-memory benchmarks at the paper's sizes.
+// One subcommand per benchmarked component, each in its own file here
+// (bench_<what>.cpp) registering itself through bench_registry.h.
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
+#include "bench_registry.h"
+#include "flat/core/error.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"flat_bench: time FLAT components (median of repeats after warm-up, peak memory)"};
+  app.require_subcommand(1);
+  for (const auto& add : flat::bench::registry()) add(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const flat::Error& e) {
+    spdlog::error("{}", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    spdlog::error("unexpected error: {}", e.what());
+    return 1;
+  }
+  return 0;
+}

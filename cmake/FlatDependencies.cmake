@@ -1,0 +1,74 @@
+# Every third-party dependency, found through find_package. Nothing is
+# downloaded at configure time and no third-party code is copied into the tree.
+find_package(Threads REQUIRED)
+find_package(yaml-cpp REQUIRED)
+find_package(spdlog REQUIRED)
+find_package(CLI11 REQUIRED)
+find_package(nlohmann_json 3 REQUIRED)
+find_package(glm REQUIRED)   # on the GPU machine: a carried prefix (see README, GPU build)
+
+if(FLAT_WITH_OIIO)
+  find_package(OpenImageIO REQUIRED)
+endif()
+
+if(FLAT_WITH_CUDA)
+  if(NOT DEFINED CMAKE_CUDA_ARCHITECTURES)
+    set(CMAKE_CUDA_ARCHITECTURES 90)  # H100 / H200
+  endif()
+  # Shared cudart: the same runtime instance as libtorch_cuda, so streams agree.
+  set(CMAKE_CUDA_RUNTIME_LIBRARY Shared)
+  enable_language(CUDA)
+  find_package(CUDAToolkit REQUIRED)
+  # Torch's CMake ignores CMAKE_CUDA_ARCHITECTURES and would otherwise probe a
+  # GPU (none on CI) and fall back to every architecture.
+  if(NOT DEFINED ENV{TORCH_CUDA_ARCH_LIST})
+    set(ENV{TORCH_CUDA_ARCH_LIST} "9.0")
+  endif()
+endif()
+
+# libtorch: PyTorch's own, from the torch wheel. Locate it through the Python
+# that holds the wheel unless Torch_DIR / CMAKE_PREFIX_PATH already does.
+if(NOT Torch_DIR)
+  set(FLAT_TORCH_PYTHON "" CACHE FILEPATH "python3 whose torch wheel provides libtorch")
+  set(_py "${FLAT_TORCH_PYTHON}")
+  if(NOT _py AND EXISTS "${CMAKE_SOURCE_DIR}/.venv/bin/python3")
+    set(_py "${CMAKE_SOURCE_DIR}/.venv/bin/python3")
+  endif()
+  if(NOT _py)
+    find_program(_py NAMES python3)
+  endif()
+  if(_py)
+    execute_process(COMMAND "${_py}" -c "import torch.utils; print(torch.utils.cmake_prefix_path)"
+                    OUTPUT_VARIABLE _torch_prefix OUTPUT_STRIP_TRAILING_WHITESPACE
+                    RESULT_VARIABLE _torch_rc ERROR_QUIET)
+    if(_torch_rc EQUAL 0 AND _torch_prefix)
+      list(APPEND CMAKE_PREFIX_PATH "${_torch_prefix}")
+    endif()
+  endif()
+endif()
+find_package(Torch REQUIRED)
+message(STATUS "libtorch ${Torch_VERSION} from ${Torch_DIR}")
+
+if(FLAT_BUILD_TESTS)
+  find_package(Catch2 REQUIRED)   # v2 on Debian 12, v3 on Ubuntu 24.04: tests/catch.h bridges both
+endif()
+
+# One interface target carrying every dependency and the feature switches, so
+# that all modules compile with identical flags (and can share one PCH).
+add_library(flat_deps INTERFACE)
+if(TARGET yaml-cpp::yaml-cpp)
+  set(_yaml yaml-cpp::yaml-cpp)
+else()
+  set(_yaml yaml-cpp)
+endif()
+target_link_libraries(flat_deps INTERFACE ${TORCH_LIBRARIES} ${_yaml} spdlog::spdlog CLI11::CLI11
+                      nlohmann_json::nlohmann_json glm::glm Threads::Threads)
+target_compile_definitions(flat_deps INTERFACE
+  FLAT_WITH_CUDA=$<BOOL:${FLAT_WITH_CUDA}> FLAT_WITH_OIIO=$<BOOL:${FLAT_WITH_OIIO}>
+  GLM_FORCE_XYZW_ONLY)
+if(FLAT_WITH_OIIO)
+  target_link_libraries(flat_deps INTERFACE OpenImageIO::OpenImageIO)
+endif()
+if(FLAT_WITH_CUDA)
+  target_link_libraries(flat_deps INTERFACE CUDA::cudart)
+endif()
