@@ -10,22 +10,9 @@ namespace flat::bench {
 
 using AddSubcommand = std::function<void(CLI::App&)>;
 
-void add_decoder(CLI::App& app);  // bench_decoder.cpp
-void add_raster(CLI::App& app);   // bench_raster.cpp
-void add_loader(CLI::App& app);   // bench_loader.cpp
-
+// One declaration and one list entry per bench file; add yours in both places.
 inline std::vector<AddSubcommand> registry() {
-  return {
-#ifdef FLAT_BENCH_HAS_DECODER
-      add_decoder,
-#endif
-#ifdef FLAT_BENCH_HAS_RASTER
-      add_raster,
-#endif
-#ifdef FLAT_BENCH_HAS_LOADER
-      add_loader,
-#endif
-  };
+  return {};
 }
 
 }  // namespace flat::bench
