@@ -1,0 +1,32 @@
+// Never leave a half-written output in place of a good one: write to a temp
+// file beside the target, then rename over it. If commit() is not reached (an
+// exception, a crash), the target is untouched and the temp file is removed.
+#pragma once
+#include <fstream>
+#include <functional>
+#include <string>
+
+namespace flat {
+
+class AtomicFile {
+ public:
+  explicit AtomicFile(std::string target);  // creates parent folders
+  ~AtomicFile();                            // removes the temp file unless committed
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+
+  const std::string& temp_path() const { return temp_; }  // for libraries that write by path (OIIO)
+  std::ofstream& stream();                                 // binary stream on temp_path()
+  void commit();                                           // flush, fsync, rename; throws flat::Error
+
+ private:
+  std::string target_, temp_;
+  std::ofstream out_;
+  bool committed_ = false;
+};
+
+// Convenience: write `text` (or bytes) to `path` atomically.
+void write_file_atomic(const std::string& path, const std::string& bytes);
+void write_file_atomic(const std::string& path, const std::function<void(std::ostream&)>& writer);
+
+}  // namespace flat

@@ -1,0 +1,209 @@
+// YAML configs mapped to typed, validated structs.
+//
+// A config struct lists its fields once, in a visit() member; the same list
+// drives reading (with validation and unknown-key detection), writing the
+// effective config, and --set overrides:
+//
+//   struct RasterConfig {
+//     std::string window = "flat";
+//     double eps = 0.1;
+//     template <class V> void visit(V& v) {
+//       v.field("window", window, config::one_of({"flat", "ts"}), "window function");
+//       v.field("eps", eps, config::range(0.0, 1.0), "support beyond the edge, in inradii");
+//     }
+//   };
+//   auto cfg = config::load<TrainConfig>("stage1.yaml", {"raster.eps=0.05"});
+//   config::save(cfg, run.config_file());
+//
+// Errors are flat::Error: "<file>: 'raster.eps': expected a number in [0, 1], got '2'"
+// for wrong types, out-of-range values, missing required keys, unknown keys.
+#pragma once
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <yaml-cpp/yaml.h>
+
+#include "flat/core/error.h"
+
+namespace flat::config {
+
+// A validation rule: returns "" when the value is fine, else what was expected.
+struct Check {
+  std::function<std::string(double)> number;              // for numeric fields
+  std::function<std::string(const std::string&)> text;    // for string fields
+};
+Check range(double lo, double hi);       // lo <= x <= hi
+Check positive();                        // x > 0
+Check non_negative();                    // x >= 0
+Check one_of(std::vector<std::string> choices);
+
+// Context of one node: the file it came from and its dotted key path.
+struct Where {
+  std::string file;
+  std::string path;  // "" at the root, else "a.b"
+  std::string key(const std::string& k) const { return path.empty() ? k : path + "." + k; }
+};
+
+// Scalar conversions (defined in config.cpp). Throw flat::Error naming where.key.
+void read_value(const YAML::Node& n, bool& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, int& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, int64_t& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, double& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, float& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::string& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::vector<int>& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::vector<int64_t>& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::vector<double>& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::vector<std::string>& out, const Where& w, const std::string& key);
+
+// Apply a check to a value that was read; throws naming where.key.
+void apply_check(const Check& c, double value, const Where& w, const std::string& key);
+void apply_check(const Check& c, const std::string& value, const Where& w, const std::string& key);
+void apply_check(const Check& c, bool value, const Where& w, const std::string& key);
+template <class T>
+void apply_check(const Check& c, const std::vector<T>& values, const Where& w, const std::string& key) {
+  for (const auto& v : values) apply_check(c, v, w, key);
+}
+inline void apply_check(const Check& c, int value, const Where& w, const std::string& key) {
+  apply_check(c, double(value), w, key);
+}
+inline void apply_check(const Check& c, int64_t value, const Where& w, const std::string& key) {
+  apply_check(c, double(value), w, key);
+}
+inline void apply_check(const Check& c, float value, const Where& w, const std::string& key) {
+  apply_check(c, double(value), w, key);
+}
+
+// Walks a struct's visit() against a YAML map.
+class Reader {
+ public:
+  Reader(YAML::Node node, Where where);
+
+  template <class T>
+  void field(const char* key, T& value, const Check& check = {}, const char* help = "") {
+    (void)help;
+    YAML::Node n = lookup(key);
+    if (!n) return;  // keep the default
+    read_value(n, value, where_, key);
+    apply_check(check, value, where_, key);
+  }
+  template <class T>
+  void field(const char* key, T& value, const char* help) { field(key, value, Check{}, help); }
+
+  template <class T>
+  void required(const char* key, T& value, const Check& check = {}, const char* help = "") {
+    if (!lookup(key)) missing(key, help);
+    field(key, value, check, help);
+  }
+
+  template <class S>
+  void section(const char* key, S& sub) {
+    YAML::Node n = lookup(key);
+    if (!n) return;
+    Reader r(n, Where{where_.file, where_.key(key)});
+    sub.visit(r);
+    r.finish();
+  }
+
+  template <class S>
+  void list(const char* key, std::vector<S>& items) {
+    YAML::Node n = lookup(key);
+    if (!n) return;
+    expect_sequence(n, key);
+    items.clear();
+    for (size_t i = 0; i < n.size(); ++i) {
+      S item{};
+      Reader r(n[i], Where{where_.file, where_.key(key) + "[" + std::to_string(i) + "]"});
+      item.visit(r);
+      r.finish();
+      items.push_back(std::move(item));
+    }
+  }
+
+  // Throws on keys present in the YAML map that no field consumed.
+  void finish() const;
+
+ private:
+  YAML::Node lookup(const char* key);  // records the key as known
+  [[noreturn]] void missing(const char* key, const char* help) const;
+  void expect_sequence(const YAML::Node& n, const char* key) const;
+  YAML::Node node_;
+  Where where_;
+  std::vector<std::string> known_;
+};
+
+// Walks a struct's visit() to produce YAML (the effective config).
+class Writer {
+ public:
+  YAML::Node node{YAML::NodeType::Map};
+  template <class T>
+  void field(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = value; }
+  template <class T>
+  void field(const char* key, const T& value, const char*) { node[key] = value; }
+  template <class T>
+  void required(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = value; }
+  template <class S>
+  void section(const char* key, S& sub) {
+    Writer w;
+    sub.visit(w);
+    node[key] = w.node;
+  }
+  template <class S>
+  void list(const char* key, std::vector<S>& items) {
+    YAML::Node seq(YAML::NodeType::Sequence);
+    for (auto& item : items) {
+      Writer w;
+      item.visit(w);
+      seq.push_back(w.node);
+    }
+    node[key] = seq;
+  }
+};
+
+// Parse a YAML file or text (throws flat::Error with file, line and column),
+// then apply "a.b.c=value" overrides (value parsed as YAML; an override whose
+// path does not lead through maps is an error naming the override).
+YAML::Node load_yaml_file(const std::string& file);
+YAML::Node load_yaml_text(const std::string& text, const std::string& label);
+void apply_overrides(YAML::Node& root, const std::vector<std::string>& overrides, const std::string& label);
+
+template <class S>
+S from_yaml(YAML::Node root, const std::string& label) {
+  if (!root.IsMap() && !root.IsNull()) fail(label + ": top level must be a map of keys");
+  S s{};
+  Reader r(root, Where{label, ""});
+  s.visit(r);
+  r.finish();
+  return s;
+}
+
+template <class S>
+S load(const std::string& file, const std::vector<std::string>& overrides = {}) {
+  YAML::Node root = load_yaml_file(file);
+  apply_overrides(root, overrides, file);
+  return from_yaml<S>(root, file);
+}
+
+template <class S>
+S parse(const std::string& text, const std::string& label, const std::vector<std::string>& overrides = {}) {
+  YAML::Node root = load_yaml_text(text, label);
+  apply_overrides(root, overrides, label);
+  return from_yaml<S>(root, label);
+}
+
+template <class S>
+std::string to_yaml(S s) {
+  Writer w;
+  s.visit(w);
+  YAML::Emitter out;
+  out << w.node;
+  return std::string(out.c_str()) + "\n";
+}
+
+// Writes the effective config atomically.
+void save_text(const std::string& file, const std::string& yaml);
+template <class S>
+void save(const S& s, const std::string& file) { save_text(file, to_yaml(s)); }
+
+}  // namespace flat::config

@@ -1,0 +1,32 @@
+// Progress for long loops: a live line (rate, ETA, current figures) on a
+// terminal; periodic spdlog lines when stdout is not a terminal (CI, clusters).
+#pragma once
+#include <chrono>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace flat {
+
+class Progress {
+ public:
+  Progress(std::string label, int64_t total, double log_every_seconds = 10.0);
+  ~Progress();  // finishes the line
+  // Advance by n and set the figures shown ("loss=0.0123 psnr=21.4").
+  void step(int64_t n = 1, const std::vector<std::pair<std::string, double>>& figures = {});
+  void finish();
+  double rate() const;         // items per second so far
+  double eta_seconds() const;  // remaining time estimate
+
+ private:
+  std::string label_;
+  int64_t total_, done_ = 0;
+  double log_every_;
+  bool tty_, finished_ = false;
+  std::chrono::steady_clock::time_point start_, last_print_;
+  std::string figures_;
+  void print(bool final);
+};
+
+}  // namespace flat
