@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Installs what FLAT-C++ needs on a Debian 12 machine (run as root), skipping
+# what is already there:
+#   - Debian -dev packages (yaml-cpp, spdlog, CLI11, OpenImageIO, nlohmann-json,
+#     GLM, Catch2, clang's libFuzzer runtime, ninja);
+#   - libtorch as shipped in PyTorch's `torch` wheel (pinned to the GPU
+#     machine's version), in a virtual environment outside the checkout. The
+#     wheels are downloaded once into a cache folder and reused afterwards.
+# Python is only the installer of libtorch; nothing in the product runs it.
+set -euo pipefail
+
+TORCH_VERSION="${FLAT_TORCH_VERSION:-2.11.0}"
+CACHE="${FLAT_CACHE_DIR:-$HOME/.cache/flat}"
+VENV="$CACHE/venv"
+WHEELS="$CACHE/wheels-torch-$TORCH_VERSION"
+
+APT_PACKAGES=(cmake ninja-build g++ clang libclang-rt-14-dev
+  libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev libglm-dev catch2
+  libopenimageio-dev openimageio-tools libopencv-core-dev)
+
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "[install_deps] apt-get install ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+else
+  echo "[install_deps] Debian packages: all present"
+fi
+
+if [ -x "$VENV/bin/python3" ] && "$VENV/bin/python3" -c "import torch,sys; sys.exit(torch.__version__.split('+')[0] != '$TORCH_VERSION')" 2>/dev/null; then
+  echo "[install_deps] libtorch $TORCH_VERSION: present in $VENV"
+else
+  mkdir -p "$WHEELS"
+  PY="${FLAT_PYTHON:-python3}"
+  if ! ls "$WHEELS"/torch-"$TORCH_VERSION"-*.whl >/dev/null 2>&1; then
+    echo "[install_deps] downloading the torch $TORCH_VERSION wheel and its CUDA runtime wheels into $WHEELS (once; several GB)"
+    "$PY" -m pip download -q --dest "$WHEELS" "torch==$TORCH_VERSION"
+  fi
+  echo "[install_deps] installing libtorch $TORCH_VERSION into $VENV from the cached wheels"
+  "$PY" -m venv "$VENV"
+  "$VENV/bin/python3" -m pip install -q --no-index --find-links "$WHEELS" "torch==$TORCH_VERSION"
+fi
+echo "[install_deps] libtorch cmake prefix: $("$VENV/bin/python3" -c 'import torch.utils; print(torch.utils.cmake_prefix_path)')"

@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# README command 2: install what is missing, build, run the whole test suite
+# (CTest: one Catch2 executable per module; CUDA tests skip without a GPU),
+# then a short libFuzzer smoke run of the safetensors and config parsers.
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+bash "$ROOT/scripts/install_deps.sh"
+bash "$ROOT/scripts/build.sh"
+BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
+if [ -f "$ROOT/scripts/fuzz_smoke.sh" ]; then
+  FUZZ_SECONDS="${FUZZ_SECONDS:-15}" bash "$ROOT/scripts/fuzz_smoke.sh"
+fi
+cd "$BUILD_DIR"
+ctest --output-on-failure -j "${FLAT_TEST_JOBS:-2}"
