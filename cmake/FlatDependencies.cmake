@@ -69,6 +69,16 @@ target_compile_definitions(flat_deps INTERFACE
 if(FLAT_WITH_OIIO)
   target_link_libraries(flat_deps INTERFACE OpenImageIO::OpenImageIO)
 endif()
+# libtorch ships its own fmt headers (v12) in its include folder, which would
+# shadow the system fmt that spdlog was built against (spdlog then fails to
+# compile). A folder holding only a link to the system fmt headers goes first.
+if(TARGET fmt::fmt)
+  get_target_property(_fmt_inc fmt::fmt INTERFACE_INCLUDE_DIRECTORIES)
+  list(GET _fmt_inc 0 _fmt_inc)
+  file(MAKE_DIRECTORY "${CMAKE_BINARY_DIR}/fmt_include")
+  file(CREATE_LINK "${_fmt_inc}/fmt" "${CMAKE_BINARY_DIR}/fmt_include/fmt" SYMBOLIC)
+  target_include_directories(flat_deps SYSTEM BEFORE INTERFACE "${CMAKE_BINARY_DIR}/fmt_include")
+endif()
 if(FLAT_WITH_CUDA)
   target_link_libraries(flat_deps INTERFACE CUDA::cudart)
 endif()
