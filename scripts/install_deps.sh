@@ -44,4 +44,4 @@ else
   "$PY" -m venv "$VENV"
   "$VENV/bin/python3" -m pip install -q --no-index --find-links "$WHEELS" "torch==$TORCH_VERSION"
 fi
-echo "[install_deps] libtorch cmake prefix: $("$VENV/bin/python3" -c 'import torch.utils; print(torch.utils.cmake_prefix_path)')"
+echo "[install_deps] libtorch cmake prefix: $("$VENV/bin/python3" -c 'import torch.utils; print(torch.utils.cmake_prefix_path)' 2>/dev/null)"
