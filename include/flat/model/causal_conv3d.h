@@ -1,0 +1,50 @@
+// CausalConv3d of the Wan 2.1 VAE (docs: wan_vae.md, Building blocks): a Conv3d
+// whose temporal padding is causal, 2*pt zero frames in the past and none in the
+// future, and whose spatial padding is symmetric. Parameters `weight`
+// (out,in,kt,kh,kw) and `bias` (out) keep the checkpoint's names.
+#pragma once
+#include <array>
+#include <cstdint>
+
+#include <ATen/ATen.h>
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+#include "flat/model/stream_cache.h"
+
+namespace flat::model {
+
+using Int3 = std::array<int64_t, 3>;
+
+class CausalConv3dImpl : public torch::nn::Module {
+ public:
+  CausalConv3dImpl(int64_t in_channels, int64_t out_channels, Int3 kernel, Int3 stride = {1, 1, 1},
+                   Int3 padding = {0, 0, 0});
+
+  // Full sequence: pads 2*pt zero frames in front (one copy), then the conv.
+  at::Tensor forward(const at::Tensor& x);
+  // Streaming: prepends this layer's history (zeros on the first chunk) instead
+  // of the zero frames, and keeps the last 2*pt input frames as the new history.
+  at::Tensor forward_cached(const at::Tensor& x, at::Tensor& history);
+  // The conv alone, on an input that already carries its 2*pt past frames
+  // (written there by the fused norm + SiLU, which saves the padding copy).
+  at::Tensor forward_prepadded(const at::Tensor& x_padded);
+
+  int64_t past_frames() const { return 2 * padding_[0]; }
+  int64_t in_channels() const { return weight.size(1); }
+  int64_t out_channels() const { return weight.size(0); }
+  // Re-draws the parameters: zeros (for the adapter's zero conv) or PyTorch's
+  // default conv init (uniform +-1/sqrt(fan_in)).
+  void reset_parameters(bool zero = false);
+
+  at::Tensor weight, bias;
+
+ private:
+  Int3 stride_, padding_;
+};
+TORCH_MODULE(CausalConv3d);
+
+// x with n zero frames prepended along T (dim 2), in x's memory format.
+at::Tensor pad_past_frames(const at::Tensor& x, int64_t n);
+
+}  // namespace flat::model

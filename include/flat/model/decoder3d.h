@@ -1,0 +1,51 @@
+// Decoder3d of the Wan 2.1 VAE (docs: wan_vae.md, Decoder3d): conv1, `middle`
+// (Res, Attn, Res), `upsamples` (3 residual blocks per stage, then Resample),
+// `head` (RMS_norm, SiLU, CausalConv3d -> 3). Latent (B,z_dim,T',h,w) ->
+// (B,3,1+4(T'-1),8h,8w).
+//
+// The FLAT variant (`scene_variant`): the last Resample keeps its Conv2d but
+// drops the nearest x2 (ResampleMode::conv_only) and there is no RGB head; the
+// output is the 96-channel feature map at (1+4(T'-1), 4h, 4w) (paper appendix,
+// Scene Decoder Architecture).
+#pragma once
+#include <vector>
+
+#include <ATen/ATen.h>
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+#include "flat/model/attention_block.h"
+#include "flat/model/causal_conv3d.h"
+#include "flat/model/resample.h"
+#include "flat/model/residual_block.h"
+#include "flat/model/rms_norm.h"
+#include "flat/model/stream_cache.h"
+#include "flat/model/wan_vae_config.h"
+
+namespace flat::model {
+
+class Decoder3dImpl : public torch::nn::Module {
+ public:
+  Decoder3dImpl(const WanVAEConfig& config, bool scene_variant = false);
+  // Full sequence (cache == nullptr) or one latent frame with the caches.
+  at::Tensor forward(const at::Tensor& z, StreamCache* cache = nullptr);
+
+  bool scene_variant() const { return scene_variant_; }
+  int64_t out_features() const { return out_features_; }  // channels before the head (dim)
+
+  CausalConv3d conv1{nullptr};
+  ResidualBlock mid1{nullptr}, mid2{nullptr};
+  AttentionBlock mid_attn{nullptr};
+  std::vector<ResidualBlock> up_res;
+  std::vector<Resample> up_resample;
+  std::vector<int> up_kind;  // 0 = residual block, 1 = resample, in `upsamples` order
+  RMSNorm head_norm{nullptr};
+  CausalConv3d head_conv{nullptr};
+
+ private:
+  bool scene_variant_;
+  int64_t out_features_ = 0;
+};
+TORCH_MODULE(Decoder3d);
+
+}  // namespace flat::model

@@ -1,0 +1,38 @@
+// RMS_norm of the Wan VAE: x / max(||x||_2 over channels, 1e-12) * sqrt(C) * gamma.
+// gamma is (C,1,1,1) for video tensors and (C,1,1) inside the attention block
+// ("images" form); no bias. The parameter keeps the checkpoint name `gamma`.
+#pragma once
+#include <cstdint>
+
+#include <ATen/ATen.h>
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+namespace flat::model {
+
+class RMSNormImpl : public torch::nn::Module {
+ public:
+  RMSNormImpl(int64_t channels, bool images);
+  // Normalises over dim 1 of (B,C,...) tensors.
+  at::Tensor forward(const at::Tensor& x);
+  at::Tensor gamma;
+  int64_t channels() const { return gamma.size(0); }
+};
+TORCH_MODULE(RMSNorm);
+
+// silu(rms_norm(x)) for x (B,C,T,H,W), returned as (B,C,n+T,H,W) whose first n
+// frames are `history` ((B,C,n,H,W); zeros when undefined): the input of the
+// next causal conv, built with no separate padding copy. On CUDA without
+// autograd this is one fused kernel; otherwise ATen ops (differentiable).
+at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n,
+                                const at::Tensor& history = {});
+
+// rms_norm over dim 1 (no SiLU, no padding); gamma of any shape with C entries.
+at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma);
+
+// True when the fused CUDA kernel would serve rms_norm_silu_padded for x.
+bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma);
+// Test hook: force the ATen path even where the fused kernel would run.
+void set_fused_norm_enabled(bool enabled);
+
+}  // namespace flat::model

@@ -1,0 +1,83 @@
+// The FLAT scene decoder (paper: Feedforward Scene Decoder; appendix, Scene
+// Decoder Architecture): camera adapter -> Wan 2.1 decoder with the last x2
+// spatial upsample removed -> triangle heads.
+//
+//   latent z_n (B,16,T',h,w), normalised      camera latents (B,32,T',h,w)
+//   z_n + adapter(camera latents)             (zero at initialisation)
+//   -> denormalise -> conv2 (1x1x1) -> Decoder3d(scene variant): 96 ch at (T, 4h, 4w)
+//   -> heads: raw parameters (B, channels.total, T, 4h, 4w), T = 1 + 4(T'-1)
+//
+// The adapter adds to the normalised latent, the space the video model works
+// in. Parameter names: "adapter.*", "conv2.*", "decoder.*" (original Wan names,
+// so a Wan VAE file initialises conv2 and the decoder), "heads.*".
+#pragma once
+#include <cstdint>
+#include <string>
+
+#include <ATen/ATen.h>
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+#include "flat/core/config.h"
+#include "flat/model/camera_adapter.h"
+#include "flat/model/decoder3d.h"
+#include "flat/model/output_heads.h"
+#include "flat/model/wan_vae_config.h"
+#include "flat/model/weights.h"
+
+namespace flat::model {
+
+struct SceneDecoderConfig {
+  WanVAEConfig vae;                  // the decoder's architecture (dim 96 = pretrained)
+  std::string heads = "independent";  // "independent" | "monolithic"
+  int64_t colour_channels = 3;       // RGB
+  bool camera = true;                // build the camera adapter
+  int64_t camera_channels = 32;      // [E_ref; E_dir]
+  int64_t adapter_zero_kernel = 3;   // the zero conv's kernel (3: 3x3x3, 1: 1x1x1)
+
+  template <class V>
+  void visit(V& v) {
+    v.section("vae", vae);
+    v.field("heads", heads, config::one_of({"independent", "monolithic"}), "one head per parameter group, or one");
+    v.field("colour_channels", colour_channels, config::positive(), "colour values per triangle");
+    v.field("camera", camera, "camera conditioning through the zero-initialised adapter");
+    v.field("camera_channels", camera_channels, config::positive(), "channels of the camera latents");
+    v.field("adapter_zero_kernel", adapter_zero_kernel, config::range(1, 3), "kernel of the zero conv: 1 or 3");
+  }
+};
+
+class SceneDecoderImpl : public torch::nn::Module {
+ public:
+  explicit SceneDecoderImpl(const SceneDecoderConfig& config = {});
+
+  // latent (B,16,T',h,w) normalised; camera_latents (B,32,T',h,w) or undefined
+  // (no camera term). Returns raw head outputs (B, channels().total, T, 4h, 4w).
+  // streaming: one latent frame at a time with per-layer caches (bounded memory).
+  at::Tensor forward(const at::Tensor& latent, const at::Tensor& camera_latents = {}, bool streaming = false);
+  // The 96-channel decoder features before the heads (same arguments).
+  at::Tensor features(const at::Tensor& latent, const at::Tensor& camera_latents = {}, bool streaming = false);
+
+  // x re-laid out as ChannelsLast3d when the weights are (to_channels_last_3d).
+  at::Tensor channels_last_input(const at::Tensor& x) const;
+
+  const TriangleChannels& channels() const { return heads->channels(); }
+  const SceneDecoderConfig& config() const { return config_; }
+
+  // Initialise conv2 and the decoder from a Wan 2.1 VAE file (either naming);
+  // the encoder, conv1 and the RGB head in the file are not used, the adapter
+  // and heads keep their initialisation. Throws on any other mismatch.
+  LoadReport load_pretrained_vae(const std::string& path);
+
+  CameraAdapter adapter{nullptr};
+  CausalConv3d conv2{nullptr};
+  Decoder3d decoder{nullptr};
+  OutputHeads heads{nullptr};
+
+ private:
+  SceneDecoderConfig config_;
+  at::Tensor run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming, bool with_heads);
+  at::Tensor chunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache, bool with_heads);
+};
+TORCH_MODULE(SceneDecoder);
+
+}  // namespace flat::model

@@ -1,0 +1,17 @@
+// Launcher of the fused RMS_norm (+ SiLU) kernel. Plain header: no torch types,
+// so nvcc never parses libtorch.
+#pragma once
+#include <cstdint>
+
+#include <cuda_runtime.h>
+
+namespace flat::model::cuda {
+
+// x: channels-last (B,T,HW,C) contiguous; out: (B,out_frames,HW,C) contiguous,
+// frames [frame_offset, frame_offset+T) written. y = x / max(||x||,1e-12) *
+// scale * gamma[c], then SiLU when `silu`. is_bf16: elements are bfloat16, else float.
+void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t batch, int64_t frames,
+                          int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
+                          float scale, bool silu, bool is_bf16, cudaStream_t stream);
+
+}  // namespace flat::model::cuda

@@ -1,0 +1,80 @@
+#include "flat/model/decoder3d.h"
+
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/shape.h"
+#include "flat/model/encoder3d.h"
+
+namespace flat::model {
+
+Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : scene_variant_(scene_variant) {
+  config.check();
+  // dims = dim * [mult[-1]] + reversed(mult): [384, 384, 384, 192, 96] for the pretrained model.
+  std::vector<int64_t> dims{config.dim * config.dim_mult.back()};
+  for (auto it = config.dim_mult.rbegin(); it != config.dim_mult.rend(); ++it) dims.push_back(config.dim * *it);
+  std::vector<int64_t> temporal_upsample(config.temporal_downsample.rbegin(), config.temporal_downsample.rend());
+
+  conv1 = register_module("conv1",
+                          CausalConv3d(config.z_dim, dims[0], Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}));
+  auto middle = register_module("middle", std::make_shared<torch::nn::Module>());
+  mid1 = ResidualBlock(dims[0], dims[0]);
+  mid_attn = AttentionBlock(dims[0]);
+  mid2 = ResidualBlock(dims[0], dims[0]);
+  middle->register_module("0", mid1);
+  middle->register_module("1", mid_attn);
+  middle->register_module("2", mid2);
+
+  auto upsamples = register_module("upsamples", std::make_shared<torch::nn::Module>());
+  int index = 0;
+  const size_t stages = config.dim_mult.size();
+  for (size_t i = 0; i < stages; ++i) {
+    // After an upsampling stage the width is halved by the Resample's Conv2d.
+    int64_t in = (i == 0) ? dims[i] : dims[i] / 2;
+    const int64_t out = dims[i + 1];
+    for (int64_t r = 0; r < config.num_res_blocks + 1; ++r) {
+      ResidualBlock block(in, out);
+      upsamples->register_module(std::to_string(index++), block);
+      up_res.push_back(block);
+      up_kind.push_back(0);
+      in = out;
+    }
+    if (i + 1 != stages) {
+      ResampleMode mode = temporal_upsample[i] ? ResampleMode::upsample3d : ResampleMode::upsample2d;
+      // FLAT: the last x2 spatial upsample becomes the identity; its conv stays.
+      if (scene_variant && i + 2 == stages) {
+        FLAT_CHECK(mode == ResampleMode::upsample2d, "Decoder3d: the scene variant expects a spatial-only last upsample");
+        mode = ResampleMode::conv_only;
+      }
+      Resample resample(out, mode);
+      upsamples->register_module(std::to_string(index++), resample);
+      up_resample.push_back(resample);
+      up_kind.push_back(1);
+    }
+  }
+  out_features_ = dims.back();
+  if (!scene_variant) {
+    auto head = register_module("head", std::make_shared<torch::nn::Module>());
+    head_norm = RMSNorm(out_features_, /*images=*/false);
+    head_conv = CausalConv3d(out_features_, 3, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+    head->register_module("0", head_norm);
+    head->register_module("2", head_conv);
+  }
+}
+
+at::Tensor Decoder3dImpl::forward(const at::Tensor& z, StreamCache* cache) {
+  FLAT_CHECK(z.dim() == 5 && z.size(1) == conv1->in_channels(),
+             "Decoder3d: expected latent (B," + std::to_string(conv1->in_channels()) + ",T,h,w), got " + shape_str(z));
+  at::Tensor h = cache ? conv1->forward_cached(z, cache->next()) : conv1->forward(z);
+  h = mid1->forward(h, cache);
+  h = mid_attn->forward(h);
+  h = mid2->forward(h, cache);
+  size_t r = 0, s = 0;
+  for (int kind : up_kind) {
+    h = kind == 0 ? up_res[r++]->forward(h, cache) : up_resample[s++]->forward(h, cache);
+  }
+  if (scene_variant_) return h;
+  return norm_silu_conv(h, head_norm, head_conv, cache);
+}
+
+}  // namespace flat::model

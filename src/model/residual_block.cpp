@@ -1,0 +1,41 @@
+#include "flat/model/residual_block.h"
+
+#include <torch/torch.h>
+
+namespace flat::model {
+
+ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels) {
+  auto residual = register_module("residual", std::make_shared<torch::nn::Module>());
+  norm1 = RMSNorm(in_channels, /*images=*/false);
+  conv1 = CausalConv3d(in_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+  norm2 = RMSNorm(out_channels, /*images=*/false);
+  conv2 = CausalConv3d(out_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+  residual->register_module("0", norm1);
+  residual->register_module("2", conv1);
+  residual->register_module("3", norm2);
+  residual->register_module("6", conv2);
+  if (in_channels != out_channels) {
+    shortcut = register_module("shortcut", CausalConv3d(in_channels, out_channels, Int3{1, 1, 1}));
+  }
+}
+
+at::Tensor ResidualBlockImpl::forward(const at::Tensor& x, StreamCache* cache) {
+  // Each norm+SiLU writes straight into the causally padded input of its conv;
+  // in streaming mode the padding is the layer's history instead of zeros.
+  auto stage = [&](const at::Tensor& in, RMSNorm& norm, CausalConv3d& conv) {
+    const int64_t n = conv->past_frames();
+    if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(in, norm->gamma, n));
+    at::Tensor& history = cache->next();
+    at::Tensor padded = rms_norm_silu_padded(in, norm->gamma, n, history);
+    history = padded.narrow(2, padded.size(2) - n, n).clone();
+    return conv->forward_prepadded(padded);
+  };
+  at::Tensor h = stage(x, norm1, conv1);
+  h = stage(h, norm2, conv2);
+  // Dropout(0) is the identity.
+  at::Tensor skip = shortcut ? shortcut->forward(x) : x;
+  if (at::GradMode::is_enabled() && (h.requires_grad() || skip.requires_grad())) return h + skip;
+  return h.add_(skip);
+}
+
+}  // namespace flat::model

@@ -1,0 +1,100 @@
+#include "flat/model/rms_norm.h"
+
+#include <atomic>
+#include <cmath>
+
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/shape.h"
+
+#if FLAT_WITH_CUDA
+#include <ATen/cuda/CUDAContext.h>
+
+#include "model/cuda/rms_norm_silu_kernel.h"
+#endif
+
+namespace flat::model {
+namespace {
+std::atomic<bool> g_fused_enabled{true};
+
+// The normalisation factor sqrt(C) / max(||x||, 1e-12) over dim 1, in fp32.
+at::Tensor inverse_norm(const at::Tensor& x) {
+  const double scale = std::sqrt(double(x.size(1)));
+  return at::linalg_vector_norm(x, 2, {1}, /*keepdim=*/true, at::kFloat).clamp_min(1e-12).reciprocal().mul(scale);
+}
+
+at::Tensor gamma_like(const at::Tensor& gamma, const at::Tensor& x) {
+  std::vector<int64_t> shape(x.dim(), 1);
+  shape[1] = gamma.numel();
+  return gamma.reshape(shape);
+}
+}  // namespace
+
+RMSNormImpl::RMSNormImpl(int64_t channels, bool images) {
+  FLAT_CHECK(channels > 0, "RMS_norm: channels must be positive");
+  gamma = register_parameter("gamma", images ? torch::ones({channels, 1, 1}) : torch::ones({channels, 1, 1, 1}));
+}
+
+at::Tensor RMSNormImpl::forward(const at::Tensor& x) { return rms_norm(x, gamma); }
+
+at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma) {
+  FLAT_CHECK(x.dim() >= 2 && x.size(1) == gamma.numel(),
+             "RMS_norm: expected " + std::to_string(gamma.numel()) + " channels in dim 1, got " + shape_str(x));
+  return x * inverse_norm(x).to(x.scalar_type()) * gamma_like(gamma, x);
+}
+
+void set_fused_norm_enabled(bool enabled) { g_fused_enabled = enabled; }
+
+bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
+#if FLAT_WITH_CUDA
+  const bool grad = at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad());
+  const bool dtype_ok = (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
+                        gamma.scalar_type() == x.scalar_type();
+  return g_fused_enabled && x.is_cuda() && !grad && dtype_ok && x.dim() == 5 &&
+         x.is_contiguous(at::MemoryFormat::ChannelsLast3d);
+#else
+  (void)x;
+  (void)gamma;
+  return false;
+#endif
+}
+
+at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history) {
+  FLAT_CHECK(x.dim() == 5 && x.size(1) == gamma.numel(),
+             "RMS_norm+SiLU: expected (B," + std::to_string(gamma.numel()) + ",T,H,W), got " + shape_str(x));
+  const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
+  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(x.suggest_memory_format()));
+  if (n > 0) {
+    if (history.defined()) {
+      FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
+                                           shape_str(history));
+      out.narrow(2, 0, n).copy_(history);
+    } else {
+      out.narrow(2, 0, n).zero_();
+    }
+  }
+  at::Tensor body = out.narrow(2, n, T);
+#if FLAT_WITH_CUDA
+  if (fused_norm_available(x, gamma) && out.is_contiguous(at::MemoryFormat::ChannelsLast3d)) {
+    at::Tensor g = gamma.contiguous();
+    cuda::launch_rms_norm_silu(x.data_ptr(), g.data_ptr(), out.data_ptr(), B, T, H * W, C, n + T, n,
+                               float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16,
+                               at::cuda::getCurrentCUDAStream());
+    return out;
+  }
+#endif
+  at::Tensor y = x * inverse_norm(x).to(x.scalar_type());
+  y.mul_(gamma_like(gamma, x));
+  if (at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad())) {
+    // Differentiable: build the padded tensor with cat (autograd tracks it).
+    at::Tensor act = at::silu(y);
+    if (n == 0) return act;
+    at::Tensor past = history.defined() ? history : at::zeros({B, C, n, H, W}, x.options());
+    return at::cat({past, act}, 2);
+  }
+  at::silu_out(body, y);
+  return out;
+}
+
+}  // namespace flat::model

@@ -1,0 +1,139 @@
+#include "flat/model/weights.h"
+
+#include <sstream>
+
+#include <spdlog/spdlog.h>
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/shape.h"
+
+namespace flat::model {
+namespace {
+
+bool has_prefix(const std::string& s, const std::vector<std::string>& prefixes) {
+  for (const auto& p : prefixes) {
+    if (s.compare(0, p.size(), p) == 0) return true;
+  }
+  return false;
+}
+
+std::string join_list(const std::vector<std::string>& items, size_t limit = 40) {
+  std::ostringstream os;
+  for (size_t i = 0; i < items.size() && i < limit; ++i) os << (i ? ", " : "") << items[i];
+  if (items.size() > limit) os << ", ... (" << items.size() - limit << " more)";
+  return os.str();
+}
+
+}  // namespace
+
+std::string LoadReport::summary() const {
+  std::ostringstream os;
+  os << file << " (" << naming_name(naming) << " naming): " << loaded.size() << " tensors loaded";
+  if (!initialised.empty()) os << ", " << initialised.size() << " kept initialised";
+  if (!skipped.empty()) os << ", " << skipped.size() << " file tensors not used";
+  return os.str();
+}
+
+LoadReport load_state(torch::nn::Module& module, const TensorMap& tensors, const LoadSpec& spec,
+                      const std::string& label) {
+  LoadReport report;
+  report.file = label;
+  report.naming = detect_naming(tensors);
+  TensorMap renamed = to_wan_naming(tensors, report.naming, label);
+
+  TensorMap wanted;
+  for (auto& [key, value] : renamed) {
+    std::string name = key;
+    if (!spec.file_prefix.empty()) {
+      if (name.compare(0, spec.file_prefix.size(), spec.file_prefix) != 0) {
+        report.skipped.push_back(key);
+        continue;
+      }
+      name = name.substr(spec.file_prefix.size());
+    }
+    if (!spec.take.empty() && !has_prefix(name, spec.take)) {
+      report.skipped.push_back(key);
+      continue;
+    }
+    wanted.emplace(name, value);
+  }
+
+  std::vector<std::string> missing, wrong_shape, unexpected;
+  auto params = module.named_parameters(/*recurse=*/true);
+  std::vector<std::pair<at::Tensor, at::Tensor>> copies;
+  for (const auto& item : params) {
+    const std::string& name = item.key();
+    auto it = wanted.find(name);
+    if (it == wanted.end()) {
+      if (has_prefix(name, spec.keep_initialised)) {
+        report.initialised.push_back(name);
+      } else {
+        missing.push_back(name + " " + shape_str(item.value()));
+      }
+      continue;
+    }
+    if (it->second.sizes() != item.value().sizes()) {
+      wrong_shape.push_back(name + ": file " + shape_str(it->second) + ", model " + shape_str(item.value()));
+    } else {
+      copies.emplace_back(item.value(), it->second);
+      report.loaded.push_back(name);
+    }
+  }
+  for (const auto& [name, value] : wanted) {
+    if (!params.contains(name)) unexpected.push_back(name + " " + shape_str(value));
+  }
+  if (!missing.empty() || !unexpected.empty() || !wrong_shape.empty()) {
+    std::ostringstream os;
+    os << label << ": weights do not match the model (" << naming_name(report.naming) << " naming; "
+       << copies.size() << " tensors match).";
+    if (!missing.empty()) os << "\n  missing (" << missing.size() << "): " << join_list(missing);
+    if (!unexpected.empty()) os << "\n  unexpected (" << unexpected.size() << "): " << join_list(unexpected);
+    if (!wrong_shape.empty()) os << "\n  wrong shape (" << wrong_shape.size() << "): " << join_list(wrong_shape);
+    fail(os.str());
+  }
+  torch::NoGradGuard no_grad;
+  for (auto& [param, value] : copies) param.copy_(value);
+  return report;
+}
+
+LoadReport load_weights(torch::nn::Module& module, const std::string& path, const LoadSpec& spec) {
+  Metadata metadata;
+  TensorMap tensors = load_safetensors(path, &metadata);
+  LoadReport report = load_state(module, tensors, spec, path);
+  spdlog::info("weights: {}", report.summary());
+  return report;
+}
+
+TensorMap state_tensors(const torch::nn::Module& module, WeightNaming naming) {
+  TensorMap wan;
+  for (const auto& item : module.named_parameters(/*recurse=*/true)) {
+    wan.emplace(item.key(), item.value().detach().to(at::kCPU).contiguous());
+  }
+  return to_naming(wan, naming);
+}
+
+void save_weights(const torch::nn::Module& module, const std::string& path, WeightNaming naming,
+                  const Metadata& metadata) {
+  Metadata meta = metadata;
+  meta["format"] = "flat";
+  meta["naming"] = naming_name(naming);
+  save_safetensors(path, state_tensors(module, naming), meta);
+}
+
+int64_t count_parameters(const torch::nn::Module& module, const std::string& prefix) {
+  int64_t n = 0;
+  for (const auto& item : module.named_parameters(/*recurse=*/true)) {
+    if (item.key().compare(0, prefix.size(), prefix) == 0) n += item.value().numel();
+  }
+  return n;
+}
+
+void to_channels_last_3d(torch::nn::Module& module) {
+  torch::NoGradGuard no_grad;
+  for (auto& p : module.parameters(/*recurse=*/true)) {
+    if (p.dim() == 5) p.set_data(p.data().contiguous(at::MemoryFormat::ChannelsLast3d));
+  }
+}
+
+}  // namespace flat::model
