@@ -62,7 +62,11 @@ if(TARGET yaml-cpp::yaml-cpp)
 else()
   set(_yaml yaml-cpp)
 endif()
-target_link_libraries(flat_deps INTERFACE ${TORCH_LIBRARIES} ${_yaml} spdlog::spdlog CLI11::CLI11
+# libstdc++ goes first among the shared libraries: the torch wheel's small
+# libtorch.so exports its own copy of std::filesystem, which would otherwise
+# interpose on ours, and its remove_all() crashes (null call) on a non-empty folder.
+target_link_libraries(flat_deps INTERFACE "-Wl,--push-state,--no-as-needed" stdc++ "-Wl,--pop-state"
+                      ${TORCH_LIBRARIES} ${_yaml} spdlog::spdlog CLI11::CLI11
                       nlohmann_json::nlohmann_json glm::glm Threads::Threads)
 target_compile_definitions(flat_deps INTERFACE
   FLAT_WITH_CUDA=$<BOOL:${FLAT_WITH_CUDA}> FLAT_WITH_OIIO=$<BOOL:${FLAT_WITH_OIIO}>
