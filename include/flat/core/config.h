@@ -55,6 +55,7 @@ void read_value(const YAML::Node& n, std::string& out, const Where& w, const std
 void read_value(const YAML::Node& n, std::vector<int>& out, const Where& w, const std::string& key);
 void read_value(const YAML::Node& n, std::vector<int64_t>& out, const Where& w, const std::string& key);
 void read_value(const YAML::Node& n, std::vector<double>& out, const Where& w, const std::string& key);
+void read_value(const YAML::Node& n, std::vector<float>& out, const Where& w, const std::string& key);
 void read_value(const YAML::Node& n, std::vector<std::string>& out, const Where& w, const std::string& key);
 
 // Apply a check to a value that was read; throws naming where.key.
@@ -96,6 +97,8 @@ class Reader {
     if (!lookup(key)) missing(key, help);
     field(key, value, check, help);
   }
+  template <class T>
+  void required(const char* key, T& value, const char* help) { required(key, value, Check{}, help); }
 
   template <class S>
   void section(const char* key, S& sub) {
@@ -133,16 +136,36 @@ class Reader {
   std::vector<std::string> known_;
 };
 
+// Numbers as the shortest text that reads back to the same value ("0.1",
+// where yaml-cpp would write "0.10000000000000001"); other types pass through.
+std::string number_to_yaml(double x);
+std::string number_to_yaml(float x);
+inline std::string to_yaml_scalar(double x) { return number_to_yaml(x); }
+inline std::string to_yaml_scalar(float x) { return number_to_yaml(x); }
+template <class T>
+const T& to_yaml_scalar(const T& x) { return x; }
+
 // Walks a struct's visit() to produce YAML (the effective config).
 class Writer {
  public:
   YAML::Node node{YAML::NodeType::Map};
   template <class T>
-  void field(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = value; }
+  void field(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = to_yaml_scalar(value); }
   template <class T>
-  void field(const char* key, const T& value, const char*) { node[key] = value; }
+  void field(const char* key, const T& value, const char*) { node[key] = to_yaml_scalar(value); }
   template <class T>
-  void required(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = value; }
+  void required(const char* key, const T& value, const Check& = {}, const char* = "") { node[key] = to_yaml_scalar(value); }
+  template <class T>
+  void required(const char* key, const T& value, const char*) { node[key] = to_yaml_scalar(value); }
+  // Lists of numbers or names print on one line: "views: [0, 4, 8]".
+  template <class T>
+  void field(const char* key, const std::vector<T>& value, const Check& = {}, const char* = "") { flow(key, value); }
+  template <class T>
+  void field(const char* key, const std::vector<T>& value, const char*) { flow(key, value); }
+  template <class T>
+  void required(const char* key, const std::vector<T>& value, const Check& = {}, const char* = "") { flow(key, value); }
+  template <class T>
+  void required(const char* key, const std::vector<T>& value, const char*) { flow(key, value); }
   template <class S>
   void section(const char* key, S& sub) {
     Writer w;
@@ -157,6 +180,15 @@ class Writer {
       item.visit(w);
       seq.push_back(w.node);
     }
+    node[key] = seq;
+  }
+
+ private:
+  template <class T>
+  void flow(const char* key, const std::vector<T>& value) {
+    YAML::Node seq(YAML::NodeType::Sequence);
+    for (const auto& v : value) seq.push_back(to_yaml_scalar(v));
+    seq.SetStyle(YAML::EmitterStyle::Flow);
     node[key] = seq;
   }
 };
@@ -198,6 +230,7 @@ std::string to_yaml(S s) {
   s.visit(w);
   YAML::Emitter out;
   out << w.node;
+  if (!out.good()) fail("config: cannot write the effective config as YAML: " + out.GetLastError());
   return std::string(out.c_str()) + "\n";
 }
 

@@ -17,7 +17,14 @@ class Progress {
   void step(int64_t n = 1, const std::vector<std::pair<std::string, double>>& figures = {});
   void finish();
   double rate() const;         // items per second so far
-  double eta_seconds() const;  // remaining time estimate
+  double eta_seconds() const;  // remaining time estimate (infinity while unknown)
+
+  // The arithmetic and text behind the line, pure so that tests need no clock.
+  static double eta_for(int64_t done, int64_t total, double elapsed_seconds);
+  static std::string format_duration(double seconds);  // "45s", "1m12s", "2h05m", "?"
+  // "label  123/1000  12.3 it/s  ETA 1m12s  loss=0.012" (final: "done in 1m21s").
+  static std::string format_line(const std::string& label, int64_t done, int64_t total, double elapsed_seconds,
+                                 const std::string& figures, bool final);
 
  private:
   std::string label_;
