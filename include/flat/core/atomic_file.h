@@ -10,13 +10,16 @@ namespace flat {
 
 class AtomicFile {
  public:
-  explicit AtomicFile(std::string target);  // creates parent folders
+  // Creates parent folders. The temp file is "<target>.tmp.<pid>.<counter>"
+  // followed by `temp_suffix` (e.g. ".png", so that libraries that pick the
+  // format from the extension, like OpenImageIO, see the real one).
+  explicit AtomicFile(std::string target, std::string temp_suffix = {});
   ~AtomicFile();                            // removes the temp file unless committed
   AtomicFile(const AtomicFile&) = delete;
   AtomicFile& operator=(const AtomicFile&) = delete;
 
   const std::string& temp_path() const { return temp_; }  // for libraries that write by path (OIIO)
-  std::ofstream& stream();                                 // binary stream on temp_path()
+  std::ofstream& stream();                                 // binary stream on temp_path() (opened on first use)
   void commit();                                           // flush, fsync, rename; throws flat::Error
 
  private:
