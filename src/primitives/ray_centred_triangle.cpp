@@ -1,0 +1,205 @@
+// Ray-centred triangle parameterisation (paper, Method, "Decoding Triangles")
+// and its two ablations (paper, Table "Ablation studies": "3 Offsets" and
+// "Global" rotation). Pure ATen: autograd differentiates every step.
+//
+// Per token (b, t, i, j) with anchor ray o + s d through the centre of the 2x2
+// block (2i..2i+1, 2j..2j+1) of frame t (camera c = b*T + t):
+//
+//   centre      c  = o + D d                                   (paper: r_o + D r_d)
+//   ray frame   e1 = normalize(x_cam - (x_cam . d) d),  e2 = d x e1,  F = [e1 e2 d]
+//               (x_cam = the camera's right axis; (e1, e2, d) is right-handed like
+//               the camera's (x, y, z), so e1 ~ image right, e2 ~ image down)
+//   footprint   s  = init_scale * sqrt(2) * D / sigma_min(J1 [e1 e2])
+//               J1 = d(pixel)/d(point) of frame t's projection at the point d
+//               (unit distance along the ray); sigma_min its smallest singular
+//               value, so a world length s in any tangent direction projects to
+//               at least init_scale*sqrt(2) px (to first order).
+//   canonical   q_k = 2 (cos a_k, sin a_k), a = 90, -30, -150 deg: centred
+//               equilateral triangle, inradius 1, clockwise in (e1, e2) so that
+//               (v1 - v0) x (v2 - v0) = -|.| d faces the camera.
+//   shape       L = [[L00, 0], [L10, L11]],  L00, L11 = m + softplus(x + b) > 0,
+//               b = log(exp(1 - m) - 1) so L = I at x = 0;  L10 = x.
+//               area(L q) = det(L) area(q) = L00 L11 3 sqrt(3) > 0  (paper eq. L)
+//   rotation    R_res = Rx(tilt_x) Ry(tilt_y) Rz(spin),  tilt = max_tilt tanh(x),
+//               spin = x;  F' = F R_res  (zero angles: F' = F, normal = -d)
+//   vertices    v_k = c + F'[:, 0:2] (s L q_k)   (centroid of L q_k is 0, so the
+//               centroid of the triangle is c, on the anchor ray at depth D)
+//
+// Ablations:
+//   three_offsets:   p_k = s (q_k + delta_k) - mean_k(s (q_k + delta_k)) replaces
+//                    s L q_k (six free numbers; can degenerate, that is the point).
+//   global_rotation: F' = R(normalize((1,0,0,0) + q_raw)), a world-space rotation
+//                    replacing F R_res (the identity lays the triangle in the world
+//                    x-y plane, whatever the ray).
+#include <cmath>
+
+#include "flat/camera/rays.h"
+#include "flat/core/error.h"
+#include "flat/core/shape.h"
+#include "flat/primitives/ray_triangles.h"
+
+namespace flat::primitives {
+namespace {
+
+// softplus(x + b) + lo with b such that the value at x = 0 is `at_zero`.
+at::Tensor shifted_softplus(const at::Tensor& x, double lo, double at_zero) {
+  const double b = std::log(std::expm1(at_zero - lo));
+  return at::softplus(x + b) + lo;
+}
+
+at::Tensor activate_depth(const at::Tensor& x, const TriangleParamConfig& cfg) {
+  if (cfg.depth_activation == "sigmoid") {
+    auto w = at::sigmoid(x - cfg.depth_shift);
+    return cfg.depth_near * (1 - w) + cfg.depth_far * w;
+  }
+  if (cfg.depth_activation == "exp") return cfg.depth_near + (cfg.depth_init - cfg.depth_near) * at::exp(x);
+  return shifted_softplus(x, cfg.depth_near, cfg.depth_init);
+}
+
+at::Tensor activate_sigma(const at::Tensor& x, const TriangleParamConfig& cfg) {
+  if (cfg.sigma_activation == "exp") return cfg.sigma_min + (cfg.sigma_init - cfg.sigma_min) * at::exp(x);
+  return shifted_softplus(x, cfg.sigma_min, cfg.sigma_init);
+}
+
+at::Tensor activate_colour(const at::Tensor& x, const TriangleParamConfig& cfg) {
+  if (cfg.colour_activation == "sigmoid") return at::sigmoid(x);
+  if (cfg.colour_activation == "tanh") return 0.5 * at::tanh(x) + 0.5;
+  // "sh": (B,N,3K) coefficient-major -> (B,N,K,3) raw coefficients.
+  return x.unflatten(-1, {sh_coefficient_count(cfg.sh_degree), 3});
+}
+
+// Canonical triangle as a (2,3) matrix, columns q_0, q_1, q_2.
+at::Tensor canonical_triangle(const at::TensorOptions& opts) {
+  const double r3 = std::sqrt(3.0);
+  return at::tensor({0.0, r3, -r3, 2.0, -1.0, -1.0}, opts.dtype(at::kDouble)).view({2, 3}).to(opts);
+}
+
+// (...,3,3) rotation about one axis (0 = x, 1 = y, 2 = z) by angle a (...).
+at::Tensor axis_rotation(const at::Tensor& a, int axis) {
+  auto c = at::cos(a), s = at::sin(a), o = at::ones_like(a), z = at::zeros_like(a);
+  std::vector<at::Tensor> m;
+  if (axis == 0) m = {o, z, z, z, c, -s, z, s, c};
+  else if (axis == 1) m = {c, z, s, z, o, z, -s, z, c};
+  else m = {c, -s, z, s, c, z, z, z, o};
+  return at::stack(m, -1).unflatten(-1, {3, 3});
+}
+
+// (...,4) quaternion (w,x,y,z), unit, -> (...,3,3) rotation matrix.
+at::Tensor quaternion_to_matrix(const at::Tensor& q) {
+  auto w = q.select(-1, 0), x = q.select(-1, 1), y = q.select(-1, 2), z = q.select(-1, 3);
+  std::vector<at::Tensor> m = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z),     2 * (x * z + w * y),
+                               2 * (x * y + w * z),     1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                               2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
+  return at::stack(m, -1).unflatten(-1, {3, 3});
+}
+
+// Ray frame and footprint per anchor ray, all camera-dependent (no gradient
+// flows into cameras). d_cam: (B,N,3) unit directions in camera space;
+// K: (B,N,4) full-resolution pixel fx, fy, cx, cy.
+// Returns F_cam (B,N,3,3) columns e1, e2, d and the world length per unit depth
+// that projects to one pixel in the least-stretched tangent direction.
+std::pair<at::Tensor, at::Tensor> ray_frame_and_footprint(const at::Tensor& d_cam, const at::Tensor& K) {
+  auto dx = d_cam.select(-1, 0), dy = d_cam.select(-1, 1), dz = d_cam.select(-1, 2);
+  // e1 = normalize(x - (x.d) d) = normalize((1 - dx^2, -dx dy, -dx dz))
+  auto e1 = at::stack({1 - dx * dx, -dx * dy, -dx * dz}, -1);
+  e1 = e1 / e1.norm(2, -1, true);
+  auto e2 = at::cross(d_cam, e1, -1);
+  auto F = at::stack({e1, e2, d_cam}, -1);  // columns
+  // J1 e = (1/dz) (fx (e_x - e_z dx/dz), fy (e_y - e_z dy/dz)) for e in {e1, e2}
+  auto fx = K.select(-1, 0), fy = K.select(-1, 1);
+  auto proj = [&](const at::Tensor& e) {
+    auto ex = e.select(-1, 0), ey = e.select(-1, 1), ez = e.select(-1, 2);
+    return std::make_pair(fx * (ex - ez * dx / dz) / dz, fy * (ey - ez * dy / dz) / dz);
+  };
+  auto [m00, m10] = proj(e1);
+  auto [m01, m11] = proj(e2);
+  // smallest eigenvalue of M^T M = [[a, b], [b, c]]
+  auto a = m00 * m00 + m10 * m10, c = m01 * m01 + m11 * m11, b = m00 * m01 + m10 * m11;
+  auto lam = 0.5 * (a + c) - at::sqrt(0.25 * (a - c) * (a - c) + b * b);
+  auto per_pixel = 1.0 / at::sqrt(lam.clamp_min(1e-30));
+  return {F, per_pixel};
+}
+
+}  // namespace
+
+TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams, int64_t image_height,
+                             int64_t image_width, const TriangleParamConfig& cfg) {
+  cfg.validate();
+  const TriangleChannels ch = cfg.channels();
+  check_shape(raw, {-1, ch.total, -1, -1, -1}, "build_triangles: raw head output",
+              "(B," + std::to_string(ch.total) + ",T,H/2,W/2)");
+  FLAT_CHECK(raw.is_floating_point(), "build_triangles: raw head output must be floating point");
+  FLAT_CHECK(image_height % 2 == 0 && image_width % 2 == 0,
+             "build_triangles: image size must be even, got " + std::to_string(image_height) + "x" +
+                 std::to_string(image_width));
+  const int64_t B = raw.size(0), T = raw.size(2), H2 = raw.size(3), W2 = raw.size(4);
+  FLAT_CHECK(H2 == image_height / 2 && W2 == image_width / 2,
+             "build_triangles: raw grid " + shape_str(raw) + " is not half of the image size " +
+                 std::to_string(image_height) + "x" + std::to_string(image_width));
+  FLAT_CHECK(cams.size() == B * T, "build_triangles: expected B*T = " + std::to_string(B * T) +
+                                       " cameras (frame-major per batch), got " + std::to_string(cams.size()));
+  const int64_t N = T * H2 * W2;
+  const auto opts = raw.options();
+
+  // Anchor rays through the 2x2 block centres = pixel rays at half resolution.
+  auto rays = camera::pixel_rays(cams, H2, W2);
+  auto o = rays.origins.to(opts).reshape({B, N, 3});
+  auto d = rays.directions.to(opts).reshape({B, N, 3});
+  auto R = cams.c2w.to(opts).narrow(1, 0, 3).narrow(2, 0, 3).view({B, T, 1, 3, 3});
+  R = R.expand({B, T, H2 * W2, 3, 3}).reshape({B, N, 3, 3});
+  auto K = camera::pixel_intrinsics(cams.intrinsics.to(opts), image_height, image_width).view({B, T, 1, 4});
+  K = K.expand({B, T, H2 * W2, 4}).reshape({B, N, 4});
+  auto d_cam = at::matmul(R.transpose(-1, -2), d.unsqueeze(-1)).squeeze(-1);
+  auto [F_cam, per_pixel] = ray_frame_and_footprint(d_cam, K);
+  auto F = at::matmul(R, F_cam);  // ray frame in world space, columns e1, e2, d
+
+  // (B,C,T,H2,W2) -> (B,N,C), token order (t, i, j)
+  auto x = raw.permute({0, 2, 3, 4, 1}).reshape({B, N, ch.total});
+  auto group = [&](int64_t start, int64_t count) { return x.narrow(-1, start, count); };
+
+  auto D = activate_depth(group(ch.depth, 1), cfg);                       // (B,N,1)
+  auto centre = o + D * d;                                                // (B,N,3)
+  auto s = (cfg.init_scale * std::sqrt(2.0)) * D * per_pixel.unsqueeze(-1);  // (B,N,1)
+  auto Q = canonical_triangle(opts);                                      // (2,3)
+
+  // In-plane vertex positions P (B,N,2,3), columns = vertices, centroid 0.
+  at::Tensor P;
+  if (cfg.parameterisation == "three_offsets") {
+    auto delta = group(ch.shape, 6).unflatten(-1, {3, 2}).transpose(-1, -2);  // (B,N,2,3)
+    P = s.unsqueeze(-1) * (Q + delta);
+    P = P - P.mean(-1, true);
+  } else {
+    auto l = group(ch.shape, 3);
+    auto L00 = shifted_softplus(l.select(-1, 0), cfg.shape_min, 1.0);
+    auto L10 = l.select(-1, 1);
+    auto L11 = shifted_softplus(l.select(-1, 2), cfg.shape_min, 1.0);
+    auto L = at::stack({L00, at::zeros_like(L00), L10, L11}, -1).unflatten(-1, {2, 2});
+    P = s.unsqueeze(-1) * at::matmul(L, Q);
+  }
+
+  // Orientation F' (B,N,3,3).
+  at::Tensor Fr;
+  if (cfg.parameterisation == "global_rotation") {
+    auto q = group(ch.rotation, 4) + at::tensor({1.0, 0.0, 0.0, 0.0}, opts.dtype(at::kDouble)).to(opts);
+    q = q / q.norm(2, -1, true).clamp_min(1e-12);
+    Fr = quaternion_to_matrix(q);
+  } else {
+    auto a = group(ch.rotation, 3);
+    auto tilt_x = cfg.max_tilt * at::tanh(a.select(-1, 0));
+    auto tilt_y = cfg.max_tilt * at::tanh(a.select(-1, 1));
+    auto spin = a.select(-1, 2);
+    auto R_res = at::matmul(at::matmul(axis_rotation(tilt_x, 0), axis_rotation(tilt_y, 1)), axis_rotation(spin, 2));
+    Fr = at::matmul(F, R_res);
+  }
+
+  // v_k = c + F'[:, 0:2] p_k  -> (B,N,3 vertices,3 coords)
+  auto V = centre.unsqueeze(-1) + at::matmul(Fr.narrow(-1, 0, 2), P);  // (B,N,3,3) columns = vertices
+  TriangleSoup soup;
+  soup.vertices = V.transpose(-1, -2).contiguous();
+  soup.colors = activate_colour(group(ch.colour, ch.colour_count), cfg).contiguous();
+  soup.opacities = at::sigmoid(group(ch.opacity, 1).squeeze(-1) - cfg.opacity_shift).contiguous();
+  soup.sigmas = activate_sigma(group(ch.sigma, 1).squeeze(-1), cfg).contiguous();
+  return soup;
+}
+
+}  // namespace flat::primitives
