@@ -10,9 +10,13 @@ namespace flat::bench {
 
 using AddSubcommand = std::function<void(CLI::App&)>;
 
+void add_decoder(CLI::App& app);  // bench_decoder.cpp
+void add_loader(CLI::App& app);   // bench_loader.cpp
+void add_raster(CLI::App& app);   // bench_raster.cpp
+
 // One declaration and one list entry per bench file; add yours in both places.
 inline std::vector<AddSubcommand> registry() {
-  return {};
+  return {add_decoder, add_loader, add_raster};
 }
 
 }  // namespace flat::bench

@@ -21,7 +21,8 @@ std::atomic<bool> g_fused_enabled{true};
 // The normalisation factor sqrt(C) / max(||x||, 1e-12) over dim 1, in fp32.
 at::Tensor inverse_norm(const at::Tensor& x) {
   const double scale = std::sqrt(double(x.size(1)));
-  return at::linalg_vector_norm(x, 2, {1}, /*keepdim=*/true, at::kFloat).clamp_min(1e-12).reciprocal().mul(scale);
+  const auto dtype = x.scalar_type() == at::kDouble ? at::kDouble : at::kFloat;  // never below fp32
+  return at::linalg_vector_norm(x, 2, {1}, /*keepdim=*/true, dtype).clamp_min(1e-12).reciprocal().mul(scale);
 }
 
 at::Tensor gamma_like(const at::Tensor& gamma, const at::Tensor& x) {

@@ -1,0 +1,224 @@
+// flat_bench decoder: forward time and peak memory of the FLAT scene decoder
+// (camera adapter + Wan decoder without the last x2 + triangle heads), bf16, at
+// the paper's sizes: 13 latent frames of 54x96 (49 views at 432x768) and 21.
+//
+//   flat_bench decoder                       # 13 and 21 frames, full and streaming
+//   flat_bench decoder --frames 13 --mode full --camera encoded --breakdown
+//
+// Timing: median of --repeats runs after --warmup runs, each bracketed by
+// device synchronisation. Memory: peak of the CUDA caching allocator during the
+// timed runs (weights and inputs included).
+#include <algorithm>
+#include <chrono>
+
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+#include <torch/torch.h>
+
+#include "bench_registry.h"
+#include "flat/camera/cameras.h"
+#include "flat/core/error.h"
+#include "flat/model/camera_latents.h"
+#include "flat/model/rms_norm.h"
+#include "flat/model/scene_decoder.h"
+#include "flat/model/wan_vae.h"
+#include "flat/model/weights.h"
+
+#if FLAT_WITH_CUDA
+#include <c10/cuda/CUDACachingAllocator.h>
+#endif
+
+namespace flat::bench {
+namespace {
+
+using namespace flat::model;
+
+struct DecoderBenchOptions {
+  std::vector<int64_t> frames{13, 21};
+  int64_t height = 54, width = 96;  // latent size (x8 = video)
+  std::string mode = "both";        // full | streaming | both
+  std::string camera = "precomputed";
+  std::string heads = "independent";
+  std::string dtype = "bf16";
+  std::string device = "cuda";
+  int64_t dim = 96;
+  int repeats = 5, warmup = 2;
+  bool channels_last = true, fused_norm = true, breakdown = false;
+};
+
+void sync(const torch::Device& d) {
+#if FLAT_WITH_CUDA
+  if (d.is_cuda()) torch::cuda::synchronize();
+#else
+  (void)d;
+#endif
+}
+
+double now_ms() {
+  using namespace std::chrono;
+  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
+}
+
+void reset_peak(const torch::Device& d) {
+#if FLAT_WITH_CUDA
+  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
+#else
+  (void)d;
+#endif
+}
+
+double peak_gib(const torch::Device& d) {
+#if FLAT_WITH_CUDA
+  if (d.is_cuda()) {
+    auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(d.index() < 0 ? 0 : d.index());
+    return double(stats.allocated_bytes[size_t(c10::CachingAllocator::StatType::AGGREGATE)].peak) / double(1ull << 30);
+  }
+#else
+  (void)d;
+#endif
+  return 0.0;
+}
+
+camera::Cameras orbit(int64_t n) {
+  camera::Cameras cams;
+  cams.intrinsics = torch::tensor({0.8f, 1.4f, 0.5f, 0.5f}).repeat({n, 1});
+  cams.c2w = torch::eye(4).repeat({n, 1, 1});
+  for (int64_t i = 0; i < n; ++i) cams.c2w[i][0][3] = 0.02f * float(i);
+  return cams;
+}
+
+// Full-sequence forward, timed stage by stage (synchronised, so slightly slower overall).
+void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tensor& cams, const torch::Device& dev) {
+  std::vector<std::pair<std::string, double>> stages;
+  auto timed = [&](const std::string& name, auto&& fn) {
+    sync(dev);
+    const double t0 = now_ms();
+    at::Tensor out = fn();
+    sync(dev);
+    stages.emplace_back(name, now_ms() - t0);
+    return out;
+  };
+  auto& d = scene->decoder;
+  at::Tensor z = timed("adapter + denormalise + conv2", [&] {
+    at::Tensor x = cams.defined() ? latent + scene->adapter->forward(cams) : latent;
+    x = scene->conv2->forward(denormalise_latent(x));
+    return scene->channels_last_input(x);
+  });
+  at::Tensor h = timed("decoder.conv1", [&] { return d->conv1->forward(z); });
+  h = timed("middle (res, attn, res)", [&] { return d->mid2->forward(d->mid_attn->forward(d->mid1->forward(h))); });
+  size_t r = 0, s = 0;
+  int index = 0;
+  for (int kind : d->up_kind) {
+    const std::string name = "upsamples." + std::to_string(index++) + (kind == 0 ? " res " : " resample ");
+    if (kind == 0) {
+      h = timed(name + std::to_string(h.size(1)) + "ch T=" + std::to_string(h.size(2)) + " " +
+                    std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
+                [&] { return d->up_res[r++]->forward(h); });
+    } else {
+      h = timed(name, [&] { return d->up_resample[s++]->forward(h); });
+    }
+  }
+  h = timed("heads", [&] { return scene->heads->forward(h); });
+  double total = 0;
+  for (auto& st : stages) total += st.second;
+  for (auto& st : stages) spdlog::info("  {:<45} {:8.2f} ms {:5.1f}%", st.first, st.second, 100.0 * st.second / total);
+  spdlog::info("  {:<45} {:8.2f} ms", "sum of stages", total);
+}
+
+void run_decoder_bench(const DecoderBenchOptions& o) {
+  const bool cuda = o.device == "cuda";
+  FLAT_CHECK(!cuda || torch::cuda::is_available(), "flat_bench decoder: --device cuda but no CUDA device; use --device cpu");
+  const torch::Device dev(cuda ? torch::kCUDA : torch::kCPU);
+  const auto dtype = o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat;
+  set_fused_norm_enabled(o.fused_norm);
+  torch::manual_seed(0);
+
+  SceneDecoderConfig config;
+  config.vae.dim = o.dim;
+  config.heads = o.heads;
+  SceneDecoder scene(config);
+  scene->eval();
+  scene->to(dev, dtype);
+  if (o.channels_last) to_channels_last_3d(*scene);
+  WanVAE vae{nullptr};
+  if (o.camera == "encoded") {
+    vae = WanVAE(config.vae);
+    vae->eval();
+    vae->to(dev, dtype);
+    if (o.channels_last) to_channels_last_3d(*vae);
+  }
+  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}", count_parameters(*scene), o.heads, o.dim,
+               o.dtype, cuda ? torch::cuda::device_count() > 0 ? "cuda" : "?" : "cpu",
+               o.channels_last ? ", channels-last 3D" : ", NCDHW");
+  c10::InferenceMode inference;
+  std::vector<std::string> modes;
+  if (o.mode == "both" || o.mode == "full") modes.push_back("full");
+  if (o.mode == "both" || o.mode == "streaming") modes.push_back("streaming");
+
+  for (int64_t t : o.frames) {
+    const int64_t F = video_frames(t);
+    at::Tensor latent = torch::randn({1, 16, t, o.height, o.width}).to(dev, dtype);
+    at::Tensor cam_pre = torch::randn({1, 32, t, o.height, o.width}).to(dev, dtype);
+    camera::Cameras cams = orbit(F);
+    for (const auto& mode : modes) {
+      const bool streaming = mode == "streaming";
+      auto once = [&] {
+        at::Tensor c = o.camera == "encoded" ? encode_camera_latents(vae, cams, 8 * o.height, 8 * o.width, streaming)
+                                             : cam_pre;
+        return scene->forward(latent, c, streaming);
+      };
+      for (int i = 0; i < o.warmup; ++i) once();
+      sync(dev);
+      reset_peak(dev);
+      std::vector<double> times;
+      at::Tensor out;
+      for (int i = 0; i < o.repeats; ++i) {
+        sync(dev);
+        const double t0 = now_ms();
+        out = once();
+        sync(dev);
+        times.push_back(now_ms() - t0);
+      }
+      std::sort(times.begin(), times.end());
+      spdlog::info(
+          "decoder T'={} ({} views {}x{}) mode={} camera={}: median {:.1f} ms (min {:.1f}, max {:.1f}, {} runs), "
+          "peak {:.2f} GiB, output ({},{},{},{},{})",
+          t, F, 8 * o.height, 8 * o.width, mode, o.camera, times[times.size() / 2], times.front(), times.back(),
+          times.size(), peak_gib(dev), out.size(0), out.size(1), out.size(2), out.size(3), out.size(4));
+    }
+    if (o.breakdown) {
+      spdlog::info("breakdown, full sequence, T'={} (camera latents precomputed):", t);
+      run_breakdown(scene, latent, cam_pre, dev);
+    }
+  }
+}
+
+}  // namespace
+
+void add_decoder(CLI::App& app) {
+  auto opts = std::make_shared<DecoderBenchOptions>();
+  auto* cmd = app.add_subcommand("decoder", "FLAT scene decoder (camera adapter + Wan decoder + heads) forward");
+  cmd->add_option("--frames", opts->frames, "latent frame counts (13 = 49 views, 21 = 81)")->capture_default_str();
+  cmd->add_option("--height", opts->height, "latent height (54 = 432 px)")->capture_default_str();
+  cmd->add_option("--width", opts->width, "latent width (96 = 768 px)")->capture_default_str();
+  cmd->add_option("--mode", opts->mode, "full, streaming or both")
+      ->check(CLI::IsMember({"full", "streaming", "both"}))
+      ->capture_default_str();
+  cmd->add_option("--camera", opts->camera, "precomputed camera latents, or encoded (RPPC + VAE encoder) each run")
+      ->check(CLI::IsMember({"precomputed", "encoded"}))
+      ->capture_default_str();
+  cmd->add_option("--heads", opts->heads, "independent or monolithic")
+      ->check(CLI::IsMember({"independent", "monolithic"}))
+      ->capture_default_str();
+  cmd->add_option("--dtype", opts->dtype, "bf16 or fp32")->check(CLI::IsMember({"bf16", "fp32"}))->capture_default_str();
+  cmd->add_option("--device", opts->device, "cuda or cpu")->check(CLI::IsMember({"cuda", "cpu"}))->capture_default_str();
+  cmd->add_option("--dim", opts->dim, "decoder base width (96 = paper)")->capture_default_str();
+  cmd->add_option("--repeats", opts->repeats, "timed runs")->capture_default_str();
+  cmd->add_option("--warmup", opts->warmup, "untimed runs first")->capture_default_str();
+  cmd->add_option("--channels-last", opts->channels_last, "channels-last 3D layout (true/false)")->capture_default_str();
+  cmd->add_option("--fused-norm", opts->fused_norm, "fused CUDA RMS_norm+SiLU kernel (true/false)")->capture_default_str();
+  cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a full-sequence forward");
+  cmd->callback([opts] { run_decoder_bench(*opts); });
+}
+
+}  // namespace flat::bench

@@ -1,0 +1,147 @@
+// FLAT scene decoder: shapes and channel map, zero-initialised camera adapter,
+// gradients reaching the adapter, streaming == full, camera latents.
+#include <iostream>
+
+#include "flat/camera/cameras.h"
+#include "flat/core/error.h"
+#include "flat/model/camera_latents.h"
+#include "flat/model/scene_decoder.h"
+#include "flat/model/weights.h"
+#include "test_support.h"
+
+using namespace flat::model;
+
+namespace {
+SceneDecoderConfig tiny_config(const std::string& heads = "independent") {
+  SceneDecoderConfig c;
+  c.vae.dim = 8;
+  c.heads = heads;
+  return c;
+}
+
+flat::camera::Cameras orbit(int64_t n) {
+  flat::camera::Cameras cams;
+  cams.intrinsics = torch::tensor({0.8f, 1.2f, 0.5f, 0.5f}).repeat({n, 1});
+  cams.c2w = torch::eye(4).repeat({n, 1, 1});
+  for (int64_t i = 0; i < n; ++i) {
+    cams.c2w[i][0][3] = 0.1f * float(i);
+    cams.c2w[i][2][3] = -1.0f;
+  }
+  return cams;
+}
+}  // namespace
+
+TEST_CASE("Scene decoder parameter count at the paper's size", "[model][scene]") {
+  torch::NoGradGuard no_grad;
+  SceneDecoder scene(SceneDecoderConfig{});
+  const int64_t total = count_parameters(*scene);
+  std::cout << "Scene decoder parameters (independent heads): total " << total << " = adapter "
+            << count_parameters(*scene, "adapter.") << " + conv2 " << count_parameters(*scene, "conv2.")
+            << " + decoder " << count_parameters(*scene, "decoder.") << " + heads " << count_parameters(*scene, "heads.")
+            << "\n";
+  CHECK(count_parameters(*scene, "decoder.") == 73287456);  // the Wan decoder without its RGB head
+  CHECK(count_parameters(*scene, "adapter.") == (32 * 16 * 27 + 16) + (16 * 16 * 27 + 16));
+  // Independent heads: 6 x (gamma 96) + 96*27*12 weights + 12 biases.
+  CHECK(count_parameters(*scene, "heads.") == 6 * 96 + 96 * 27 * 12 + 12);
+  SceneDecoderConfig mono;
+  mono.heads = "monolithic";
+  SceneDecoder scene_mono(mono);
+  std::cout << "Scene decoder parameters (monolithic head): total " << count_parameters(*scene_mono) << "\n";
+  CHECK(count_parameters(*scene_mono, "heads.") == 96 + 96 * 27 * 12 + 12);
+}
+
+TEST_CASE("Triangle channel map", "[model][scene]") {
+  auto c = TriangleChannels::make(3);
+  CHECK(c.total == 12);
+  CHECK(c.depth.start == 0);
+  CHECK(c.cholesky.start == 1);
+  CHECK(c.cholesky.count == 3);
+  CHECK(c.tilt.start == 4);
+  CHECK(c.tilt.count == 2);
+  CHECK(c.spin.start == 6);
+  CHECK(c.colour.start == 7);
+  CHECK(c.opacity.start == 10);
+  CHECK(c.sigma.start == 11);
+  auto sh = TriangleChannels::make(48);
+  CHECK(sh.total == 57);
+  CHECK(sh.sigma.start == 56);
+}
+
+TEST_CASE("Scene decoder shapes, both head modes, streaming == full", "[model][scene]") {
+  for (const std::string mode : {"independent", "monolithic"}) {
+    torch::manual_seed(7);
+    SceneDecoder scene(tiny_config(mode));
+    torch::NoGradGuard no_grad;
+    auto latent = torch::randn({1, 16, 3, 2, 3});
+    auto cams = torch::randn({1, 32, 3, 2, 3});
+    auto full = scene->forward(latent, cams, /*streaming=*/false);
+    REQUIRE(full.sizes() == at::IntArrayRef({1, 12, 9, 8, 12}));  // T = 1+4(3-1), (4h, 4w) = (H/2, W/2)
+    auto stream = scene->forward(latent, cams, /*streaming=*/true);
+    INFO(mode);
+    CHECK(flat::test::rel_error(stream, full) < 1e-5);
+    CHECK(scene->features(latent, cams).size(1) == 8);
+  }
+  SceneDecoder scene(tiny_config());
+  REQUIRE_THROWS_WITH(scene->forward(torch::randn({1, 16, 3, 2, 3}), torch::randn({1, 32, 2, 2, 3})),
+                      FLAT_CONTAINS("do not match the latent"));
+}
+
+TEST_CASE("Zero-initialised adapter: cameras change nothing at init, gradient reaches its last layer",
+          "[model][scene]") {
+  torch::manual_seed(8);
+  SceneDecoder scene(tiny_config());
+  auto latent = torch::randn({1, 16, 2, 2, 2});
+  auto cams = torch::randn({1, 32, 2, 2, 2});
+  {
+    torch::NoGradGuard no_grad;
+    CHECK(torch::equal(scene->forward(latent, cams), scene->forward(latent)));
+  }
+  auto out = scene->forward(latent, cams);
+  (out * torch::randn_like(out)).sum().backward();
+  auto g = scene->adapter->zero_conv->weight.grad();
+  REQUIRE(g.defined());
+  CHECK(g.abs().sum().item<double>() > 0.0);
+  CHECK(scene->adapter->zero_conv->bias.grad().abs().sum().item<double>() > 0.0);
+}
+
+TEST_CASE("RMS_norm + SiLU matches its definition; gradient vs finite differences", "[model][scene]") {
+  auto x = torch::randn({1, 4, 2, 2, 3}, torch::kDouble);
+  auto gamma = torch::rand({4, 1, 1, 1}, torch::kDouble) + 0.5;
+  auto ref = torch::silu(x / x.norm(2, 1, true) * 2.0 * gamma);
+  auto got = rms_norm_silu_padded(x, gamma, 2);
+  CHECK(got.size(2) == 4);
+  CHECK(got.narrow(2, 0, 2).abs().max().item<double>() == 0.0);
+  CHECK(flat::test::rel_error(got.narrow(2, 2, 2), ref) < 1e-12);
+  // Gradient of the differentiable path against central differences (double).
+  auto xg = x.clone().requires_grad_(true);
+  auto w = torch::randn({1, 4, 4, 2, 3}, torch::kDouble);
+  (rms_norm_silu_padded(xg, gamma, 2) * w).sum().backward();
+  const double eps = 1e-6;
+  for (int64_t i : {0, 7, 19, 40}) {
+    auto xp = x.clone(), xm = x.clone();
+    xp.view(-1)[i] += eps;
+    xm.view(-1)[i] -= eps;
+    double fd = ((rms_norm_silu_padded(xp, gamma, 2) * w).sum().item<double>() -
+                 (rms_norm_silu_padded(xm, gamma, 2) * w).sum().item<double>()) / (2 * eps);
+    CHECK(xg.grad().view(-1)[i].item<double>() == Approx(fd).epsilon(1e-6));
+  }
+}
+
+TEST_CASE("Camera latents: RPPC halves encoded separately, cached on disk", "[model][scene]") {
+  torch::manual_seed(9);
+  WanVAEConfig vc;
+  vc.dim = 8;
+  WanVAE vae(vc);
+  auto cams = orbit(5);
+  auto lat = encode_camera_latents(vae, cams, 16, 24);
+  REQUIRE(lat.sizes() == at::IntArrayRef({1, 32, 2, 2, 3}));
+  auto [ref, dir] = rppc_videos(cams, 16, 24);
+  torch::NoGradGuard no_grad;
+  CHECK(flat::test::rel_error(lat.narrow(1, 0, 16), vae->encode(ref)) < 1e-6);
+  CHECK(flat::test::rel_error(lat.narrow(1, 16, 16), vae->encode(dir)) < 1e-6);
+  CHECK(flat::test::rel_error(encode_camera_latents(vae, cams, 16, 24, false), lat) < 1e-5);
+  auto dir_path = flat::test::scratch_dir("model_camera_latents");
+  save_camera_latents((dir_path / "cam.safetensors").string(), lat, 16, 24);
+  CHECK(torch::equal(load_camera_latents((dir_path / "cam.safetensors").string()), lat));
+  REQUIRE_THROWS_WITH(encode_camera_latents(vae, orbit(4), 16, 24), FLAT_CONTAINS("1+4k"));
+}

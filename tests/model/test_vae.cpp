@@ -1,0 +1,127 @@
+// Wan VAE: parameter counts of the pretrained architecture (docs: wan_vae.md),
+// streaming == full-sequence for encoder and decoder, frame arithmetic.
+#include <iostream>
+
+#include "flat/core/error.h"
+#include "flat/model/wan_vae.h"
+#include "flat/model/weights.h"
+#include "test_support.h"
+
+using namespace flat::model;
+
+namespace {
+WanVAEConfig tiny_config() {
+  WanVAEConfig c;
+  c.dim = 8;  // widths 8, 16, 32, 32: same structure as dim 96
+  return c;
+}
+}  // namespace
+
+TEST_CASE("Wan VAE parameter counts match the pretrained model", "[model][vae]") {
+  torch::NoGradGuard no_grad;
+  WanVAE vae(WanVAEConfig{});
+  const int64_t decoder = count_parameters(*vae, "decoder.");
+  const int64_t decoder_head = count_parameters(*vae, "decoder.head.");
+  const int64_t encoder = count_parameters(*vae, "encoder.");
+  std::cout << "Wan VAE parameters: decoder " << decoder << " (without RGB head " << decoder - decoder_head
+            << "), conv2 " << count_parameters(*vae, "conv2.") << ", encoder " << encoder << ", conv1 "
+            << count_parameters(*vae, "conv1.") << ", total " << count_parameters(*vae) << " in "
+            << vae->parameters().size() << " tensors\n";
+  CHECK(decoder == 73295331);
+  CHECK(decoder - decoder_head == 73287456);
+  CHECK(count_parameters(*vae, "conv2.") == 272);
+  CHECK(encoder == 53595872);
+  CHECK(count_parameters(*vae, "conv1.") == 1056);
+  CHECK(count_parameters(*vae) == 126892531);
+  CHECK(vae->parameters().size() == 194);
+  // Per-stage figures of the doc's Decoder3d table.
+  CHECK(count_parameters(*vae, "decoder.conv1.") == 166272);
+  CHECK(count_parameters(*vae, "decoder.middle.") == 16520064);
+  CHECK(count_parameters(*vae, "decoder.upsamples.3.") == 1549248);
+  CHECK(count_parameters(*vae, "decoder.upsamples.11.") == 165984);
+  CHECK(decoder_head == 7875);
+  // A few original key names and shapes.
+  auto params = vae->named_parameters();
+  CHECK(params["decoder.middle.1.to_qkv.weight"].sizes() == at::IntArrayRef({1152, 384, 1, 1}));
+  CHECK(params["decoder.middle.1.norm.gamma"].sizes() == at::IntArrayRef({384, 1, 1}));
+  CHECK(params["decoder.upsamples.3.time_conv.weight"].sizes() == at::IntArrayRef({768, 384, 3, 1, 1}));
+  CHECK(params["decoder.upsamples.4.shortcut.weight"].sizes() == at::IntArrayRef({384, 192, 1, 1, 1}));
+  CHECK(params["encoder.downsamples.5.time_conv.weight"].sizes() == at::IntArrayRef({192, 192, 3, 1, 1}));
+  CHECK(params["encoder.head.2.weight"].sizes() == at::IntArrayRef({32, 384, 3, 3, 3}));
+}
+
+TEST_CASE("Frame arithmetic: 1+4k frames, clear errors otherwise", "[model][vae]") {
+  CHECK(video_frames(13) == 49);
+  CHECK(video_frames(21) == 81);
+  CHECK(latent_frames(49, "x") == 13);
+  REQUIRE_THROWS_WITH(latent_frames(48, "clip.safetensors"), FLAT_CONTAINS("1+4k"));
+  WanVAE vae(tiny_config());
+  REQUIRE_THROWS_WITH(vae->encode(torch::zeros({1, 3, 6, 16, 16})), FLAT_CONTAINS("got 6"));
+}
+
+TEST_CASE("Encoder: streaming equals full sequence (fp32)", "[model][vae]") {
+  torch::manual_seed(1);
+  WanVAE vae(tiny_config());
+  torch::NoGradGuard no_grad;
+  for (int64_t t : {1, 2, 5}) {
+    auto video = torch::rand({1, 3, video_frames(t), 8, 16}) * 2 - 1;
+    auto full = vae->encode(video, /*streaming=*/false);
+    auto stream = vae->encode(video, /*streaming=*/true);
+    REQUIRE(full.sizes() == at::IntArrayRef({1, 16, t, 1, 2}));
+    INFO("T' = " << t);
+    CHECK(flat::test::rel_error(stream, full) < 1e-5);
+  }
+}
+
+TEST_CASE("Decoder: streaming equals full sequence (fp32)", "[model][vae]") {
+  torch::manual_seed(2);
+  WanVAE vae(tiny_config());
+  torch::NoGradGuard no_grad;
+  for (int64_t t : {1, 2, 5}) {
+    auto latent = torch::randn({1, 16, t, 3, 2});
+    auto full = vae->decode(latent, /*streaming=*/false, /*clamp=*/false);
+    auto stream = vae->decode(latent, /*streaming=*/true, /*clamp=*/false);
+    REQUIRE(full.sizes() == at::IntArrayRef({1, 3, video_frames(t), 24, 16}));
+    INFO("T' = " << t);
+    CHECK(flat::test::rel_error(stream, full) < 1e-5);
+  }
+}
+
+TEST_CASE("Decoder is causal: later latent frames do not change earlier outputs", "[model][vae]") {
+  torch::manual_seed(3);
+  WanVAE vae(tiny_config());
+  torch::NoGradGuard no_grad;
+  auto latent = torch::randn({1, 16, 3, 2, 2});
+  auto a = vae->decode(latent, false, false);
+  auto changed = latent.clone();
+  changed.narrow(2, 2, 1).add_(1.0);
+  auto b = vae->decode(changed, false, false);
+  CHECK(flat::test::rel_error(b.narrow(2, 0, 5), a.narrow(2, 0, 5)) < 1e-6);
+  CHECK(flat::test::rel_error(b.narrow(2, 5, 4), a.narrow(2, 5, 4)) > 1e-3);
+}
+
+TEST_CASE("Latent normalisation round trip and clamp", "[model][vae]") {
+  auto mu = torch::randn({2, 16, 3, 2, 2});
+  CHECK(flat::test::rel_error(denormalise_latent(normalise_latent(mu)), mu) < 1e-6);
+  auto n = normalise_latent(torch::zeros({1, 16, 1, 1, 1}));
+  CHECK(n[0][0][0][0][0].item<double>() == Approx(0.7571 / 2.8184).epsilon(1e-5));
+  WanVAE vae(tiny_config());
+  torch::NoGradGuard no_grad;
+  auto out = vae->decode(torch::randn({1, 16, 2, 2, 2}) * 10);
+  CHECK(out.abs().max().item<double>() <= 1.0);
+}
+
+TEST_CASE("Sub-pixel upsample conv equals nearest x2 + 3x3 conv", "[model][vae]") {
+  torch::manual_seed(4);
+  torch::NoGradGuard no_grad;
+  for (auto mode : {ResampleMode::upsample2d, ResampleMode::upsample3d}) {
+    Resample r(8, mode);
+    auto x = torch::randn({2, 8, 3, 5, 4});
+    set_subpixel_upsample(false);
+    auto ref = r->forward(x);
+    set_subpixel_upsample(true);
+    auto got = r->forward(x);
+    REQUIRE(got.sizes() == ref.sizes());
+    CHECK(flat::test::rel_error(got, ref) < 1e-6);
+  }
+}
