@@ -25,9 +25,11 @@ at::Tensor encode_camera_latents(WanVAE& vae, const flat::camera::Cameras& cams,
                                                     std::to_string(height) + "x" + std::to_string(width));
   torch::NoGradGuard no_grad;
   const at::Tensor probe = vae->conv2->weight;
-  auto [ref, dir] = rppc_videos(cams.to(at::kCPU), height, width);
-  auto encode = [&](const at::Tensor& v) { return vae->encode(v.to(probe.device(), probe.scalar_type()), streaming); };
-  return at::cat({encode(ref), encode(dir)}, 1);
+  auto [ref, dir] = rppc_videos(cams.to(probe.device()), height, width);  // rays on the VAE's device
+  // Both halves in one batch of 2 (one encoder pass), then side by side on channels.
+  at::Tensor both = at::cat({ref, dir}, 0).to(probe.device(), probe.scalar_type());
+  at::Tensor latents = vae->encode(both, streaming);
+  return at::cat({latents.narrow(0, 0, 1), latents.narrow(0, 1, 1)}, 1);
 }
 
 void save_camera_latents(const std::string& path, const at::Tensor& latents, int64_t height, int64_t width) {

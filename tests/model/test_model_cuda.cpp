@@ -30,6 +30,9 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
 TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::manual_seed(11);
+  // Exact fp32 on the GPU (cuDNN convs default to TF32).
+  const bool tf32_cudnn = at::globalContext().allowTF32CuDNN();
+  at::globalContext().setAllowTF32CuDNN(false);
   SceneDecoderConfig config;
   config.vae.dim = 16;
   SceneDecoder cpu(config);
@@ -44,8 +47,9 @@ TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cud
   for (bool streaming : {false, true}) {
     auto out = gpu->forward(latent.cuda(), cams.cuda(), streaming).cpu();
     INFO("streaming " << streaming);
-    CHECK(flat::test::rel_error(out, ref) < 1e-4);  // TF32 may be on for cuDNN convs
+    CHECK(flat::test::rel_error(out, ref) < 1e-4);
   }
+  at::globalContext().setAllowTF32CuDNN(tf32_cudnn);
   // bf16 runs and stays close.
   gpu->to(torch::kBFloat16);
   auto bf = gpu->forward(latent.cuda().to(torch::kBFloat16), cams.cuda().to(torch::kBFloat16)).to(torch::kFloat).cpu();
