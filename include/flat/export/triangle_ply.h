@@ -1,0 +1,27 @@
+// Triangle soup as binary little-endian PLY (layout in docs/formats.md):
+//   element vertex 3N : float x, y, z            (world, metres)
+//   element face N    : list uchar int vertex_indices (3 per face),
+//                       float red, green, blue    (linear [0,1]),
+//                       float opacity             ([0,1]),
+//                       float sigma               (window sharpness, > 0)
+// Mesh viewers read it as a triangle mesh; our tools read back the attributes.
+#pragma once
+#include <string>
+
+#include <ATen/ATen.h>
+
+namespace flat::exporter {
+
+struct TriangleSoup {
+  at::Tensor vertices;   // (N,3,3) float32
+  at::Tensor colors;     // (N,3)
+  at::Tensor opacities;  // (N)
+  at::Tensor sigmas;     // (N)
+};
+
+// Writes atomically; throws flat::Error on bad shapes (naming the tensor).
+void write_triangle_ply(const std::string& path, const TriangleSoup& soup);
+// Throws flat::Error naming the file and the element/property at fault.
+TriangleSoup read_triangle_ply(const std::string& path);
+
+}  // namespace flat::exporter

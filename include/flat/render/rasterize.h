@@ -1,0 +1,61 @@
+// Differentiable triangle rasterizer (paper, Method: "Feedforward Triangle
+// Splatting" and "Window Function"). Front-to-back alpha compositing of a
+// world-space triangle soup into V cameras; see docs/rasterizer.md for every
+// constant, the culling rule and the tolerances held between CPU and CUDA.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <ATen/ATen.h>
+
+#include "flat/camera/cameras.h"
+#include "flat/core/config.h"
+
+namespace flat::render {
+
+struct RasterSettings {
+  std::string window = "flat";  // "flat" (paper's product window) | "ts" (Triangle Splatting max-edge)
+  double eps = 0.1;             // FLAT window: support extends eps * inradius beyond each edge
+  std::vector<double> background = {0.0, 0.0, 0.0};
+  double near_plane = 0.01;     // metres; a triangle with any vertex closer is culled
+  double alpha_max = 0.99;      // alpha cap
+  double alpha_min = 1.0 / 255.0;  // fragments with smaller alpha are skipped
+  double transmittance_min = 1e-4;  // a pixel stops before its transmittance drops below this
+  double min_inradius = 1e-3;   // pixels; smaller (degenerate) triangles are culled
+  double min_cos = 1e-3;        // edge-on cull: |cos(normal, ray to centroid)| below this
+
+  template <class V>
+  void visit(V& v) {
+    v.field("window", window, config::one_of({"flat", "ts"}), "window function: flat | ts");
+    v.field("eps", eps, config::range(0.0, 1.0), "FLAT window support beyond each edge, in inradii");
+    v.field("background", background, "background colour r,g,b");
+    v.field("near_plane", near_plane, config::positive(), "cull triangles with a vertex nearer than this");
+    v.field("alpha_max", alpha_max, config::range(0.0, 0.999), "alpha cap");
+    v.field("alpha_min", alpha_min, config::range(0.0, 1.0), "skip fragments with alpha below this");
+    v.field("transmittance_min", transmittance_min, config::range(0.0, 1.0), "early-stop transmittance");
+    v.field("min_inradius", min_inradius, config::non_negative(), "cull triangles with smaller screen inradius (px)");
+    v.field("min_cos", min_cos, config::range(0.0, 1.0), "cull edge-on triangles below this |cos|");
+  }
+  void check() const;  // throws flat::Error on bad values (also when built in code, not from YAML)
+};
+
+struct RenderOutput {
+  at::Tensor rgb;           // (V,3,H,W)  sum_k w_k c_k + T_final * background
+  at::Tensor alpha;         // (V,1,H,W)  1 - T_final
+  at::Tensor depth;         // (V,1,H,W)  sum_k w_k z_k(p): alpha-weighted, NOT divided by alpha
+  at::Tensor normal;        // (V,3,H,W)  sum_k w_k n_k: camera space, facing the camera, alpha-weighted
+  at::Tensor median_depth;  // (V,1,H,W)  depth where transmittance crosses 0.5 (no gradient)
+  at::Tensor max_weight;    // (N,)       max blending weight over all pixels and views (no gradient)
+};
+
+// vertices (N,3,3) world, colors (N,3), opacities (N) in [0,1], sigmas (N) > 0.
+// Runs on the inputs' device: CPU -> reference, CUDA -> kernels. Float inputs
+// are cast to float32 (gradients come back in the input dtype), except that
+// all-double CPU inputs run the reference in double (for finite differences).
+// Differentiable w.r.t. vertices, colors, opacities and sigmas.
+RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                       const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
+                       const RasterSettings& settings);
+
+}  // namespace flat::render

@@ -1,0 +1,179 @@
+// libtorch glue of the CUDA rasterizer: allocation, the per-view loop and the
+// launch checks. Views are rendered one after another, so scratch memory is
+// that of one view; the forward keeps per view only the sorted triangle ids,
+// the tile ranges and two per-pixel maps; the backward recomputes the
+// per-triangle screen data (one cheap kernel) instead of storing it.
+#include "render/cuda/raster_cuda.h"
+
+#include <limits>
+
+#include <ATen/cuda/CUDAContext.h>
+#include <c10/cuda/CUDAGuard.h>
+
+#include "flat/core/error.h"
+#include "render/cuda/raster_kernels.h"
+
+namespace flat::render::cuda {
+
+void check_launch(const char* what) {
+  const cudaError_t err = cudaGetLastError();
+  if (err != cudaSuccess) fail(std::string("rasterize (cuda): ") + what + " failed: " + cudaGetErrorString(err));
+}
+
+namespace {
+
+constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
+static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
+static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
+static_assert(sizeof(TileRect) == 4 * sizeof(int), "TileRect layout");
+
+ViewParams make_params(const RasterInputs& in, const at::Tensor& w2c_cpu, const at::Tensor& K_cpu,
+                       const at::Tensor& bg_cpu, int64_t view) {
+  ViewParams vp;
+  vp.cam = make_camera_view(w2c_cpu.data_ptr<float>() + 16 * view, K_cpu.data_ptr<float>() + 4 * view);
+  vp.k = in.k;
+  vp.width = (int)in.width;
+  vp.height = (int)in.height;
+  vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
+  vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
+  for (int c = 0; c < 3; ++c) vp.background[c] = bg_cpu.data_ptr<float>()[c];
+  return vp;
+}
+
+void check_sizes(const RasterInputs& in) {
+  FLAT_CHECK(in.vertices.scalar_type() == at::kFloat, "rasterize (cuda): expected float32 tensors");
+  FLAT_CHECK(in.vertices.size(0) < std::numeric_limits<int32_t>::max(),
+             "rasterize (cuda): at most 2^31-1 triangles, got " + std::to_string(in.vertices.size(0)));
+}
+
+// Per-triangle scratch of one view.
+struct TriScratch {
+  at::Tensor tris, rects, counts, keys;
+  TriScratch(int64_t n, const at::TensorOptions& f) {
+    tris = at::empty({n * kTriFloats}, f);
+    rects = at::empty({n * 4}, f.dtype(at::kInt));
+    counts = at::empty({n}, f.dtype(at::kLong));
+    keys = at::empty({n}, f);
+  }
+  PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
+  TileRect* rect_ptr() { return reinterpret_cast<TileRect*>(rects.data_ptr<int>()); }
+};
+
+void preprocess(const RasterInputs& in, const ViewParams& vp, TriScratch& s, cudaStream_t stream) {
+  launch_preprocess(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
+                    in.sigmas.data_ptr<float>(), in.vertices.size(0), vp, s.tri_ptr(), s.rect_ptr(),
+                    s.counts.data_ptr<int64_t>(), s.keys.data_ptr<float>(), stream);
+  check_launch("preprocess");
+}
+
+}  // namespace
+
+RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
+  check_sizes(in);
+  const c10::cuda::CUDAGuard guard(in.vertices.device());
+  const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
+  const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width;
+  const auto f = in.vertices.options();
+  RasterOutputs out;
+  out.rgb = at::empty({V, 3, H, W}, f);
+  out.alpha = at::empty({V, 1, H, W}, f);
+  out.depth = at::empty({V, 1, H, W}, f);
+  out.normal = at::empty({V, 3, H, W}, f);
+  out.median_depth = at::empty({V, 1, H, W}, f);
+  at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
+  const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
+  TriScratch s(N, f);
+  at::Tensor offsets = at::empty({N}, f.dtype(at::kLong));
+  size_t scan_bytes = 0;
+  scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, N, stream);
+  at::Tensor scan_temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
+  views.clear();
+  const int64_t HW = H * W;
+  for (int64_t v = 0; v < V; ++v) {
+    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+    const int num_tiles = vp.tiles_x * vp.tiles_y;
+    int64_t count = 0;
+    if (N > 0) {
+      preprocess(in, vp, s, stream);
+      scan_tile_counts(scan_temp.data_ptr(), scan_bytes, s.counts.data_ptr<int64_t>(), offsets.data_ptr<int64_t>(), N,
+                       stream);
+      check_launch("tile count scan");
+      count = offsets[N - 1].item<int64_t>();  // the one host sync per view: sizes the pair buffers
+    }
+    FLAT_CHECK(count <= std::numeric_limits<int32_t>::max(),
+               "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
+                   " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
+    at::Tensor keys = at::empty({count}, f.dtype(at::kLong)), keys_sorted = at::empty({count}, f.dtype(at::kLong));
+    at::Tensor ids = at::empty({count}, f.dtype(at::kInt)), ids_sorted = at::empty({count}, f.dtype(at::kInt));
+    at::Tensor ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
+    if (count > 0) {
+      auto* kin = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
+      auto* kout = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
+      launch_duplicate(s.rect_ptr(), offsets.data_ptr<int64_t>(), s.keys.data_ptr<float>(), N, vp.tiles_x, kin,
+                       ids.data_ptr<int>(), stream);
+      check_launch("duplicate");
+      size_t sort_bytes = 0;
+      sort_pairs(nullptr, sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count, num_tiles,
+                 stream);
+      at::Tensor sort_temp = at::empty({(int64_t)sort_bytes + 1}, f.dtype(at::kByte));
+      sort_pairs(sort_temp.data_ptr(), sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count,
+                 num_tiles, stream);
+      check_launch("radix sort");
+      launch_tile_ranges(kout, count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+      check_launch("tile ranges");
+    }
+    keys = at::Tensor();
+    keys_sorted = at::Tensor();
+    ids = at::Tensor();
+    at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
+    ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,
+                      out.depth.data_ptr<float>() + v * HW,      out.normal.data_ptr<float>() + v * 3 * HW,
+                      out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
+                      last.data_ptr<int>()};
+    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids_sorted.data_ptr<int>(),
+                          s.tri_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+    check_launch("forward rasterization");
+    views.insert(views.end(), {ids_sorted, ranges, t_final, last});
+  }
+  out.max_weight = max_bits.view(at::kFloat);  // non-negative floats: integer max == float max
+  return out;
+}
+
+RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
+                     const at::Tensor& grad_alpha, const at::Tensor& grad_depth, const at::Tensor& grad_normal) {
+  check_sizes(in);
+  const c10::cuda::CUDAGuard guard(in.vertices.device());
+  const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
+  const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
+  FLAT_CHECK((int64_t)views.size() == 4 * V, "rasterize (cuda): backward state does not match the views");
+  const auto f = in.vertices.options();
+  RasterGrads g;
+  g.vertices = at::zeros_like(in.vertices);
+  g.colors = at::zeros_like(in.colors);
+  g.opacities = at::zeros_like(in.opacities);
+  g.sigmas = at::zeros_like(in.sigmas);
+  if (N == 0) return g;
+  const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
+  TriScratch s(N, f);
+  at::Tensor tri_grads = at::empty({N * kTriGradSize}, f);
+  for (int64_t v = 0; v < V; ++v) {
+    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+    preprocess(in, vp, s, stream);
+    tri_grads.zero_();
+    const at::Tensor& ids = views[4 * v];
+    const at::Tensor& ranges = views[4 * v + 1];
+    BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
+                       grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
+                       views[4 * v + 2].data_ptr<float>(),     views[4 * v + 3].data_ptr<int>()};
+    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), s.tri_ptr(),
+                           vp, img, tri_grads.data_ptr<float>(), stream);
+    check_launch("backward rasterization");
+    launch_preprocess_backward(in.vertices.data_ptr<float>(), s.rect_ptr(), tri_grads.data_ptr<float>(), N, vp,
+                               g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),
+                               g.sigmas.data_ptr<float>(), stream);
+    check_launch("preprocess backward");
+  }
+  return g;
+}
+
+}  // namespace flat::render::cuda

@@ -1,0 +1,16 @@
+// CUDA back end of the rasterizer (libtorch glue side). Views are processed
+// one after another; per view the forward keeps only what the backward cannot
+// cheaply recompute (sorted triangle ids, tile ranges, per-pixel final
+// transmittance and last contributor): `views` holds those tensors.
+#pragma once
+#include <vector>
+
+#include "render/raster_buffers.h"
+
+namespace flat::render::cuda {
+
+RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views);
+RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
+                     const at::Tensor& grad_alpha, const at::Tensor& grad_depth, const at::Tensor& grad_normal);
+
+}  // namespace flat::render::cuda

@@ -1,0 +1,28 @@
+// Plain tensor bundles passed between the autograd Function and the CPU / CUDA
+// back ends (internal to src/render).
+#pragma once
+#include <ATen/ATen.h>
+
+#include "render/triangle_math.h"
+
+namespace flat::render {
+
+// All contiguous tensors on one device, one dtype (float; double on the CPU):
+// vertices (N,9), colors (N,3), opacities (N), sigmas (N), w2c (V,4,4),
+// K (V,4) pixel intrinsics fx, fy, cx, cy; background (3).
+struct RasterInputs {
+  at::Tensor vertices, colors, opacities, sigmas, w2c, K, background;
+  int64_t height = 0, width = 0;
+  RasterConstants k;
+};
+
+struct RasterOutputs {
+  at::Tensor rgb, alpha, depth, normal, median_depth;  // (V,C,H,W)
+  at::Tensor max_weight;                               // (N)
+};
+
+struct RasterGrads {
+  at::Tensor vertices, colors, opacities, sigmas;  // shapes of the inputs
+};
+
+}  // namespace flat::render

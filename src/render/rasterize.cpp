@@ -1,0 +1,180 @@
+// rasterize(): input checks, dtype/device dispatch and the autograd Function
+// with the analytic backward (CPU reference or CUDA kernels).
+#include "flat/render/rasterize.h"
+
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/shape.h"
+#include "render/cpu/raster_cpu.h"
+#if FLAT_WITH_CUDA
+#include "render/cuda/raster_cuda.h"
+#endif
+
+namespace flat::render {
+
+void RasterSettings::check() const {
+  FLAT_CHECK(window == "flat" || window == "ts", "raster settings: 'window' must be 'flat' or 'ts', got '" + window + "'");
+  FLAT_CHECK(eps >= 0.0 && eps <= 1.0, "raster settings: 'eps' must be in [0, 1], got " + std::to_string(eps));
+  FLAT_CHECK(background.size() == 3, "raster settings: 'background' must have 3 values (r,g,b), got " +
+                                         std::to_string(background.size()));
+  FLAT_CHECK(near_plane > 0.0, "raster settings: 'near_plane' must be > 0");
+  FLAT_CHECK(alpha_max > 0.0 && alpha_max < 1.0, "raster settings: 'alpha_max' must be in (0, 1)");
+  FLAT_CHECK(alpha_min >= 0.0 && alpha_min < alpha_max, "raster settings: 'alpha_min' must be in [0, alpha_max)");
+  FLAT_CHECK(transmittance_min >= 0.0 && transmittance_min < 1.0, "raster settings: 'transmittance_min' must be in [0, 1)");
+  FLAT_CHECK(min_inradius >= 0.0, "raster settings: 'min_inradius' must be >= 0");
+  FLAT_CHECK(min_cos >= 0.0 && min_cos < 1.0, "raster settings: 'min_cos' must be in [0, 1)");
+}
+
+namespace {
+
+using torch::autograd::AutogradContext;
+using torch::autograd::variable_list;
+
+RasterConstants to_constants(const RasterSettings& s) {
+  RasterConstants k;
+  k.eps = (float)s.eps;
+  k.near_plane = (float)s.near_plane;
+  k.alpha_max = (float)s.alpha_max;
+  k.alpha_min = (float)s.alpha_min;
+  k.t_min = (float)s.transmittance_min;
+  k.min_inradius = (float)s.min_inradius;
+  k.min_cos = (float)s.min_cos;
+  k.window = s.window == "ts" ? kWindowTS : kWindowFlat;
+  return k;
+}
+
+void save_constants(AutogradContext* ctx, const RasterConstants& k, int64_t H, int64_t W) {
+  ctx->saved_data["eps"] = (double)k.eps;
+  ctx->saved_data["near"] = (double)k.near_plane;
+  ctx->saved_data["alpha_max"] = (double)k.alpha_max;
+  ctx->saved_data["alpha_min"] = (double)k.alpha_min;
+  ctx->saved_data["t_min"] = (double)k.t_min;
+  ctx->saved_data["min_inradius"] = (double)k.min_inradius;
+  ctx->saved_data["min_cos"] = (double)k.min_cos;
+  ctx->saved_data["window"] = (int64_t)k.window;
+  ctx->saved_data["H"] = H;
+  ctx->saved_data["W"] = W;
+}
+
+RasterConstants load_constants(AutogradContext* ctx) {
+  RasterConstants k;
+  k.eps = (float)ctx->saved_data["eps"].toDouble();
+  k.near_plane = (float)ctx->saved_data["near"].toDouble();
+  k.alpha_max = (float)ctx->saved_data["alpha_max"].toDouble();
+  k.alpha_min = (float)ctx->saved_data["alpha_min"].toDouble();
+  k.t_min = (float)ctx->saved_data["t_min"].toDouble();
+  k.min_inradius = (float)ctx->saved_data["min_inradius"].toDouble();
+  k.min_cos = (float)ctx->saved_data["min_cos"].toDouble();
+  k.window = (int)ctx->saved_data["window"].toInt();
+  return k;
+}
+
+struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
+  static variable_list forward(AutogradContext* ctx, const at::Tensor& vertices, const at::Tensor& colors,
+                               const at::Tensor& opacities, const at::Tensor& sigmas, const at::Tensor& w2c,
+                               const at::Tensor& K, const at::Tensor& background, int64_t height, int64_t width,
+                               RasterConstants k) {
+    RasterInputs in{vertices.reshape({vertices.size(0), 9}), colors, opacities, sigmas, w2c, K, background, height, width, k};
+    RasterOutputs out;
+    if (vertices.is_cuda()) {
+#if FLAT_WITH_CUDA
+      std::vector<at::Tensor> views;
+      out = cuda::forward(in, views);
+      ctx->saved_data["views"] = views;
+#else
+      fail("rasterize: tensors are on CUDA but this build has no CUDA kernels (FLAT_WITH_CUDA=OFF)");
+#endif
+    } else {
+      out = cpu::forward(in);
+    }
+    ctx->save_for_backward({vertices, colors, opacities, sigmas, w2c, K, background});
+    save_constants(ctx, k, height, width);
+    ctx->mark_non_differentiable({out.median_depth, out.max_weight});
+    return {out.rgb, out.alpha, out.depth, out.normal, out.median_depth, out.max_weight};
+  }
+
+  static variable_list backward(AutogradContext* ctx, variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const RasterConstants k = load_constants(ctx);
+    RasterInputs in{saved[0].reshape({saved[0].size(0), 9}), saved[1], saved[2], saved[3], saved[4], saved[5], saved[6],
+                    ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), k};
+    const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
+    const auto opts = in.vertices.options();
+    auto grad_or_zero = [&](const at::Tensor& g, int64_t C) {
+      return g.defined() ? g.to(opts).contiguous() : at::zeros({V, C, H, W}, opts);
+    };
+    const at::Tensor g_rgb = grad_or_zero(grads[0], 3), g_alpha = grad_or_zero(grads[1], 1);
+    const at::Tensor g_depth = grad_or_zero(grads[2], 1), g_normal = grad_or_zero(grads[3], 3);
+    RasterGrads g;
+    if (in.vertices.is_cuda()) {
+#if FLAT_WITH_CUDA
+      const auto views = ctx->saved_data["views"].toTensorVector();
+      g = cuda::backward(in, views, g_rgb, g_alpha, g_depth, g_normal);
+#endif
+    } else {
+      g = cpu::backward(in, g_rgb, g_alpha, g_depth, g_normal);
+    }
+    return {g.vertices.view_as(saved[0]), g.colors, g.opacities, g.sigmas, at::Tensor(), at::Tensor(),
+            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+  }
+};
+
+void check_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                  const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width) {
+  check_shape(vertices, {-1, 3, 3}, "rasterize: vertices", "(N,3,3)");
+  const int64_t N = vertices.size(0);
+  check_shape(colors, {N, 3}, "rasterize: colors", "(N,3) with N = " + std::to_string(N));
+  check_shape(opacities, {N}, "rasterize: opacities", "(N) with N = " + std::to_string(N));
+  check_shape(sigmas, {N}, "rasterize: sigmas", "(N) with N = " + std::to_string(N));
+  cams.check("rasterize: cameras");
+  FLAT_CHECK(height > 0 && width > 0, "rasterize: image size must be positive, got " + std::to_string(height) + "x" +
+                                          std::to_string(width));
+  FLAT_CHECK(height * width <= (int64_t(1) << 30), "rasterize: image too large (" + std::to_string(height) + "x" +
+                                                       std::to_string(width) + ")");
+  for (const auto* t : {&vertices, &colors, &opacities, &sigmas})
+    FLAT_CHECK(t->is_floating_point(), "rasterize: inputs must be floating point, got " +
+                                           std::string(c10::toString(t->scalar_type())));
+  const auto dev = vertices.device();
+  for (const auto* t : {&colors, &opacities, &sigmas})
+    FLAT_CHECK(t->device() == dev, "rasterize: vertices, colors, opacities and sigmas must be on one device");
+  FLAT_CHECK(dev.is_cpu() || dev.is_cuda(), "rasterize: unsupported device " + dev.str());
+  if (N == 0) return;
+  // One host sync for all value checks.
+  auto stats = at::stack({(vertices.sum() + colors.sum() + opacities.sum() + sigmas.sum()).to(at::kDouble),
+                          opacities.min().to(at::kDouble), opacities.max().to(at::kDouble),
+                          sigmas.min().to(at::kDouble)})
+                   .cpu();
+  const double* s = stats.data_ptr<double>();
+  if (!std::isfinite(s[0])) {
+    check_finite(vertices, "rasterize: vertices");
+    check_finite(colors, "rasterize: colors");
+    check_finite(opacities, "rasterize: opacities");
+    check_finite(sigmas, "rasterize: sigmas");
+  }
+  FLAT_CHECK(s[1] >= 0.0 && s[2] <= 1.0, "rasterize: opacities must lie in [0, 1], got range [" + std::to_string(s[1]) +
+                                             ", " + std::to_string(s[2]) + "]");
+  FLAT_CHECK(s[3] > 0.0, "rasterize: sigmas must be > 0, got min " + std::to_string(s[3]));
+}
+
+}  // namespace
+
+RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                       const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
+                       const RasterSettings& settings) {
+  settings.check();
+  check_inputs(vertices, colors, opacities, sigmas, cams, height, width);
+  const auto dev = vertices.device();
+  // fp32 maths, except the double CPU reference used for finite differences.
+  const bool use_double = dev.is_cpu() && vertices.scalar_type() == at::kDouble;
+  const auto opts = at::TensorOptions().device(dev).dtype(use_double ? at::kDouble : at::kFloat);
+  auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
+  const at::Tensor w2c = camera::world_to_camera(cams.c2w.to(opts).to(at::kDouble)).to(opts).contiguous();
+  const at::Tensor K = prep(camera::pixel_intrinsics(cams.intrinsics.to(opts), height, width));
+  const at::Tensor bg = at::tensor(settings.background, at::TensorOptions().dtype(at::kDouble)).to(opts);
+  auto outs = RasterizeFunction::apply(prep(vertices), prep(colors), prep(opacities), prep(sigmas), w2c, K, bg,
+                                       height, width, to_constants(settings));
+  return RenderOutput{outs[0], outs[1], outs[2], outs[3], outs[4], outs[5]};
+}
+
+}  // namespace flat::render
