@@ -1,0 +1,55 @@
+#include <cmath>
+#include <filesystem>
+
+#include <spdlog/spdlog.h>
+
+#include "data/import_common.h"
+#include "flat/core/error.h"
+#include "flat/data/camera_checks.h"
+#include "flat/data/frame_io.h"
+#include "flat/data/frame_resize.h"
+
+namespace flat::data::detail {
+
+std::pair<int64_t, int64_t> import_size(int64_t height, int64_t width, int64_t max_size) {
+  if (max_size <= 0 || std::max(height, width) <= max_size) return {height, width};
+  const double s = double(max_size) / double(std::max(height, width));
+  return {std::max<int64_t>(1, std::llround(height * s)), std::max<int64_t>(1, std::llround(width * s))};
+}
+
+std::string write_import_image(const Scene& scene, int64_t index, const at::Tensor& rgb) {
+  // A pure resize keeps normalised intrinsics exactly (pixel centres scale with the image).
+  auto out = resize_images(rgb.unsqueeze(0), scene.height, scene.width)[0].clamp(0, 1);
+  std::string rel = "images/" + frame_stem(index) + rgb_extension();
+  std::filesystem::create_directories(scene.path("images"));
+  write_rgb(scene.path(rel), out);
+  return rel;
+}
+
+at::Tensor rigid(const at::Tensor& c2w) {
+  auto m = c2w.to(at::kDouble).clone();
+  auto [U, S, Vh] = at::linalg_svd(m.narrow(0, 0, 3).narrow(1, 0, 3));
+  auto R = at::matmul(U, Vh);
+  if (at::det(R).item<double>() < 0) fail("camera pose has a reflection (det R < 0): check the axis convention");
+  m.narrow(0, 0, 3).narrow(1, 0, 3).copy_(R);
+  m[3] = at::tensor({0.0, 0.0, 0.0, 1.0}, at::kDouble);
+  return m.to(at::kFloat);
+}
+
+void finish_import(const Scene& scene) {
+  write_scene_json(scene);
+  if (scene.size() >= 2) {
+    try {
+      AxesFocus f = principal_axes_focus(scene.cameras());
+      spdlog::info("{}: {} frames {}x{}; optical axes pass within RMS {:.3g} of a point at mean distance {:.3g} "
+                   "({:.0f}% of cameras see it in front)",
+                   scene.name, scene.size(), scene.width, scene.height, f.rms_distance, f.mean_camera_distance,
+                   100 * f.in_front);
+    } catch (const Error&) {
+      spdlog::info("{}: {} frames {}x{}; optical axes nearly parallel", scene.name, scene.size(), scene.width,
+                   scene.height);
+    }
+  }
+}
+
+}  // namespace flat::data::detail

@@ -1,0 +1,75 @@
+#include "flat/data/scene_latents.h"
+
+#include "flat/core/error.h"
+#include "flat/core/safetensors.h"
+#include "flat/core/shape.h"
+#include "flat/core/tensor_io.h"
+
+namespace flat::data {
+
+namespace {
+
+void check_window(const at::Tensor& t, int64_t channels, const LatentInfo& info, const LatentWindow& w,
+                  const std::string& what) {
+  const int64_t tp = 1 + (w.count - 1) / 4;
+  check_shape(t, {channels, tp, info.height / 8, info.width / 8}, what,
+              "(" + std::to_string(channels) + ",T',H/8,W/8) with T' = " + std::to_string(tp));
+  check_finite(t, what);
+}
+
+}  // namespace
+
+void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents) {
+  FLAT_CHECK(latents.size() == info.windows.size(), scene.json_path() + ": " + std::to_string(latents.size()) +
+                                                         " latent windows for " + std::to_string(info.windows.size()) +
+                                                         " window entries");
+  FLAT_CHECK(info.encoder == "pretrained" || info.encoder == "random",
+             "write_scene_latents: encoder must be pretrained or random");
+  info.file = kLatentsFile;
+  TensorMap tensors;
+  std::string windows;
+  for (size_t i = 0; i < latents.size(); ++i) {
+    const auto& w = info.windows[i];
+    const std::string k = std::to_string(i);
+    check_window(latents[i].video, 16, info, w, scene.name + ": video latent " + k);
+    check_window(latents[i].camera, 32, info, w, scene.name + ": camera latent " + k);
+    auto type = info.dtype == "bfloat16" ? at::kBFloat16 : info.dtype == "float16" ? at::kHalf : at::kFloat;
+    tensors["video." + k] = latents[i].video.to(type).cpu().contiguous();
+    tensors["camera." + k] = latents[i].camera.to(type).cpu().contiguous();
+    tensors["frames." + k] = at::arange(w.start, w.start + w.count, at::kLong);
+    windows += (i ? "," : "") + std::to_string(w.start) + ":" + std::to_string(w.count);
+  }
+  save_safetensors(scene.path(info.file), tensors,
+                   {{"format", "flat-scene-latents"},
+                    {"version", "1"},
+                    {"encoder", info.encoder},
+                    {"weights", info.weights},
+                    {"seed", std::to_string(info.seed)},
+                    {"height", std::to_string(info.height)},
+                    {"width", std::to_string(info.width)},
+                    {"windows", windows}});
+  scene.latents = info;
+  write_scene_json(scene);
+}
+
+WindowLatents read_window_latents(const Scene& scene, size_t window) {
+  const auto& info = scene.latents;
+  FLAT_CHECK(info.present(), scene.json_path() + ": scene '" + scene.name + "' has no latents");
+  FLAT_CHECK(window < info.windows.size(), scene.json_path() + ": latent window " + std::to_string(window) +
+                                               " out of range (" + std::to_string(info.windows.size()) + ")");
+  const std::string path = scene.path(info.file);
+  auto file = safetensors::MappedFile::open(path);
+  const std::string k = std::to_string(window);
+  WindowLatents out;
+  out.video = read_tensor(*file, "video." + k).to(at::kFloat);
+  out.camera = read_tensor(*file, "camera." + k).to(at::kFloat);
+  check_window(out.video, 16, info, info.windows[window], path + ": 'video." + k + "'");
+  check_window(out.camera, 32, info, info.windows[window], path + ": 'camera." + k + "'");
+  auto frames = read_tensor(*file, "frames." + k);
+  const auto& w = info.windows[window];
+  if (frames.numel() != w.count || frames[0].item<int64_t>() != w.start)
+    fail(path + ": 'frames." + k + "' does not match scene.json latents.windows[" + k + "]");
+  return out;
+}
+
+}  // namespace flat::data

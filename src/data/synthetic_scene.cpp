@@ -1,0 +1,100 @@
+#include "flat/data/synthetic_scene.h"
+
+#include <cmath>
+#include <filesystem>
+
+#include "flat/camera/rays.h"
+#include "flat/core/error.h"
+#include "flat/data/frame_io.h"
+#include "data/synthetic/camera_path.h"
+#include "data/synthetic/shapes.h"
+
+namespace flat::data {
+
+void SynthOptions::check() const {
+  if (family != "room" && family != "object") fail("synthetic scene: family must be room or object, got '" + family + "'");
+  if (motion != "pan" && motion != "zoom" && motion != "orbit" && motion != "mixed")
+    fail("synthetic scene: motion must be pan, zoom, orbit or mixed, got '" + motion + "'");
+  FLAT_CHECK(frames >= 1 && frames <= 1000, "synthetic scene: frames must be in [1, 1000], got " + std::to_string(frames));
+  FLAT_CHECK(height >= 2 && width >= 2 && height <= 4096 && width <= 4096,
+             "synthetic scene: size must be within 2..4096, got " + std::to_string(height) + "x" + std::to_string(width));
+}
+
+SynthScene render_synthetic_scene(const SynthOptions& o) {
+  o.check();
+  synth::Random rng(o.seed);
+  const bool room = o.family == "room";
+  synth::Layout layout = room ? synth::make_room(rng) : synth::make_object_scene(rng);
+  synth::Path path = synth::make_path(layout, room, o.motion, o.frames, rng);
+
+  // Square pixels: fx/W from the horizontal field of view, fy/H follows.
+  const double fxn = 0.5 / std::tan(path.hfov / 2), fyn = fxn * double(o.width) / double(o.height);
+  auto intr = at::tensor({fxn, fyn, 0.5, 0.5}, at::kDouble).to(at::kFloat).expand({o.frames, 4}).contiguous();
+  std::vector<at::Tensor> mats;
+  for (const auto& m : path.c2w) mats.push_back(at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}));
+  camera::Cameras cams{intr, at::stack(mats).to(at::kFloat)};
+
+  auto light = at::tensor({layout.light[0], layout.light[1], layout.light[2]}, at::kFloat);
+  light = light / light.norm();
+  std::vector<at::Tensor> rgb, depth, normals, surface;
+  for (int64_t f = 0; f < o.frames; ++f) {
+    auto one = cams.index(at::tensor({f}, at::kLong));
+    camera::Rays rays = camera::pixel_rays(one, o.height, o.width);
+    auto org = rays.origins.reshape({-1, 3}), dir = rays.directions.reshape({-1, 3});
+    synth::Hits hit = synth::cast_rays(layout, org, dir);
+    auto valid = at::isfinite(hit.t);
+    auto R = one.c2w[0].narrow(0, 0, 3).narrow(1, 0, 3);  // camera -> world rotation
+    // z-depth = distance along the ray times the cosine to the optical axis.
+    auto z = at::where(valid, hit.t * at::matmul(dir, R.select(1, 2)), at::zeros_like(hit.t));
+    // Normals facing the camera (the side of the surface the ray sees).
+    auto n = hit.normal * at::where((hit.normal * dir).sum(-1, true) > 0, -1.0, 1.0);
+    auto n_cam = at::matmul(n, R) * valid.unsqueeze(-1);  // R^T n for row vectors
+    auto shade = 0.35 + 0.65 * at::clamp_min(at::matmul(n, light), 0).unsqueeze(-1);
+    auto colour = at::clamp(hit.albedo * shade, 0, 1) * valid.unsqueeze(-1);
+    auto to_chw = [&](const at::Tensor& t, int64_t c) { return t.reshape({o.height, o.width, c}).permute({2, 0, 1}); };
+    rgb.push_back(to_chw(colour, 3));
+    depth.push_back(to_chw(z.unsqueeze(-1), 1));
+    normals.push_back(to_chw(n_cam, 3));
+    surface.push_back(hit.id.reshape({o.height, o.width}));
+  }
+  SynthScene s;
+  s.cameras = cams;
+  s.images = at::stack(rgb).contiguous();
+  s.depth = at::stack(depth).contiguous();
+  s.normals = at::stack(normals).contiguous();
+  s.surface = at::stack(surface).contiguous();
+  s.planar = at::ones({layout.surface_count}, at::kBool);
+  for (const auto& sp : layout.spheres) s.planar[sp.id] = false;
+  s.motion = path.motion;
+  return s;
+}
+
+Scene write_synthetic_scene(const SynthScene& s, const std::string& dir, const std::string& name,
+                            const std::string& source) {
+  namespace fs = std::filesystem;
+  Scene scene;
+  scene.dir = dir;
+  scene.name = name;
+  scene.source = source;
+  scene.height = s.images.size(2);
+  scene.width = s.images.size(3);
+  scene.has_depth = scene.has_normals = true;
+  const std::string rgb_ext = rgb_extension(), map_ext = float_map_extension();
+  for (const char* sub : {"images", "depth", "normals"}) fs::create_directories(fs::path(dir) / sub);
+  for (int64_t i = 0; i < s.images.size(0); ++i) {
+    SceneFrame f;
+    f.intrinsics = s.cameras.intrinsics[i].contiguous();
+    f.c2w = s.cameras.c2w[i].contiguous();
+    f.image = "images/" + frame_stem(i) + rgb_ext;
+    f.depth = "depth/" + frame_stem(i) + map_ext;
+    f.normals = "normals/" + frame_stem(i) + map_ext;
+    write_rgb(scene.path(f.image), s.images[i]);
+    write_depth(scene.path(f.depth), s.depth[i]);
+    write_normals(scene.path(f.normals), s.normals[i]);
+    scene.frames.push_back(std::move(f));
+  }
+  write_scene_json(scene);
+  return scene;
+}
+
+}  // namespace flat::data

@@ -1,0 +1,256 @@
+// Loader: determinism, seen/unseen split, resizing with intrinsics, weighted
+// mixing, bad scenes (fail naming them, or skip and count), packed scenes, latents.
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include "flat/core/error.h"
+#include "flat/data/loader.h"
+#include "flat/data/pack.h"
+#include "flat/data/scene_frames.h"
+#include "flat/data/scene_latents.h"
+#include "flat/data/synthetic_scene.h"
+#include "flat/data/view_sampler.h"
+#include "data_test_dirs.h"
+#include "test_support.h"
+
+using namespace flat;
+namespace fs = std::filesystem;
+
+namespace {
+
+// A dataset folder of `n` tiny synthetic scenes of `frames` frames.
+fs::path make_dataset(const std::string& name, int n, int64_t frames = 13, const std::string& family = "room") {
+  auto root = test::fresh_dir(name);
+  for (int i = 0; i < n; ++i) {
+    data::SynthOptions o;
+    o.family = family;
+    o.frames = frames;
+    o.height = 12;
+    o.width = 16;
+    o.seed = uint64_t(100 * i + frames);
+    auto s = data::render_synthetic_scene(o);
+    data::write_synthetic_scene(s, (root / ("s" + std::to_string(i))).string(), name + std::to_string(i), "test");
+  }
+  return root;
+}
+
+data::LoaderConfig tiny_config(const fs::path& root) {
+  data::LoaderConfig c;
+  c.datasets = {{root.string(), 1.0}};
+  c.height = 8;
+  c.width = 8;
+  c.input_frames = 5;
+  c.target_views = 6;
+  c.batch_size = 2;
+  c.workers = 2;
+  c.prefetch = 2;
+  c.seed = 3;
+  return c;
+}
+
+bool same(const data::Batch& a, const data::Batch& b) {
+  return a.scenes == b.scenes && torch::equal(a.target_frames, b.target_frames) &&
+         torch::equal(a.input_frames, b.input_frames) && torch::equal(a.target_images, b.target_images) &&
+         torch::equal(a.target_depth, b.target_depth) && torch::equal(a.target_c2w, b.target_c2w);
+}
+
+}  // namespace
+
+TEST_CASE("view sampler: window of F frames, targets half seen inside, half unseen outside", "[data][loader]") {
+  data::ViewSamplerConfig c;
+  c.input_frames = 17;
+  c.target_views = 17;
+  for (uint64_t seed = 0; seed < 20; ++seed) {
+    std::mt19937_64 rng(seed);
+    auto v = data::sample_views(40, c, rng);
+    REQUIRE(v.input.size() == 17);
+    for (size_t i = 1; i < v.input.size(); ++i) CHECK(v.input[i] == v.input[i - 1] + 1);
+    REQUIRE(v.targets.size() == 17);
+    int seen = 0;
+    std::set<int64_t> distinct(v.targets.begin(), v.targets.end());
+    CHECK(distinct.size() == 17);
+    for (size_t i = 0; i < v.targets.size(); ++i) {
+      const bool inside = v.targets[i] >= v.input.front() && v.targets[i] <= v.input.back();
+      CHECK(inside == bool(v.seen[i]));
+      seen += v.seen[i];
+    }
+    CHECK(seen == 9);  // 17 = 9 seen + 8 unseen
+  }
+  // A video with no frames outside the window: all targets are seen.
+  std::mt19937_64 rng(1);
+  auto v = data::sample_views(17, c, rng);
+  CHECK(std::all_of(v.seen.begin(), v.seen.end(), [](bool s) { return s; }));
+  // Unseen targets within the gap limit.
+  c.unseen_max_gap = 2;
+  c.target_views = 4;
+  std::mt19937_64 rng2(2);
+  auto g = data::sample_views(60, c, rng2);
+  for (size_t i = 0; i < g.targets.size(); ++i)
+    if (!g.seen[i]) CHECK((g.targets[i] >= g.input.front() - 2 && g.targets[i] <= g.input.back() + 2));
+  // Too short.
+  std::mt19937_64 rng3(3);
+  REQUIRE_THROWS_WITH(data::sample_views(10, c, rng3), FLAT_CONTAINS("scene has 10 frames, a window needs 17"));
+}
+
+TEST_CASE("loader batches are deterministic for a seed, with or without prefetch threads", "[data][loader]") {
+  auto root = make_dataset("loader_det", 3);
+  auto c = tiny_config(root);
+  data::Loader threaded(c);
+  std::vector<data::Batch> first;
+  for (int i = 0; i < 4; ++i) first.push_back(threaded.next());
+  c.workers = 0;
+  data::Loader serial(c);
+  for (int i = 0; i < 4; ++i) CHECK(same(first[size_t(i)], serial.next()));
+  c.seed = 4;
+  data::Loader other(c);
+  bool differs = false;
+  for (int i = 0; i < 4; ++i) differs = differs || !same(first[size_t(i)], other.next());
+  CHECK(differs);
+
+  const auto& b = first[0];
+  CHECK(b.target_images.sizes() == torch::IntArrayRef({2, 6, 3, 8, 8}));
+  CHECK(b.target_depth.sizes() == torch::IntArrayRef({2, 6, 1, 8, 8}));
+  CHECK(b.target_normals.sizes() == torch::IntArrayRef({2, 6, 3, 8, 8}));
+  CHECK(b.input_c2w.sizes() == torch::IntArrayRef({2, 5, 4, 4}));
+  CHECK(b.target_seen.sum().item<int64_t>() == 2 * 3);
+  // Seen flags agree with the window.
+  for (int64_t s = 0; s < 2; ++s)
+    for (int64_t v = 0; v < 6; ++v) {
+      auto f = b.target_frames[s][v].item<int64_t>();
+      bool inside = f >= b.input_frames[s][0].item<int64_t>() && f <= b.input_frames[s][4].item<int64_t>();
+      CHECK(inside == b.target_seen[s][v].item<bool>());
+    }
+}
+
+TEST_CASE("loader resizes frames with a centred crop; intrinsics follow", "[data][loader]") {
+  auto root = make_dataset("loader_resize", 1);
+  auto c = tiny_config(root);
+  c.workers = 0;
+  c.batch_size = 1;
+  auto b = data::Loader(c).next();  // 12x16 -> crop 12x12 -> 8x8
+  auto scene = data::read_scene((root / "s0").string());
+  auto f = b.target_frames[0][0].item<int64_t>();
+  auto k = scene.frames[size_t(f)].intrinsics.to(torch::kDouble);
+  auto got = b.target_intrinsics[0][0].to(torch::kDouble);
+  // fx_pix = fxn*16 is kept; normalised by the 12-pixel crop width. cx: (0.5*16 - 2)/12 = 0.5.
+  CHECK(got[0].item<double>() == Approx(k[0].item<double>() * 16 / 12).epsilon(1e-6));
+  CHECK(got[1].item<double>() == Approx(k[1].item<double>()).epsilon(1e-6));
+  CHECK(got[2].item<double>() == Approx(0.5).epsilon(1e-6));
+  // A 2:1 depth downsample by nearest keeps exact depth values from the crop.
+  auto depth = data::load_frames(scene, {f}, true, false).depth;
+  auto crop = depth.slice(3, 2, 14);
+  for (int64_t y = 0; y < 8; ++y)
+    for (int64_t x = 0; x < 8; ++x) {
+      float d = b.target_depth[0][0][0][y][x].item<float>();
+      const float nearest = (crop[0][0] - d).abs().min().item<float>();
+      CHECK(nearest == 0.0f);
+    }
+  CHECK(b.target_images.min().item<float>() >= -1e-6);
+  CHECK(b.target_images.max().item<float>() <= 1 + 1e-6);
+}
+
+TEST_CASE("loader mixes datasets by weight", "[data][loader]") {
+  auto a = make_dataset("loader_mix_a", 1);
+  auto b = make_dataset("loader_mix_b", 1, 13, "object");
+  data::LoaderConfig c = tiny_config(a);
+  c.datasets = {{a.string(), 3.0}, {b.string(), 1.0}};
+  c.workers = 0;
+  c.batch_size = 1;
+  c.depth = c.normals = false;
+  data::Loader loader(c);
+  int from_a = 0;
+  const int n = 200;
+  for (int i = 0; i < n; ++i) from_a += loader.sample(i).scene_dir.find("loader_mix_a") != std::string::npos;
+  INFO(from_a << " of " << n << " from the weight-3 dataset");
+  CHECK(from_a > 0.75 * n - 25);
+  CHECK(from_a < 0.75 * n + 25);
+  c.datasets[1].weight = 0;
+  data::Loader only_a(c);
+  for (int i = 0; i < 20; ++i) CHECK(only_a.sample(i).scene_dir.find("loader_mix_a") != std::string::npos);
+}
+
+TEST_CASE("loader: a corrupt scene fails naming scene and file, or is skipped and counted", "[data][loader]") {
+  auto root = make_dataset("loader_bad", 3);
+  auto scene = data::read_scene((root / "s1").string());
+  std::ofstream(root / "s1" / scene.frames[2].depth) << "garbage";
+  fs::remove(root / "s1" / scene.frames[7].image);
+  auto c = tiny_config(root);
+  c.workers = 0;
+  c.batch_size = 1;
+  // Missing file: found when the scene is indexed.
+  REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("frames[7]: image"));
+  c.skip_bad_scenes = true;
+  data::Loader skipping(c);
+  CHECK(skipping.skipped_scenes() == 1);
+  CHECK(skipping.scene_count() == 2);
+  for (int i = 0; i < 10; ++i) CHECK(skipping.next().scenes[0] != "loader_bad1");
+  // Corrupt file: found when loaded.
+  data::write_synthetic_scene(data::render_synthetic_scene({"room", "mixed", 13, 12, 16, 99}), (root / "s1").string(),
+                              "loader_bad1", "test");
+  std::ofstream(root / "s1" / scene.frames[2].depth) << "garbage";
+  c.skip_bad_scenes = false;
+  c.input_frames = 13;  // every sample reads all frames of a scene
+  c.target_views = 13;
+  c.unseen_fraction = 0;
+  bool failed_named = false;
+  data::Loader strict(c);
+  try {
+    for (int i = 0; i < 40; ++i) strict.next();
+  } catch (const Error& e) {
+    std::string m = e.what();
+    failed_named = m.find("loader_bad1") != std::string::npos && m.find(scene.frames[2].depth) != std::string::npos;
+    INFO(m);
+  }
+  CHECK(failed_named);
+  c.skip_bad_scenes = true;
+  c.workers = 2;
+  data::Loader skip2(c);
+  for (int i = 0; i < 30; ++i) CHECK(skip2.next().scenes[0] != "loader_bad1");
+  CHECK(skip2.skipped_scenes() == 1);
+}
+
+TEST_CASE("loader reads packed scenes and precomputed latents", "[data][loader]") {
+  auto root = make_dataset("loader_packed", 2);
+  auto c = tiny_config(root);
+  c.workers = 0;
+  data::Loader files(c);
+  auto want = files.next();
+  for (const char* s : {"s0", "s1"}) {
+    auto scene = data::read_scene((root / s).string());
+    data::pack_scene(scene, true);
+  }
+  data::Loader packed(c);
+  auto got = packed.next();
+  CHECK(torch::allclose(got.target_images, want.target_images, 0, 1e-6));  // PNG and pack both hold 8-bit RGB
+  CHECK(torch::equal(got.target_depth, want.target_depth));
+  CHECK((got.target_normals - want.target_normals).abs().max().item<float>() < 2e-3);
+
+  // Latents: windows [0,5) and [8,13) at 8x8; the loader picks one of them as the input window.
+  for (const char* s : {"s0", "s1"}) {
+    auto scene = data::read_scene((root / s).string());
+    data::LatentInfo info;
+    info.encoder = "random";
+    info.height = 8;
+    info.width = 8;
+    info.windows = {{0, 5}, {8, 5}};
+    std::vector<data::WindowLatents> l;
+    for (int w = 0; w < 2; ++w) l.push_back({torch::full({16, 2, 1, 1}, float(w)), torch::full({32, 2, 1, 1}, float(w))});
+    data::write_scene_latents(scene, info, l);
+  }
+  c.latents = true;
+  data::Loader with_latents(c);
+  for (int i = 0; i < 4; ++i) {
+    auto b = with_latents.next();
+    REQUIRE(b.video_latents.sizes() == torch::IntArrayRef({2, 16, 2, 1, 1}));
+    for (int64_t s = 0; s < 2; ++s) {
+      int64_t start = b.input_frames[s][0].item<int64_t>();
+      CHECK((start == 0 || start == 8));
+      CHECK(b.video_latents[s][0][0][0][0].item<float>() == (start == 0 ? 0.0f : 1.0f));
+    }
+  }
+  c.height = 16;  // latents were encoded at 8x8: no usable scenes at 16x16
+  c.width = 16;
+  REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("no usable scenes"));
+}
