@@ -71,6 +71,7 @@ WanVAE make_vae(const Options& o, Metadata& meta) {
     meta["weights_naming"] = naming_name(report.naming);
   }
   vae->eval();
+  if (o.device == "cuda") at::globalContext().setBenchmarkCuDNN(true);  // conv autotuning
   vae->to(o.device == "cuda" ? torch::kCUDA : torch::kCPU, o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat);
   meta["mode"] = o.mode;
   meta["dtype"] = o.dtype;
@@ -123,6 +124,7 @@ void encode(const Options& o) {
     latents.push_back(vae->encode(v, o.mode == "streaming").to(at::kCPU, at::kFloat));
     progress.step();
   }
+  progress.finish();
   at::Tensor latent = at::cat(latents, 0);
   meta["frames"] = std::to_string(video.size(2));
   meta["height"] = std::to_string(video.size(3));
@@ -146,6 +148,7 @@ void decode(const Options& o) {
     videos.push_back(vae->decode(z, o.mode == "streaming", !o.no_clamp).to(at::kCPU, at::kFloat));
     progress.step();
   }
+  progress.finish();
   at::Tensor video = at::cat(videos, 0);
   meta["clamped"] = o.no_clamp ? "false" : "true";
   if (fs::path(o.out).extension() == ".safetensors") {
@@ -163,6 +166,7 @@ void decode(const Options& o) {
     write_image((fs::path(o.out) / name).string(), (video[0].select(1, t) + 1) / 2);
     writing.step();
   }
+  writing.finish();
   spdlog::info("flat_vae: wrote {} frames to {}", video.size(2), o.out);
 }
 

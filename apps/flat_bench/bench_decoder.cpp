@@ -43,7 +43,8 @@ struct DecoderBenchOptions {
   std::string device = "cuda";
   int64_t dim = 96;
   int repeats = 5, warmup = 2;
-  bool channels_last = true, fused_norm = true, breakdown = false;
+  int64_t head_pad = 0;
+  bool channels_last = true, fused_norm = true, breakdown = false, cudnn_benchmark = true;
 };
 
 void sync(const torch::Device& d) {
@@ -131,6 +132,8 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   const torch::Device dev(cuda ? torch::kCUDA : torch::kCPU);
   const auto dtype = o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat;
   set_fused_norm_enabled(o.fused_norm);
+  // cuDNN autotuning: the warm-up runs try the algorithms for every conv shape.
+  at::globalContext().setBenchmarkCuDNN(o.cudnn_benchmark);
   torch::manual_seed(0);
 
   SceneDecoderConfig config;
@@ -140,6 +143,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   scene->eval();
   scene->to(dev, dtype);
   if (o.channels_last) to_channels_last_3d(*scene);
+  scene->heads->set_inference_out_padding(o.head_pad);
   WanVAE vae{nullptr};
   if (o.camera == "encoded") {
     vae = WanVAE(config.vae);
@@ -147,9 +151,10 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
     vae->to(dev, dtype);
     if (o.channels_last) to_channels_last_3d(*vae);
   }
-  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}", count_parameters(*scene), o.heads, o.dim,
-               o.dtype, cuda ? torch::cuda::device_count() > 0 ? "cuda" : "?" : "cpu",
-               o.channels_last ? ", channels-last 3D" : ", NCDHW");
+  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}, head conv outputs padded to {}",
+               count_parameters(*scene), o.heads, o.dim, o.dtype, cuda ? "cuda" : "cpu",
+               o.channels_last ? ", channels-last 3D" : ", NCDHW", o.fused_norm ? ", fused norm" : ", ATen norm",
+               o.cudnn_benchmark ? ", cuDNN benchmark" : "", o.head_pad);
   c10::InferenceMode inference;
   std::vector<std::string> modes;
   if (o.mode == "both" || o.mode == "full") modes.push_back("full");
@@ -217,6 +222,9 @@ void add_decoder(CLI::App& app) {
   cmd->add_option("--warmup", opts->warmup, "untimed runs first")->capture_default_str();
   cmd->add_option("--channels-last", opts->channels_last, "channels-last 3D layout (true/false)")->capture_default_str();
   cmd->add_option("--fused-norm", opts->fused_norm, "fused CUDA RMS_norm+SiLU kernel (true/false)")->capture_default_str();
+  cmd->add_option("--cudnn-benchmark", opts->cudnn_benchmark, "cuDNN autotuning (true/false)")->capture_default_str();
+  cmd->add_option("--head-pad", opts->head_pad, "pad each head conv's outputs to N channels (0 = off)")
+      ->capture_default_str();
   cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a full-sequence forward");
   cmd->callback([opts] { run_decoder_bench(*opts); });
 }
