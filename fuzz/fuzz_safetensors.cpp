@@ -25,7 +25,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   for (const auto& e : header.entries) {
     if (e.begin != cursor || e.end < e.begin || e.end > buffer) std::abort();
     if (e.end - e.begin != e.numel() * st::dtype_size(e.dtype)) std::abort();
-    if (header.find(e.name) != &e) std::abort();  // names are unique
+    if (header.find(e.name) != &e) std::abort();  // names are unique and indexed
     cursor = e.end;
   }
   if (cursor != buffer) std::abort();

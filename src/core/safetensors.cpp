@@ -77,39 +77,85 @@ std::optional<uint64_t> checked_nbytes(const std::vector<int64_t>& shape, size_t
   return bytes;
 }
 
-// Parses the header JSON. nlohmann keeps the last of duplicate object keys
-// silently, so a parse callback records the keys of every open object and
-// notes the first repeated one (and the key of the object that holds it).
-json parse_json(const char* begin, const char* end, const std::string& label) {
-  struct OpenObject {
+constexpr size_t kMaxJsonDepth = 64;
+
+// A first, DOM-free pass over the header JSON (nlohmann SAX interface). It
+// finds what nlohmann's DOM parser would let through or handle badly:
+// duplicate object keys (the DOM keeps the last one silently) and deep
+// nesting (a valid header nests 3 levels: header, entry, shape; refusing more
+// keeps a hostile 100 MB "[[[[..." from costing gigabytes). Returning false
+// stops the parse at the first problem.
+class HeaderScan {
+ public:
+  std::string problem;  // empty if the JSON is fine
+
+  bool null() { return true; }
+  bool boolean(bool) { return true; }
+  bool number_integer(json::number_integer_t) { return true; }
+  bool number_unsigned(json::number_unsigned_t) { return true; }
+  bool number_float(json::number_float_t, const json::string_t&) { return true; }
+  bool string(json::string_t&) { return true; }
+  bool binary(json::binary_t&) { return true; }
+  bool start_object(std::size_t) { return open(true); }
+  bool start_array(std::size_t) { return open(false); }
+  bool end_object() { return close(); }
+  bool end_array() { return close(); }
+  bool key(json::string_t& key) {
+    auto& top = open_.back();
+    if (!top.keys.insert(key).second) {
+      problem = "duplicate key " + in_quotes(key);
+      if (open_.size() >= 2 && open_.end()[-2].is_object) problem += " inside " + in_quotes(open_.end()[-2].last_key);
+      problem += " in the header (names must be unique)";
+      return false;
+    }
+    top.last_key = key;
+    return true;
+  }
+  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception& e) {
+    problem = std::string("header is not valid JSON (") + e.what() + ")";
+    return false;
+  }
+
+ private:
+  struct Open {
+    bool is_object;
     std::set<std::string> keys;
     std::string last_key;
   };
-  std::vector<OpenObject> open_objects;
-  std::optional<std::string> duplicate;
-  auto callback = [&](int /*depth*/, json::parse_event_t event, json& parsed) {
-    if (event == json::parse_event_t::object_start) {
-      open_objects.emplace_back();
-    } else if (event == json::parse_event_t::object_end && !open_objects.empty()) {
-      open_objects.pop_back();
-    } else if (event == json::parse_event_t::key && !open_objects.empty() && parsed.is_string() && !duplicate) {
-      auto& top = open_objects.back();
-      top.last_key = parsed.get<std::string>();
-      if (!top.keys.insert(top.last_key).second) {
-        duplicate = in_quotes(top.last_key);
-        if (open_objects.size() >= 2) duplicate = *duplicate + " inside " + in_quotes(open_objects.end()[-2].last_key);
-      }
+  std::vector<Open> open_;
+
+  bool open(bool is_object) {
+    if (open_.size() >= kMaxJsonDepth) {
+      problem = "header JSON nests deeper than " + std::to_string(kMaxJsonDepth) + " levels";
+      return false;
     }
+    open_.push_back({is_object, {}, {}});
     return true;
-  };
-  json header;
+  }
+  bool close() {
+    open_.pop_back();
+    return true;
+  }
+};
+
+// Scans, then builds the DOM (linear time; nlohmann's callback parser is
+// quadratic in the number of entries).
+json parse_json(const char* begin, const char* end, const std::string& label) {
+  HeaderScan scan;
+  bool ok = false;
   try {
-    header = json::parse(begin, end, callback, /*allow_exceptions=*/true, /*ignore_comments=*/false);
+    ok = json::sax_parse(begin, end, &scan);
   } catch (const json::exception& e) {
     fail(label + ": header is not valid JSON (" + e.what() + ")");
   }
-  if (duplicate) fail(label + ": duplicate key " + *duplicate + " in the header (names must be unique)");
-  return header;
+  if (!ok || !scan.problem.empty()) {
+    fail(label + ": " + (scan.problem.empty() ? std::string("header is not valid JSON") : scan.problem));
+  }
+  try {
+    return json::parse(begin, end);
+  } catch (const json::exception& e) {
+    fail(label + ": header is not valid JSON (" + e.what() + ")");
+  }
 }
 
 std::map<std::string, std::string> parse_metadata(const json& value, const std::string& label) {
@@ -223,6 +269,10 @@ uint64_t Entry::numel() const {
 }
 
 const Entry* Header::find(std::string_view name) const {
+  if (by_name.size() == entries.size()) {  // the index parse() builds
+    auto it = by_name.find(name);
+    return it == by_name.end() ? nullptr : &entries[it->second];
+  }
   for (const auto& e : entries) {
     if (e.name == name) return &e;
   }
@@ -259,6 +309,7 @@ Header parse(const uint8_t* bytes, size_t size, const std::string& label) {
     }
   }
   check_tiling(header.entries, buffer_size, label);
+  for (size_t i = 0; i < header.entries.size(); ++i) header.by_name.emplace(header.entries[i].name, i);
   return header;
 }
 

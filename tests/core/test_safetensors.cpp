@@ -66,6 +66,8 @@ TEST_CASE("malformed safetensors files are rejected with specific messages", "[c
       {"huge header length (no overflow)", length_prefix(~0ull), "exceeds the 100 MB limit", ""},
       {"invalid JSON", file_bytes(R"({"a": )"), "header is not valid JSON", ""},
       {"invalid UTF-8 in a name", file_bytes("{\"\xff\xfe\": {}}"), "header is not valid JSON", ""},
+      {"deeply nested JSON", file_bytes(std::string(100000, '[') + std::string(100000, ']')),
+       "nests deeper than 64 levels", ""},
       {"JSON array instead of object", file_bytes("[1, 2]"), "header JSON must be an object, got array", ""},
       {"entry not an object", file_bytes(R"({"w": 5})"), "entry must be an object, got number", "w"},
       {"missing dtype", file_bytes(R"({"w": {"shape":[1],"data_offsets":[0,4]}})", 4), "missing \"dtype\"", "w"},

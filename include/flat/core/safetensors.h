@@ -5,6 +5,7 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -33,6 +34,7 @@ struct Header {
   std::vector<Entry> entries;  // in data-offset order
   std::map<std::string, std::string> metadata;
   uint64_t data_start = 0;     // 8 + N: file offset of the data buffer
+  std::map<std::string, size_t, std::less<>> by_name;  // name -> index in entries (filled by parse)
   const Entry* find(std::string_view name) const;
 };
 
