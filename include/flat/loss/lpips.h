@@ -1,0 +1,67 @@
+// LPIPS, VGG variant (Zhang et al. 2018, v0.1), the perceptual loss of the
+// paper (Losses: lambda_perc = 0.5) and the LPIPS column of its tables.
+//
+//   x in [0,1] -> 2x - 1 -> (x - shift) / scale, shift = (-.030,-.088,-.188),
+//   scale = (.458,.448,.450); VGG16 `features` taps after relu1_2, relu2_2,
+//   relu3_3, relu4_3, relu5_3; per tap k: channel-unit-normalise (eps 1e-10),
+//   squared difference, 1x1 conv lin_k (no bias, weights >= 0), spatial mean;
+//   d(a, b) = sum_k.
+//
+// Weights come from ONE safetensors file (docs/losses.md says how to make it
+// from torchvision's VGG16 and the official LPIPS v0.1 lin layers):
+//   features.{0,2,5,7,10,12,14,17,19,21,24,26,28}.weight  (Cout,Cin,3,3)
+//   features.{...}.bias                                    (Cout)
+//   lin{0..4}.weight   (1,C,1,1), C = 64, 128, 256, 512, 512
+// Network parameters never receive gradient; the inputs do.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <ATen/ATen.h>
+#include <torch/nn/module.h>
+#include <torch/nn/modules/conv.h>
+#include <torch/nn/pimpl.h>
+
+namespace flat::loss {
+
+struct LpipsTensorSpec {
+  std::string name;
+  std::vector<int64_t> shape;
+};
+// The 31 tensors the weights file must hold, in VGG order.
+const std::vector<LpipsTensorSpec>& lpips_tensor_specs();
+
+// Checks that `path` exists and holds every tensor of lpips_tensor_specs() with
+// the right shape and a floating dtype (reads only the header). Throws
+// flat::Error naming the file and the missing or mis-shaped tensor.
+void check_lpips_file(const std::string& path);
+
+class LpipsImpl : public torch::nn::Module {
+ public:
+  // Random weights (He-initialised convs, non-negative lin weights): for tests
+  // and for shape checks; load() replaces them.
+  LpipsImpl();
+  // Loads and checks the weights file (see check_lpips_file).
+  void load(const std::string& path);
+  // a, b: (V,3,H,W) in [0,1], H, W >= 16. Returns (V) distances.
+  at::Tensor forward(const at::Tensor& a, const at::Tensor& b);
+
+ private:
+  at::Tensor features_distance(const at::Tensor& a, const at::Tensor& b);
+  std::vector<torch::nn::Conv2d> convs_;  // VGG16 features convs, in order
+  std::vector<torch::nn::Conv2d> lins_;   // lin0..lin4
+  at::Tensor shift_, scale_;
+};
+TORCH_MODULE(Lpips);
+
+// LPIPS of large image batches with bounded memory: images whose longer side
+// exceeds max_size (> 0) are first resized (bilinear, antialiased, aspect
+// kept) so that it equals max_size, and the V images go through the network
+// `chunk` at a time. In grad mode each chunk's VGG activations are freed after
+// its forward and recomputed in backward (activation checkpointing), so peak
+// memory is that of one chunk. Returns (V).
+at::Tensor lpips_distance(Lpips& net, const at::Tensor& a, const at::Tensor& b, int64_t max_size = 512,
+                          int64_t chunk = 4);
+
+}  // namespace flat::loss

@@ -1,0 +1,91 @@
+// PSNR and SSIM against independently computed values; normal accuracy; LPIPS
+// metric wrapper.
+#include <cmath>
+
+#include "flat/eval/image_metrics.h"
+#include "flat/eval/normal_metrics.h"
+#include "test_support.h"
+
+using namespace flat::eval;
+
+namespace {
+
+// Deterministic analytic images (V=2, C=3, H=24, W=32), float64:
+//   a = 0.5 + 0.4 sin(0.37x + 0.23y + 1.1c + 0.5v)
+//   b = 0.5 + 0.3 cos(0.21x - 0.29y + 0.7c) + 0.15 sin(0.05xy + c + v)
+//   b2 = a + 0.1 sin(1.7x) cos(2.3y)
+struct Patterns {
+  at::Tensor a, b, b2;
+};
+Patterns patterns() {
+  const int64_t V = 2, C = 3, H = 24, W = 32;
+  auto x = at::arange(W, at::kDouble).view({1, 1, 1, W});
+  auto y = at::arange(H, at::kDouble).view({1, 1, H, 1});
+  auto c = at::arange(C, at::kDouble).view({1, C, 1, 1});
+  auto v = at::arange(V, at::kDouble).view({V, 1, 1, 1});
+  Patterns p;
+  p.a = (0.5 + 0.4 * at::sin(0.37 * x + 0.23 * y + 1.1 * c + 0.5 * v)).expand({V, C, H, W}).contiguous();
+  p.b = (0.5 + 0.3 * at::cos(0.21 * x - 0.29 * y + 0.7 * c) + 0.15 * at::sin(0.05 * x * y + c + v))
+            .expand({V, C, H, W}).contiguous();
+  p.b2 = (p.a + 0.1 * at::sin(1.7 * x) * at::cos(2.3 * y)).contiguous();
+  return p;
+}
+
+}  // namespace
+
+// Reference values: scikit-image 0.26.0 / numpy 2.4 in a throwaway venv, on the
+// same formulas in float64, per image v:
+//   structural_similarity(a[v], b[v], channel_axis=0, gaussian_weights=True,
+//       sigma=1.5, use_sample_covariance=False, data_range=1.0)
+//   peak_signal_noise_ratio(a[v], b[v], data_range=1.0)
+TEST_CASE("SSIM and PSNR match scikit-image on analytic image pairs", "[eval]") {
+  auto p = patterns();
+  auto s = ssim(p.a, p.b);
+  CHECK(s[0].item<double>() == Approx(0.06923615003211213).epsilon(1e-9));
+  CHECK(s[1].item<double>() == Approx(0.11419412885833967).epsilon(1e-9));
+  auto s2 = ssim(p.a, p.b2);
+  CHECK(s2[0].item<double>() == Approx(0.9462230358678374).epsilon(1e-10));
+  CHECK(s2[1].item<double>() == Approx(0.946210944406258).epsilon(1e-10));
+  auto q = psnr(p.a, p.b);
+  CHECK(q[0].item<double>() == Approx(8.511896495579215).epsilon(1e-12));
+  CHECK(q[1].item<double>() == Approx(8.672224358785561).epsilon(1e-12));
+  auto q2 = psnr(p.a, p.b2);
+  CHECK(q2[0].item<double>() == Approx(25.90650030242582).epsilon(1e-12));
+  CHECK(q2[1].item<double>() == Approx(25.90650030242582).epsilon(1e-12));
+  // float32 inputs agree to float precision.
+  CHECK(ssim(p.a.to(at::kFloat), p.b2.to(at::kFloat))[0].item<double>() == Approx(0.9462230358678374).epsilon(1e-5));
+}
+
+TEST_CASE("PSNR of a hand-made pair", "[eval]") {
+  auto a = at::zeros({1, 1, 2, 2}, at::kDouble);
+  auto b = at::full({1, 1, 2, 2}, 0.1, at::kDouble);  // MSE 0.01 -> 20 dB
+  CHECK(psnr(a, b).item<double>() == Approx(20.0).epsilon(1e-12));
+  CHECK(std::isinf(psnr(a, a).item<double>()));
+  CHECK(psnr(a * 255, b * 255, 255.0).item<double>() == Approx(20.0).epsilon(1e-12));
+}
+
+TEST_CASE("normal accuracy: cosine and L1 over valid pixels", "[eval]") {
+  auto n = at::zeros({1, 3, 1, 4}, at::kDouble), N = at::zeros({1, 3, 1, 4}, at::kDouble);
+  n[0][2][0][0] = -1;   N[0][2][0][0] = -2;    // identical direction: cos 1, L1 0
+  n[0][0][0][1] = 1;    N[0][2][0][1] = -1;    // perpendicular: cos 0, L1 (1+0+1)/3
+  n[0][2][0][2] = 1;    N[0][2][0][2] = -1;    // masked out
+  /* pixel 3: rendered normal zero -> invalid */ N[0][2][0][3] = -1;
+  auto mask = at::tensor({true, true, false, true}).view({1, 1, 1, 4});
+  auto r = normal_accuracy(n, N, mask);
+  CHECK(r.valid_pixels == 2);
+  CHECK(r.mean_cosine == Approx(0.5));
+  CHECK(r.mean_l1 == Approx((0.0 + 2.0 / 3.0) / 2.0));
+  auto none = normal_accuracy(n, N, at::zeros({1, 1, 1, 4}, at::kBool));
+  CHECK(none.valid_pixels == 0);
+  CHECK(std::isnan(none.mean_cosine));
+}
+
+TEST_CASE("LPIPS metric wrapper: chunked, no gradient", "[eval]") {
+  torch::manual_seed(3);
+  flat::loss::Lpips net;
+  auto g = at::make_generator<at::CPUGeneratorImpl>(4);
+  auto a = at::rand({3, 3, 16, 16}, g).requires_grad_(true), b = at::rand({3, 3, 16, 16}, g);
+  auto d = lpips(net, a, b, 0, 2);
+  CHECK(!d.requires_grad());
+  CHECK(flat::test::rel_error(d, net->forward(a.detach(), b)) < 1e-6);
+}

@@ -1,0 +1,190 @@
+// SSIM window and LPIPS (random weights, small images): properties, gradients,
+// checkpointed chunks, resizing, and the weights file checks.
+#include <cmath>
+
+#include "flat/core/tensor_io.h"
+#include "flat/loss/lpips.h"
+#include "flat/loss/objective.h"
+#include "flat/loss/ssim.h"
+#include "test_support.h"
+
+using namespace flat::loss;
+
+namespace {
+at::Generator gen(uint64_t seed) { return at::make_generator<at::CPUGeneratorImpl>(seed); }
+
+Lpips seeded_lpips(uint64_t seed) {
+  torch::manual_seed(seed);
+  return Lpips();
+}
+
+flat::TensorMap weights_of(Lpips& net) {
+  flat::TensorMap m;
+  for (const auto& p : net->named_parameters()) {
+    std::string key = p.key();  // features_0.weight -> features.0.weight
+    if (key.rfind("features_", 0) == 0) key[8] = '.';
+    m[key] = p.value().detach().clone();
+  }
+  return m;
+}
+}  // namespace
+
+TEST_CASE("SSIM Gaussian taps equal the published values", "[loss][ssim]") {
+  auto g = gaussian_window_1d(11, 1.5, at::kDouble);
+  const double published[] = {0.0010284, 0.0075988, 0.0360008, 0.1093607, 0.2130055, 0.2660117};
+  REQUIRE(g.numel() == 11);
+  for (int k = 0; k < 6; ++k) {
+    CHECK(g[k].item<double>() == Approx(published[k]).margin(5e-8));
+    CHECK(g[10 - k].item<double>() == Approx(published[k]).margin(5e-8));  // symmetric
+  }
+  CHECK(g.sum().item<double>() == Approx(1.0).epsilon(1e-14));
+}
+
+TEST_CASE("SSIM: 1 for identical images, symmetric, lower for noise", "[loss][ssim]") {
+  auto g = gen(1);
+  auto a = at::rand({2, 3, 16, 20}, g, at::kDouble);
+  auto b = (a + 0.1 * at::randn({2, 3, 16, 20}, g, at::kDouble)).clamp(0, 1);
+  auto same = ssim(a, a);
+  CHECK((same - 1).abs().max().item<double>() < 1e-12);
+  CHECK(flat::test::rel_error(ssim(a, b), ssim(b, a)) < 1e-12);
+  CHECK(ssim(a, b).max().item<double>() < 0.99);
+  CHECK(ssim_map(a, b).sizes() == at::IntArrayRef({2, 3, 6, 10}));
+  REQUIRE_THROWS_WITH(ssim(a.narrow(2, 0, 10), b.narrow(2, 0, 10)), FLAT_CONTAINS("at least 11x11"));
+}
+
+TEST_CASE("LPIPS (random weights): zero for identical images, positive and symmetric", "[loss][lpips]") {
+  auto net = seeded_lpips(1);
+  auto g = gen(2);
+  auto a = at::rand({3, 3, 32, 32}, g), b = at::rand({3, 3, 32, 32}, g);
+  auto same = net->forward(a, a);
+  CHECK(same.abs().max().item<float>() == 0.f);
+  auto ab = net->forward(a, b), ba = net->forward(b, a);
+  CHECK(ab.min().item<float>() > 0.f);
+  CHECK(flat::test::rel_error(ab, ba) < 1e-6);
+  // A small perturbation is closer than an unrelated image.
+  auto near = (a + 0.02 * at::randn({3, 3, 32, 32}, g)).clamp(0, 1);
+  CHECK((net->forward(a, near) < ab).all().item<bool>());
+}
+
+TEST_CASE("LPIPS: chunked, checkpointed gradients equal plain autograd and finite differences", "[loss][lpips]") {
+  auto net = seeded_lpips(3);
+  net->to(at::kDouble);
+  auto g = gen(4);
+  auto a = at::rand({3, 3, 16, 16}, g, at::kDouble), b = at::rand({3, 3, 16, 16}, g, at::kDouble);
+  auto w = at::rand({3}, g, at::kDouble);
+
+  auto x1 = a.clone().requires_grad_(true);
+  (net->forward(x1, b) * w).sum().backward();
+  auto x2 = a.clone().requires_grad_(true);
+  auto y2 = b.clone().requires_grad_(true);
+  auto d2 = lpips_distance(net, x2, y2, 0, 2);  // chunks of 2: (2, 1)
+  CHECK(flat::test::rel_error(d2, net->forward(a, b)) < 1e-12);
+  (d2 * w).sum().backward();
+  CHECK(flat::test::rel_error(x2.grad(), x1.grad()) < 1e-10);
+  REQUIRE(y2.grad().defined());
+  CHECK(y2.grad().abs().sum().item<double>() > 0);
+
+  // A few entries against central differences.
+  const double h = 1e-6;
+  for (int64_t idx : {0L, 100L, 517L, 1000L, 2303L}) {
+    auto p = a.clone(), m = a.clone();
+    p.view(-1)[idx] += h;
+    m.view(-1)[idx] -= h;
+    double fd = ((net->forward(p, b) * w).sum().item<double>() - (net->forward(m, b) * w).sum().item<double>()) /
+                (2 * h);
+    CHECK(x1.grad().view(-1)[idx].item<double>() == Approx(fd).epsilon(1e-5).margin(1e-9));
+  }
+}
+
+TEST_CASE("LPIPS: large images are resized to the configured size", "[loss][lpips]") {
+  auto net = seeded_lpips(5);
+  auto g = gen(6);
+  auto a = at::rand({1, 3, 32, 48}, g), b = at::rand({1, 3, 32, 48}, g);
+  namespace F = torch::nn::functional;
+  auto opts = F::InterpolateFuncOptions().size(std::vector<int64_t>{16, 24}).mode(torch::kBilinear)
+                  .align_corners(false).antialias(true);
+  auto expected = net->forward(F::interpolate(a, opts), F::interpolate(b, opts));
+  CHECK(flat::test::rel_error(lpips_distance(net, a, b, 24, 4), expected) < 1e-6);
+  CHECK(flat::test::rel_error(lpips_distance(net, a, b, 48, 4), net->forward(a, b)) < 1e-6);  // no resize
+}
+
+TEST_CASE("LPIPS weights file: round trip, and rejection naming the tensor", "[loss][lpips]") {
+  auto dir = flat::test::scratch_dir("loss_lpips_weights");
+  auto net = seeded_lpips(7);
+  auto tensors = weights_of(net);
+  REQUIRE(tensors.size() == lpips_tensor_specs().size());
+  const std::string good = (dir / "lpips_vgg.safetensors").string();
+  flat::save_safetensors(good, tensors);
+  check_lpips_file(good);
+  auto other = seeded_lpips(8);
+  other->load(good);
+  auto g = gen(9);
+  auto a = at::rand({2, 3, 16, 16}, g), b = at::rand({2, 3, 16, 16}, g);
+  CHECK(flat::test::rel_error(other->forward(a, b), net->forward(a, b)) < 1e-7);
+
+  auto missing = tensors;
+  missing.erase("features.12.bias");
+  const std::string missing_file = (dir / "missing.safetensors").string();
+  flat::save_safetensors(missing_file, missing);
+  REQUIRE_THROWS_WITH(Lpips()->load(missing_file), FLAT_CONTAINS("features.12.bias"));
+
+  auto misshaped = tensors;
+  misshaped["lin3.weight"] = at::zeros({1, 256, 1, 1});
+  const std::string misshaped_file = (dir / "misshaped.safetensors").string();
+  flat::save_safetensors(misshaped_file, misshaped);
+  REQUIRE_THROWS_WITH(check_lpips_file(misshaped_file), FLAT_CONTAINS("lin3.weight"));
+  REQUIRE_THROWS_WITH(check_lpips_file(misshaped_file), FLAT_CONTAINS("(1,512,1,1)"));
+
+  REQUIRE_THROWS_WITH(check_lpips_file((dir / "nope.safetensors").string()), FLAT_CONTAINS("not found"));
+}
+
+TEST_CASE("objective refuses to start without LPIPS weights when lambda_perc > 0", "[loss][objective]") {
+  LossConfig cfg;
+  cfg.lpips_weights = "/nonexistent/lpips_vgg.safetensors";
+  REQUIRE_THROWS_WITH(Objective(cfg), FLAT_CONTAINS("/nonexistent/lpips_vgg.safetensors"));
+  cfg.lpips_weights = "";
+  REQUIRE_THROWS_WITH(Objective(cfg), FLAT_CONTAINS("LPIPS"));
+  cfg.lambda_perc = 0;
+  CHECK_NOTHROW(Objective(cfg));
+}
+
+TEST_CASE("objective: weighted sum of named terms", "[loss][objective]") {
+  auto dir = flat::test::scratch_dir("loss_objective");
+  auto net = seeded_lpips(10);
+  const std::string file = (dir / "lpips.safetensors").string();
+  flat::save_safetensors(file, weights_of(net));
+  LossConfig cfg;
+  cfg.lpips_weights = file;
+  cfg.lambda_normal_consistency = 0.05;
+  cfg.lambda_distortion = 0.1;
+  Objective objective(cfg);
+
+  auto g = gen(11);
+  const int64_t V = 2, H = 16, W = 16;
+  LossInputs in;
+  in.rgb = at::rand({V, 3, H, W}, g).requires_grad_(true);
+  in.target_rgb = at::rand({V, 3, H, W}, g);
+  in.alpha = at::rand({V, 1, H, W}, g);
+  in.depth = (1 + at::rand({V, 1, H, W}, g)).requires_grad_(true);
+  in.target_depth = 1 + at::rand({V, 1, H, W}, g);
+  in.normal = at::randn({V, 3, H, W}, g).requires_grad_(true);
+  in.target_normal = at::randn({V, 3, H, W}, g);
+  in.opacities = at::rand({100}, g).requires_grad_(true);
+  in.intrinsics = at::tensor({0.8f, 0.8f, 0.5f, 0.5f}).repeat({V, 1});
+  in.distortion = at::rand({V, 1, H, W}, g);
+  auto r = objective(in);
+  for (const char* k : {"rgb", "lpips", "depth", "normal", "opacity", "normal_consistency", "distortion", "total"})
+    CHECK(r.terms.count(k) == 1);
+  double expected = 1.0 * r.terms["rgb"].item<double>() + 0.5 * r.terms["lpips"].item<double>() +
+                    0.01 * r.terms["depth"].item<double>() + 0.01 * r.terms["normal"].item<double>() +
+                    0.001 * r.terms["opacity"].item<double>() +
+                    0.05 * r.terms["normal_consistency"].item<double>() + 0.1 * r.terms["distortion"].item<double>();
+  CHECK(r.total.item<double>() == Approx(expected).epsilon(1e-6));
+  r.total.backward();
+  for (const auto& t : {in.rgb, in.depth, in.normal, in.opacities}) CHECK(t.grad().abs().sum().item<float>() > 0);
+
+  LossInputs partial;
+  partial.rgb = in.rgb.detach();
+  partial.target_rgb = in.target_rgb;
+  REQUIRE_THROWS_WITH(objective(partial), FLAT_CONTAINS("'depth'"));
+}
