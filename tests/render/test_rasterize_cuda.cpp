@@ -18,6 +18,7 @@ namespace {
 constexpr double kForwardTol = 1e-4;
 constexpr double kForwardMismatchFraction = 1e-3;
 constexpr double kGradTol = 2e-3;
+constexpr double kVertexGradTol = 5e-3;  // vertices: long float32 chains (1/area, 1/edge) + atomic order
 
 struct Result {
   flat::render::RenderOutput out;
@@ -53,6 +54,8 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
     const double e = flat::test::rel_error(g_out[i].cpu(), c_out[i]);
     const double frac = (g_out[i].cpu() - c_out[i]).abs().gt(1e-4).to(torch::kDouble).mean().item<double>();
     INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
+    std::printf("cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed, out_names[i], e,
+                frac);
     CHECK(e < kForwardTol);
     CHECK(frac < kForwardMismatchFraction);
   }
@@ -61,7 +64,8 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   for (int i = 0; i < 4; ++i) {
     const double e = flat::test::rel_error(gpu.grads[i], cpu.grads[i]);
     INFO("grad " << g_names[i] << " rel error " << e);
-    CHECK(e < kGradTol);
+    std::printf("cuda-vs-cpu seed %llu grad %s: rel %.2e\n", (unsigned long long)seed, g_names[i], e);
+    CHECK(e < (i == 0 ? kVertexGradTol : kGradTol));
     CHECK(torch::isfinite(gpu.grads[i]).all().item<bool>());
   }
 }

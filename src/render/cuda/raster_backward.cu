@@ -1,13 +1,16 @@
 // Backward compositing: each pixel replays its triangles back to front from
 // its last contributor (3DGS-style recurrence, as render/cpu/raster_cpu.cpp);
-// per-triangle screen gradients (TriGrad) are summed over the warp with
-// shuffles and added with one atomic per value per warp.
+// each fragment adds its triangle's screen gradients (TriGrad) to global
+// memory with native float reductions (tiny triangles: few lanes per warp).
 #include "render/cuda/raster_kernels.h"
 
 namespace flat::render::cuda {
 namespace {
 
 constexpr int kCh = 8;  // r, g, b, depth, nx, ny, nz, alpha
+// Offsets of the TriGrad fields in a flat float array (layout of TriGrad<float>).
+constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGNormal = 13, kGColor = 16, kGOpacity = 19,
+              kGSigma = 20;
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
@@ -17,7 +20,6 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ int32_t sh_id[kBlockSize];
   __shared__ int sh_max_last;
   const int tid = threadIdx.y * kTileSize + threadIdx.x;
-  const int lane = tid & 31;
   const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
@@ -55,78 +57,56 @@ __global__ void __launch_bounds__(kBlockSize)
     for (int j = top - 1 - lo; j >= 0; --j) {
       const int rank = lo + j;
       const PixelTri<float>& t = sh_tri[j];
-      TriGrad<float> g;
-      float* gp = reinterpret_cast<float*>(&g);
+      if (!(inside && rank < my_last)) continue;
+      Fragment<float> f;
+      shade(t, px, py, rx, ry, vp.k, f);
+      if (!(f.alpha >= vp.k.alpha_min && f.alpha > 0.f)) continue;
+      fragment_depth(t, rx, ry, f);
+      T = T / (1.f - f.alpha);
+      const float w = f.alpha * T;
+      const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
+      float g_alpha = 0.f;
 #pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c) gp[c] = 0.f;
-      bool active = false;
-      if (inside && rank < my_last) {
-        Fragment<float> f;
-        shade(t, px, py, rx, ry, vp.k, f);
-        if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
-          active = true;
-          fragment_depth(t, rx, ry, f);
-          T = T / (1.f - f.alpha);
-          const float w = f.alpha * T;
-          const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
-          float g_alpha = 0.f;
+      for (int c = 0; c < kCh; ++c) {
+        acc[c] = last_alpha * last_f[c] + (1.f - last_alpha) * acc[c];
+        g_alpha += (fv[c] - acc[c]) * G[c];
+        last_f[c] = fv[c];
+      }
+      g_alpha = g_alpha * T - t_final / (1.f - f.alpha) * bgdot;
+      last_alpha = f.alpha;
+      // Straight to global memory: float atomics there are native reductions
+      // (RED, fire and forget); shared-memory float atomics are CAS loops.
+      float* a = tri_grads + (int64_t)kTriGradSize * sh_id[j];
 #pragma unroll
-          for (int c = 0; c < kCh; ++c) {
-            acc[c] = last_alpha * last_f[c] + (1.f - last_alpha) * acc[c];
-            g_alpha += (fv[c] - acc[c]) * G[c];
-            last_f[c] = fv[c];
-          }
-          g_alpha = g_alpha * T - t_final / (1.f - f.alpha) * bgdot;
-          last_alpha = f.alpha;
+      for (int c = 0; c < 3; ++c) {
+        atomicAdd(a + kGColor + c, w * G[c]);
+        atomicAdd(a + kGNormal + c, w * G[4 + c]);
+      }
+      const float g_z = w * G[3];
+      if (f.zclamp == 0) {
+        const float g_invz = -g_z * f.z * f.z;
+        atomicAdd(a + kGH, g_invz * rx);
+        atomicAdd(a + kGH + 1, g_invz * ry);
+        atomicAdd(a + kGH + 2, g_invz);
+      } else {
+        atomicAdd(a + (f.zclamp < 0 ? kGZlo : kGZhi), g_z);
+      }
+      if (t.opacity * f.I < vp.k.alpha_max) {
+        atomicAdd(a + kGOpacity, g_alpha * f.I);
+        float gu[3], gsig;
+        window_backward(f.u, t.sigma, vp.k.eps, vp.k.window, f.I, g_alpha * t.opacity, gu, gsig);
+        atomicAdd(a + kGSigma, gsig);
+        float gs0 = 0.f, gs1 = 0.f;
 #pragma unroll
-          for (int c = 0; c < 3; ++c) g.color[c] = w * G[c], g.normal[c] = w * G[4 + c];
-          const float g_z = w * G[3];
-          if (f.zclamp == 0) {
-            const float g_invz = -g_z * f.z * f.z;
-            g.h[0] = g_invz * rx, g.h[1] = g_invz * ry, g.h[2] = g_invz;
-          } else if (f.zclamp < 0) {
-            g.zlo = g_z;
-          } else {
-            g.zhi = g_z;
-          }
-          if (t.opacity * f.I < vp.k.alpha_max) {
-            g.opacity = g_alpha * f.I;
-            float gu[3], gsig;
-            window_backward(f.u, t.sigma, vp.k.eps, vp.k.window, f.I, g_alpha * t.opacity, gu, gsig);
-            g.sigma = gsig;
-#pragma unroll
-            for (int i = 0; i < 3; ++i) {
-              g.n[2 * i] = gu[i] * (px - t.sx);
-              g.n[2 * i + 1] = gu[i] * (py - t.sy);
-              g.s[0] -= gu[i] * t.nx[i];
-              g.s[1] -= gu[i] * t.ny[i];
-            }
-          }
+        for (int i = 0; i < 3; ++i) {
+          if (gu[i] == 0.f) continue;
+          atomicAdd(a + kGN + 2 * i, gu[i] * (px - t.sx));
+          atomicAdd(a + kGN + 2 * i + 1, gu[i] * (py - t.sy));
+          gs0 -= gu[i] * t.nx[i];
+          gs1 -= gu[i] * t.ny[i];
         }
-      }
-      const unsigned int mask = __ballot_sync(0xffffffffu, active);
-      if (mask == 0u) continue;
-      if (__popc(mask) == 1) {  // a single pixel of this warp: no reduction needed
-        if (active) {
-          float* dst = tri_grads + (int64_t)kTriGradSize * sh_id[j];
-#pragma unroll
-          for (int c = 0; c < kTriGradSize; ++c)
-            if (gp[c] != 0.f) atomicAdd(dst + c, gp[c]);
-        }
-        continue;
-      }
-#pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c) {
-        float v = gp[c];
-#pragma unroll
-        for (int off = 16; off > 0; off >>= 1) v += __shfl_xor_sync(0xffffffffu, v, off);
-        gp[c] = v;
-      }
-      if (lane == 0) {
-        float* dst = tri_grads + (int64_t)kTriGradSize * sh_id[j];
-#pragma unroll
-        for (int c = 0; c < kTriGradSize; ++c)
-          if (gp[c] != 0.f) atomicAdd(dst + c, gp[c]);
+        atomicAdd(a + kGS, gs0);
+        atomicAdd(a + kGS + 1, gs1);
       }
     }
   }

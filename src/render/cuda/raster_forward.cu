@@ -22,7 +22,6 @@ __global__ void __launch_bounds__(kBlockSize)
   bool done = !inside;
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int last = 0;
-  const int lane = tid & 31;
   for (int base = 0; base < total; base += kBlockSize) {
     if (__syncthreads_count(done) == kBlockSize) break;
     const int idx = range.x + base + tid;
@@ -59,9 +58,8 @@ __global__ void __launch_bounds__(kBlockSize)
           }
         }
       }
-      // Per-triangle maximum blending weight: warp max, one atomic per warp.
-      const unsigned int wmax = __reduce_max_sync(0xffffffffu, __float_as_uint(w));
-      if (lane == 0 && wmax > 0u) atomicMax(&max_weight_bits[sh_id[j]], wmax);
+      // Per-triangle maximum blending weight (non-negative floats order as their bits).
+      if (w > 0.f) atomicMax(&max_weight_bits[sh_id[j]], __float_as_uint(w));
     }
     __syncthreads();
   }

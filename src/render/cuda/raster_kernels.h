@@ -12,7 +12,11 @@
 
 namespace flat::render::cuda {
 
-constexpr int kTileSize = 16;                       // 16 x 16 pixels per tile, one thread per pixel
+// 8 x 8 pixels per tile, one thread per pixel. Smaller than the usual 16 x 16:
+// FLAT scenes are dominated by ~2x2-pixel triangles, and a pixel evaluates
+// every triangle of its tile, so small tiles evaluate ~3x fewer per pixel
+// for a modestly longer sort.
+constexpr int kTileSize = 8;
 constexpr int kBlockSize = kTileSize * kTileSize;   // also the shared-memory batch size
 
 struct ViewParams {
