@@ -133,7 +133,11 @@ TEST_CASE("at initialisation each triangle covers its 2x2 pixel block", "[primit
   // Definition tested: with raw = 0 the projection of the triangle into its own
   // frame's camera contains the four pixel corners of its block (block centre
   // +-1 px in x and y) and every edge is at least sqrt(2)*(1 - 2%) px away from
-  // the block centre (the block's circumscribed circle, up to perspective).
+  // the block centre (the block's circumscribed circle, up to the
+  // second-order perspective error of the first-order sizing).
+  // Image 128x96 with fx/W in [0.7, 1.0] (up to ~85 deg field of view): focal
+  // lengths of 90-160 px, so a ~3 px triangle is still small against them.
+  const int64_t B = 1, T = 2, H = 96, W = 128;
   TriangleParamConfig cfg;
   cfg.depth_activation = "exp";
   auto cams = make_cameras(B * T, at::kDouble);
@@ -279,4 +283,12 @@ TEST_CASE("build_triangles rejects bad input with a message naming it", "[primit
   cfg.depth_far = 0.05;
   REQUIRE_THROWS_WITH(build_triangles(at::zeros({B, 12, T, H / 2, W / 2}), cams, H, W, cfg),
                       FLAT_CONTAINS("depth_far"));
+}
+
+TEST_CASE("triangle config from YAML", "[primitives]") {
+  auto cfg = flat::config::parse<TriangleParamConfig>(
+      "parameterisation: three_offsets\ndepth_activation: exp\ncolour_activation: sh\nsh_degree: 2\n", "tri.yaml");
+  CHECK(cfg.channels().total == 1 + 6 + 3 + 27 + 1 + 1);
+  REQUIRE_THROWS_WITH(flat::config::parse<TriangleParamConfig>("parameterisation: quats\n", "tri.yaml"),
+                      FLAT_CONTAINS("parameterisation"));
 }
