@@ -236,3 +236,16 @@ TEST_CASE("rasterize cpu: bad inputs are reported with their name and shape", "[
   REQUIRE_THROWS_WITH(rasterize(soup.vertices, soup.colors, soup.opacities, soup.sigmas, cams, kH, kW, s),
                       FLAT_CONTAINS("window"));
 }
+
+TEST_CASE("raster settings: read from YAML through the config visitor, bad values named", "[render][config]") {
+  auto s = flat::config::parse<RasterSettings>("window: ts\neps: 0.2\nbackground: [1, 0.5, 0]\n", "raster.yaml");
+  CHECK(s.window == "ts");
+  CHECK(s.eps == Approx(0.2));
+  CHECK(s.background[1] == Approx(0.5));
+  CHECK(s.alpha_min == Approx(1.0 / 255.0));  // untouched defaults
+  REQUIRE_THROWS_WITH(flat::config::parse<RasterSettings>("window: box\n", "raster.yaml"), FLAT_CONTAINS("window"));
+  REQUIRE_THROWS_WITH(flat::config::parse<RasterSettings>("eps: 3\n", "raster.yaml"), FLAT_CONTAINS("eps"));
+  auto bad = RasterSettings{};
+  bad.background = {1.0, 1.0};
+  REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("background"));
+}
