@@ -70,7 +70,7 @@ TEST_CASE("normal accuracy: cosine and L1 over valid pixels", "[eval]") {
   n[0][0][0][1] = 1;    N[0][2][0][1] = -1;    // perpendicular: cos 0, L1 (1+0+1)/3
   n[0][2][0][2] = 1;    N[0][2][0][2] = -1;    // masked out
   /* pixel 3: rendered normal zero -> invalid */ N[0][2][0][3] = -1;
-  auto mask = at::tensor({true, true, false, true}).view({1, 1, 1, 4});
+  auto mask = at::tensor({1, 1, 0, 1}).to(at::kBool).view({1, 1, 1, 4});
   auto r = normal_accuracy(n, N, mask);
   CHECK(r.valid_pixels == 2);
   CHECK(r.mean_cosine == Approx(0.5));

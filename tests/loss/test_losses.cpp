@@ -70,7 +70,7 @@ TEST_CASE("disparity loss: hand-made least-squares alignment", "[loss]") {
   // An affine copy of the target costs nothing.
   CHECK(disparity_loss(3 * g + 1, g).item<double>() == Approx(0.0).margin(1e-12));
   // Masked-out pixels do not count: drop the outlier 4 -> exact fit.
-  auto mask = at::tensor({true, true, true, false}).view({1, 1, 2, 2});
+  auto mask = at::tensor({1, 1, 1, 0}).to(at::kBool).view({1, 1, 2, 2});
   CHECK(disparity_loss(p, g, mask).item<double>() == Approx(0.0).margin(1e-12));
 }
 

@@ -188,3 +188,15 @@ TEST_CASE("objective: weighted sum of named terms", "[loss][objective]") {
   partial.target_rgb = in.target_rgb;
   REQUIRE_THROWS_WITH(objective(partial), FLAT_CONTAINS("'depth'"));
 }
+
+TEST_CASE("loss config: YAML with paper defaults, validated", "[loss][objective]") {
+  auto cfg = flat::config::parse<LossConfig>("lambda_perc: 0\nlpips_max_size: 256\n", "loss.yaml");
+  CHECK(cfg.lambda_rgb == 1.0);
+  CHECK(cfg.lambda_depth == 0.01);
+  CHECK(cfg.lambda_normal == 0.01);
+  CHECK(cfg.lambda_opacity == 0.001);
+  CHECK(cfg.lambda_perc == 0.0);
+  CHECK(cfg.lpips_max_size == 256);
+  REQUIRE_THROWS_WITH(flat::config::parse<LossConfig>("lambda_rgb: -1\n", "loss.yaml"), FLAT_CONTAINS("lambda_rgb"));
+  REQUIRE_THROWS_WITH(flat::config::parse<LossConfig>("lambda_typo: 1\n", "loss.yaml"), FLAT_CONTAINS("lambda_typo"));
+}
