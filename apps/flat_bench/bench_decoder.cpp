@@ -43,7 +43,6 @@ struct DecoderBenchOptions {
   std::string device = "cuda";
   int64_t dim = 96;
   int repeats = 5, warmup = 2;
-  int64_t head_pad = 0;
   bool channels_last = true, fused_norm = true, breakdown = false, cudnn_benchmark = true;
 };
 
@@ -143,7 +142,6 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   scene->eval();
   scene->to(dev, dtype);
   if (o.channels_last) to_channels_last_3d(*scene);
-  scene->heads->set_inference_out_padding(o.head_pad);
   WanVAE vae{nullptr};
   if (o.camera == "encoded") {
     vae = WanVAE(config.vae);
@@ -151,10 +149,10 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
     vae->to(dev, dtype);
     if (o.channels_last) to_channels_last_3d(*vae);
   }
-  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}, head conv outputs padded to {}",
+  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}",
                count_parameters(*scene), o.heads, o.dim, o.dtype, cuda ? "cuda" : "cpu",
                o.channels_last ? ", channels-last 3D" : ", NCDHW", o.fused_norm ? ", fused norm" : ", ATen norm",
-               o.cudnn_benchmark ? ", cuDNN benchmark" : "", o.head_pad);
+               o.cudnn_benchmark ? ", cuDNN benchmark" : "");
   c10::InferenceMode inference;
   std::vector<std::string> modes;
   if (o.mode == "both" || o.mode == "full") modes.push_back("full");
@@ -223,8 +221,6 @@ void add_decoder(CLI::App& app) {
   cmd->add_option("--channels-last", opts->channels_last, "channels-last 3D layout (true/false)")->capture_default_str();
   cmd->add_option("--fused-norm", opts->fused_norm, "fused CUDA RMS_norm+SiLU kernel (true/false)")->capture_default_str();
   cmd->add_option("--cudnn-benchmark", opts->cudnn_benchmark, "cuDNN autotuning (true/false)")->capture_default_str();
-  cmd->add_option("--head-pad", opts->head_pad, "pad each head conv's outputs to N channels (0 = off)")
-      ->capture_default_str();
   cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a full-sequence forward");
   cmd->callback([opts] { run_decoder_bench(*opts); });
 }

@@ -45,17 +45,6 @@ at::Tensor CausalConv3dImpl::forward_prepadded(const at::Tensor& x_padded) {
   FLAT_CHECK(x_padded.dim() == 5 && x_padded.size(1) == in_channels(),
              "CausalConv3d: expected input (B," + std::to_string(in_channels()) + ",T,H,W), got " +
                  shape_str(x_padded));
-  const int64_t out = out_channels();
-  const bool recording = at::GradMode::is_enabled() && (weight.requires_grad() || x_padded.requires_grad());
-  if (pad_out_to_ > out && !recording) {
-    auto w_sizes = weight.sizes().vec();
-    w_sizes[0] = pad_out_to_ - out;
-    at::Tensor w = at::cat({weight, at::zeros(w_sizes, weight.options())}, 0)
-                       .contiguous(weight.suggest_memory_format());
-    at::Tensor b = at::cat({bias, at::zeros({pad_out_to_ - out}, bias.options())}, 0);
-    return at::conv3d(x_padded, w, b, {stride_[0], stride_[1], stride_[2]}, {0, padding_[1], padding_[2]})
-        .narrow(1, 0, out);
-  }
   return at::conv3d(x_padded, weight, bias, {stride_[0], stride_[1], stride_[2]}, {0, padding_[1], padding_[2]});
 }
 

@@ -145,15 +145,3 @@ TEST_CASE("Camera latents: RPPC halves encoded separately, cached on disk", "[mo
   CHECK(torch::equal(load_camera_latents((dir_path / "cam.safetensors").string()), lat));
   REQUIRE_THROWS_WITH(encode_camera_latents(vae, orbit(4), 16, 24), FLAT_CONTAINS("1+4k"));
 }
-
-TEST_CASE("Head output-channel padding (inference speed option) changes nothing", "[model][scene]") {
-  torch::manual_seed(10);
-  SceneDecoder scene(tiny_config());
-  torch::NoGradGuard no_grad;
-  auto latent = torch::randn({1, 16, 2, 2, 2});
-  auto ref = scene->forward(latent);
-  scene->heads->set_inference_out_padding(8);
-  auto padded = scene->forward(latent);
-  REQUIRE(padded.sizes() == ref.sizes());
-  CHECK(flat::test::rel_error(padded, ref) < 1e-6);
-}

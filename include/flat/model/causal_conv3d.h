@@ -36,16 +36,11 @@ class CausalConv3dImpl : public torch::nn::Module {
   // Re-draws the parameters: zeros (for the adapter's zero conv) or PyTorch's
   // default conv init (uniform +-1/sqrt(fan_in)).
   void reset_parameters(bool zero = false);
-  // Inference only: run the conv with the output channels zero-padded up to n
-  // and drop the extra ones (cuDNN picks much faster kernels for tiny C_out,
-  // e.g. the 1-channel depth head). Ignored when autograd records.
-  void set_inference_out_padding(int64_t n) { pad_out_to_ = n; }
 
   at::Tensor weight, bias;
 
  private:
   Int3 stride_, padding_;
-  int64_t pad_out_to_ = 0;
 };
 TORCH_MODULE(CausalConv3d);
 

@@ -54,10 +54,6 @@ class OutputHeadsImpl : public torch::nn::Module {
   at::Tensor forward(const at::Tensor& features, StreamCache* cache = nullptr);
 
   const TriangleChannels& channels() const { return channels_; }
-  // Inference speed: pad each head conv's outputs up to n channels (see CausalConv3d).
-  void set_inference_out_padding(int64_t n) {
-    for (auto& c : convs) c->set_inference_out_padding(n);
-  }
   std::vector<RMSNorm> norms;
   std::vector<CausalConv3d> convs;
 
