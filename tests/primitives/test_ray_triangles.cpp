@@ -135,7 +135,7 @@ TEST_CASE("at initialisation each triangle covers its 2x2 pixel block", "[primit
   // +-1 px in x and y) and every edge is at least sqrt(2)*(1 - 2%) px away from
   // the block centre (the block's circumscribed circle, up to the
   // second-order perspective error of the first-order sizing).
-  // Image 128x96 with fx/W in [0.7, 1.0] (up to ~85 deg field of view): focal
+  // Image 128x96 with fx/W in [0.7, 1.0] (up to ~71 deg field of view): focal
   // lengths of 90-160 px, so a ~3 px triangle is still small against them.
   const int64_t B = 1, T = 2, H = 96, W = 128;
   TriangleParamConfig cfg;
