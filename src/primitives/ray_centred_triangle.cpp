@@ -139,7 +139,9 @@ TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams,
   FLAT_CHECK(cams.size() == B * T, "build_triangles: expected B*T = " + std::to_string(B * T) +
                                        " cameras (frame-major per batch), got " + std::to_string(cams.size()));
   const int64_t N = T * H2 * W2;
-  const auto opts = raw.options();
+  // Geometry in fp32 (fp64 for fp64 input) whatever the model's precision.
+  const auto dtype = raw.scalar_type() == at::kDouble ? at::kDouble : at::kFloat;
+  const auto opts = raw.options().dtype(dtype);
 
   // Anchor rays through the 2x2 block centres = pixel rays at half resolution.
   auto rays = camera::pixel_rays(cams, H2, W2);
@@ -154,7 +156,7 @@ TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams,
   auto F = at::matmul(R, F_cam);  // ray frame in world space, columns e1, e2, d
 
   // (B,C,T,H2,W2) -> (B,N,C), token order (t, i, j)
-  auto x = raw.permute({0, 2, 3, 4, 1}).reshape({B, N, ch.total});
+  auto x = raw.to(dtype).permute({0, 2, 3, 4, 1}).reshape({B, N, ch.total});
   auto group = [&](int64_t start, int64_t count) { return x.narrow(-1, start, count); };
 
   auto D = activate_depth(group(ch.depth, 1), cfg);                       // (B,N,1)

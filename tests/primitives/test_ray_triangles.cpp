@@ -292,3 +292,14 @@ TEST_CASE("triangle config from YAML", "[primitives]") {
   REQUIRE_THROWS_WITH(flat::config::parse<TriangleParamConfig>("parameterisation: quats\n", "tri.yaml"),
                       FLAT_CONTAINS("parameterisation"));
 }
+
+TEST_CASE("half-precision head outputs build fp32 triangles", "[primitives]") {
+  TriangleParamConfig cfg;
+  auto cams = make_cameras(B * T);
+  auto raw = at::zeros({B, 12, T, H / 2, W / 2}).to(at::kBFloat16).requires_grad_(true);
+  auto soup = build_triangles(raw, cams, H, W, cfg);
+  CHECK(soup.vertices.scalar_type() == at::kFloat);
+  CHECK(flat::test::rel_error(soup.vertices, build_triangles(raw.detach().to(at::kFloat), cams, H, W, cfg).vertices) < 1e-6);
+  soup.vertices.sum().backward();
+  CHECK(raw.grad().scalar_type() == at::kBFloat16);
+}

@@ -91,8 +91,9 @@ struct TriangleParamConfig {
 // raw: (B,C,T,H/2,W/2) head outputs, C = cfg.channels().total, any float dtype
 // and device. cams: B*T cameras, frame-major per batch (camera b*T + t is frame
 // t of scene b). image_height/width: the full-resolution image size (even).
-// Returns the soup (B, N = T*H/2*W/2, ...) in raw's dtype; every op is ATen,
-// so autograd differentiates it.
+// Returns the soup (B, N = T*H/2*W/2, ...) in float32 (float64 for float64
+// input; half / bfloat16 heads are upcast); every op is ATen, so autograd
+// differentiates it.
 TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams, int64_t image_height,
                              int64_t image_width, const TriangleParamConfig& cfg);
 
