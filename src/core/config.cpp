@@ -26,10 +26,11 @@ namespace flat::config {
 namespace {
 
 // " (line N)" for nodes that came from a parsed file; "" for nodes built in
-// code (overrides), whose line would mean nothing.
+// code (overrides), whose line would mean nothing, and for empty values, which
+// yaml-cpp marks at the token after them (often the next line).
 std::string line_of(const YAML::Node& n) {
   const YAML::Mark m = n.Mark();
-  if (m.is_null() || m.line < 0) return "";
+  if (n.IsNull() || m.is_null() || m.line < 0) return "";
   return " (line " + std::to_string(m.line + 1) + ")";
 }
 
@@ -43,7 +44,11 @@ std::string describe(const YAML::Node& n) {
     case YAML::NodeType::Scalar: break;
   }
   std::string s = n.Scalar();
-  if (s.size() > 60) s = s.substr(0, 57) + "...";
+  if (s.size() > 60) {
+    size_t cut = 57;
+    while (cut > 0 && (static_cast<unsigned char>(s[cut]) & 0xC0) == 0x80) --cut;  // not inside a UTF-8 character
+    s = s.substr(0, cut) + "...";
+  }
   std::string out = "'" + s + "'";
   if (n.Tag() == "!") out += " (a quoted string)";
   return out;
@@ -63,7 +68,10 @@ bool plain_scalar(const YAML::Node& n, std::string& text) {
 
 // Decimal integer with optional sign; the whole text must be consumed.
 bool parse_int64(std::string text, int64_t& out) {
-  if (!text.empty() && text[0] == '+') text.erase(0, 1);
+  if (!text.empty() && text[0] == '+') {
+    text.erase(0, 1);
+    if (!text.empty() && text[0] == '-') return false;  // "+-1"
+  }
   if (text.empty()) return false;
   const char* end = text.data() + text.size();
   auto [ptr, ec] = std::from_chars(text.data(), end, out);
@@ -72,7 +80,10 @@ bool parse_int64(std::string text, int64_t& out) {
 
 // Finite decimal number; YAML's .nan/.inf and C's nan/inf are refused.
 bool parse_double(std::string text, double& out) {
-  if (!text.empty() && text[0] == '+') text.erase(0, 1);
+  if (!text.empty() && text[0] == '+') {
+    text.erase(0, 1);
+    if (!text.empty() && text[0] == '-') return false;  // "+-1"
+  }
   if (text.empty()) return false;
   const char* end = text.data() + text.size();
   auto [ptr, ec] = std::from_chars(text.data(), end, out, std::chars_format::general);
@@ -180,10 +191,6 @@ void apply_override(YAML::Node& root, const std::string& ov, const std::string& 
   replace_entry(cur, parts.back(), value);
 }
 
-}  // namespace
-
-// ---- numbers as text ------------------------------------------------------
-
 // std::to_chars without a format is the shortest text that parses back to
 // the same value, and independent of the C locale. Callers never pass NaN/inf
 // (the reader refuses them), but they would print as YAML's .nan/.inf.
@@ -195,6 +202,10 @@ std::string shortest_text(F x) {
   auto [end, ec] = std::to_chars(buf, buf + sizeof(buf), x);
   return std::string(buf, ec == std::errc() ? end : buf);
 }
+
+}  // namespace
+
+// ---- numbers as text ------------------------------------------------------
 
 std::string number_to_yaml(double x) { return shortest_text(x); }
 std::string number_to_yaml(float x) { return shortest_text(x); }

@@ -112,6 +112,8 @@ const std::vector<BadCase>& bad_cases() {
        {"'seed': expected an integer in [-2147483648, 2147483647], got '3000000000'"}},
       {"int64_list_out_of_range", "name: x\nids: [1, 99999999999999999999]\n", {},
        {"'ids[1]': expected an integer, got '99999999999999999999'"}},
+      {"int_plus_minus", "name: x\nseed: +-1\n", {}, {"'seed': expected an integer, got '+-1'"}},
+      {"string_null", "name:\nseed: 1\n", {}, {"'name': expected a string", "got nothing (null)"}},
       {"bool_wrong_type", "name: x\nraster:\n  antialias: yes\n", {},
        {"'raster.antialias': expected true or false, got 'yes'"}},
       {"double_wrong_type", "name: x\nraster:\n  eps: fast\n", {}, {"'raster.eps': expected a finite number, got 'fast'"}},
@@ -332,6 +334,8 @@ TEST_CASE("config: writer output is readable YAML with flow lists", "[config]") 
   s.optim.milestones = {1, 2, 3};
   const std::string text = config::to_yaml(s);
   CHECK(text.find("milestones: [1, 2, 3]") != std::string::npos);
+  CHECK(text.find("eps: 0.1\n") != std::string::npos);  // shortest text that reads back exactly
+  CHECK(text.find("betas: [0.9, 0.999]") != std::string::npos);
   CHECK(text.find("views:") != std::string::npos);
 }
 
