@@ -292,6 +292,27 @@ FLAT_HD void preprocess_backward(const T* v, const CameraView<T>& cam, const Tri
 }
 
 // ---------------------------------------------------------------- window
+// pow and log of the window. On the GPU (float) the hardware approximations
+// (ex2/lg2, a few ulp; the CUDA-vs-CPU tolerances of docs/rasterizer.md hold):
+// the window is evaluated for every (pixel, triangle) pair, the accurate
+// powf costs ~40 instructions there. The CPU reference keeps std::pow/log.
+FLAT_HD float window_pow(float x, float y) {
+#if defined(__CUDA_ARCH__)
+  return __powf(x, y);
+#else
+  return std::pow(x, y);
+#endif
+}
+FLAT_HD double window_pow(double x, double y) { return std::pow(x, y); }
+FLAT_HD float window_log(float x) {
+#if defined(__CUDA_ARCH__)
+  return __logf(x);
+#else
+  return std::log(x);
+#endif
+}
+FLAT_HD double window_log(double x) { return std::log(x); }
+
 // FLAT (paper eq. "Window Function"): I = prod_i clamp(u_i + eps, 0, 1)^sigma.
 // TS (Triangle Splatting): I = (min_i u_i)^sigma inside, 0 outside.
 template <class T>
@@ -299,10 +320,10 @@ FLAT_HD T window_forward(const T u[3], T sigma, T eps, int kind) {
   if (kind == kWindowFlat) {
     T prod = T(1);
     for (int i = 0; i < 3; ++i) prod *= tmin(tmax(u[i] + eps, T(0)), T(1));
-    return prod > T(0) ? std::pow(prod, sigma) : T(0);
+    return prod > T(0) ? window_pow(prod, sigma) : T(0);
   }
   const T m = tmin(u[0], tmin(u[1], u[2]));
-  return m > T(0) ? std::pow(m, sigma) : T(0);
+  return m > T(0) ? window_pow(m, sigma) : T(0);
 }
 
 // dI -> du (3) and dsigma, given I = window_forward(...).
@@ -315,7 +336,7 @@ FLAT_HD void window_backward(const T u[3], T sigma, T eps, int kind, T I, T gI, 
     T logsum = T(0);
     for (int i = 0; i < 3; ++i) {
       const T r = tmin(u[i] + eps, T(1));  // > 0 since I > 0
-      logsum += std::log(r);
+      logsum += window_log(r);
       if (u[i] + eps < T(1)) gu[i] = gI * sigma * I / r;  // clamp is flat above 1
     }
     gsigma = gI * I * logsum;
@@ -325,7 +346,7 @@ FLAT_HD void window_backward(const T u[3], T sigma, T eps, int kind, T I, T gI, 
   for (int i = 1; i < 3; ++i)
     if (u[i] < u[am]) am = i;
   gu[am] = gI * sigma * I / u[am];
-  gsigma = gI * I * std::log(u[am]);
+  gsigma = gI * I * window_log(u[am]);
 }
 
 // ---------------------------------------------------------------- fragment

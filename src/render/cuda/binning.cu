@@ -9,17 +9,17 @@
 namespace flat::render::cuda {
 namespace {
 
-__global__ void duplicate_kernel(const TileRect* __restrict__ rects, const int64_t* __restrict__ offsets,
+__global__ void duplicate_kernel(const TriRect* __restrict__ rects, const int64_t* __restrict__ offsets,
                                  const float* __restrict__ keys, int64_t n, int tiles_x,
                                  uint64_t* __restrict__ pair_keys, int32_t* __restrict__ pair_ids) {
   const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  const TileRect r = rects[i];
+  const TriRect r = rects[i];
   if (r.x0 >= r.x1 || r.y0 >= r.y1) return;
   int64_t off = i == 0 ? 0 : offsets[i - 1];
   const uint64_t depth_bits = __float_as_uint(keys[i]);
-  for (int ty = r.y0; ty < r.y1; ++ty)
-    for (int tx = r.x0; tx < r.x1; ++tx) {
+  for (int ty = tile_lo(r.y0); ty < tile_hi(r.y1); ++ty)
+    for (int tx = tile_lo(r.x0); tx < tile_hi(r.x1); ++tx) {
       pair_keys[off] = ((uint64_t)(ty * tiles_x + tx) << 32) | depth_bits;
       pair_ids[off] = (int32_t)i;
       ++off;
@@ -47,7 +47,7 @@ void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts
   cub::DeviceScan::InclusiveSum(temp, temp_bytes, tile_counts, offsets, (int)n, stream);
 }
 
-void launch_duplicate(const TileRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
+void launch_duplicate(const TriRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
                       uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream) {
   if (n == 0) return;
   duplicate_kernel<<<(int)((n + 255) / 256), 256, 0, stream>>>(rects, offsets, keys, n, tiles_x, pair_keys, pair_ids);

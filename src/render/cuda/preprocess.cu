@@ -9,11 +9,11 @@ namespace {
 
 __global__ void preprocess_kernel(const float* __restrict__ vertices, const float* __restrict__ colors,
                                   const float* __restrict__ opacities, const float* __restrict__ sigmas, int64_t n,
-                                  ViewParams vp, PixelTri<float>* __restrict__ tris, TileRect* __restrict__ rects,
+                                  ViewParams vp, PixelTri<float>* __restrict__ tris, TriRect* __restrict__ rects,
                                   int64_t* __restrict__ tile_counts, float* __restrict__ keys) {
   const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  TileRect tr{0, 0, 0, 0};
+  TriRect tr{0, 0, 0, 0};  // pixel support rectangle, empty when culled
   int64_t count = 0;
   const float op = opacities[i];
   PixelTri<float> t;
@@ -28,29 +28,29 @@ __global__ void preprocess_kernel(const float* __restrict__ vertices, const floa
     t.opacity = op;
     t.sigma = sigmas[i];
     tris[i] = t;
-    tr.x0 = r.x0 / kTileSize;
-    tr.y0 = r.y0 / kTileSize;
-    tr.x1 = (r.x1 - 1) / kTileSize + 1;
-    tr.y1 = (r.y1 - 1) / kTileSize + 1;
-    count = (int64_t)(tr.x1 - tr.x0) * (tr.y1 - tr.y0);
+    tr = r;
+    count = (int64_t)(tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));
   }
   rects[i] = tr;
   tile_counts[i] = count;
   keys[i] = key;
 }
 
-__global__ void preprocess_backward_kernel(const float* __restrict__ vertices, const TileRect* __restrict__ rects,
-                                           const float* __restrict__ tri_grads, int64_t n, ViewParams vp,
+__global__ void preprocess_backward_kernel(const float* __restrict__ vertices, const TriRect* __restrict__ rects,
+                                           float* __restrict__ tri_grads, int64_t n, ViewParams vp,
                                            float* __restrict__ g_vertices, float* __restrict__ g_colors,
                                            float* __restrict__ g_opacities, float* __restrict__ g_sigmas) {
   const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  const TileRect tr = rects[i];
+  const TriRect tr = rects[i];
   if (tr.x0 >= tr.x1 || tr.y0 >= tr.y1) return;  // culled in this view
   TriGrad<float> g;
   float* gp = reinterpret_cast<float*>(&g);
 #pragma unroll
-  for (int c = 0; c < kTriGradSize; ++c) gp[c] = tri_grads[kTriGradSize * i + c];
+  for (int c = 0; c < kTriGradSize; ++c) {
+    gp[c] = tri_grads[kTriGradSize * i + c];
+    tri_grads[kTriGradSize * i + c] = 0.f;  // ready for the next view: only visible triangles were written
+  }
   float v[9], gv[9];
 #pragma unroll
   for (int c = 0; c < 9; ++c) v[c] = vertices[9 * i + c], gv[c] = 0.f;
@@ -67,14 +67,14 @@ int blocks_for(int64_t n, int threads) { return (int)((n + threads - 1) / thread
 }  // namespace
 
 void launch_preprocess(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TileRect* rects, int64_t* tile_counts,
+                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects, int64_t* tile_counts,
                        float* keys, cudaStream_t stream) {
   if (n == 0) return;
   preprocess_kernel<<<blocks_for(n, 256), 256, 0, stream>>>(vertices, colors, opacities, sigmas, n, vp, tris, rects,
                                                             tile_counts, keys);
 }
 
-void launch_preprocess_backward(const float* vertices, const TileRect* rects, const float* tri_grads, int64_t n,
+void launch_preprocess_backward(const float* vertices, const TriRect* rects, float* tri_grads, int64_t n,
                                 const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities,
                                 float* g_sigmas, cudaStream_t stream) {
   if (n == 0) return;

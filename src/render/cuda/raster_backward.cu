@@ -1,7 +1,7 @@
 // Backward compositing: each pixel replays its triangles back to front from
 // its last contributor (3DGS-style recurrence, as render/cpu/raster_cpu.cpp);
-// each fragment adds its triangle's screen gradients (TriGrad) to global
-// memory with native float reductions (tiny triangles: few lanes per warp).
+// the warp sums each triangle's screen gradients (TriGrad) over its pixels
+// and adds them to global memory with one native float reduction per field.
 #include "render/cuda/raster_kernels.h"
 
 namespace flat::render::cuda {
@@ -12,14 +12,40 @@ constexpr int kCh = 8;  // r, g, b, depth, nx, ny, nz, alpha
 constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGNormal = 13, kGColor = 16, kGOpacity = 19,
               kGSigma = 20;
 
+// Reduce-scatter over a full warp: returns, in lane c, the sum over the 32
+// lanes of v[c]. Recursive halving: at each step a lane keeps half of its
+// fields and adds the partner's copy of that half (31 shuffles in all,
+// instead of 5 per field for a butterfly of every field).
+template <int O>
+__device__ __forceinline__ void halve(float (&v)[32], int lane) {
+  const bool upper = (lane & O) != 0;
+#pragma unroll
+  for (int i = 0; i < O; ++i) {
+    const float send = upper ? v[i] : v[i + O];
+    const float keep = upper ? v[i + O] : v[i];
+    v[i] = keep + __shfl_xor_sync(0xffffffffu, send, O);
+  }
+}
+
+__device__ __forceinline__ float warp_sum_scatter(float (&v)[32], int lane) {
+  halve<16>(v, lane);
+  halve<8>(v, lane);
+  halve<4>(v, lane);
+  halve<2>(v, lane);
+  halve<1>(v, lane);
+  return v[0];
+}
+
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
-                           const PixelTri<float>* __restrict__ tris, ViewParams vp, BackwardImages in,
+                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
+                           BackwardImages in,
                            float* __restrict__ tri_grads) {
   __shared__ PixelTri<float> sh_tri[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
+  __shared__ TriRect sh_rect[kBlockSize];
   __shared__ int sh_max_last;
-  const int tid = threadIdx.y * kTileSize + threadIdx.x;
+  const int tid = threadIdx.y * kTileSize + threadIdx.x, lane = tid & 31;
   const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
@@ -52,62 +78,73 @@ __global__ void __launch_bounds__(kBlockSize)
       const int32_t id = ids[range.x + idx];
       sh_id[tid] = id;
       sh_tri[tid] = tris[id];
+      sh_rect[tid] = rects[id];
     }
     __syncthreads();
-    for (int j = top - 1 - lo; j >= 0; --j) {
+    for (int j = top - 1 - lo; j >= 0; --j) {  // j is the same in every lane of the warp
       const int rank = lo + j;
       const PixelTri<float>& t = sh_tri[j];
-      if (!(inside && rank < my_last)) continue;
-      Fragment<float> f;
-      shade(t, px, py, rx, ry, vp.k, f);
-      if (!(f.alpha >= vp.k.alpha_min && f.alpha > 0.f)) continue;
-      fragment_depth(t, rx, ry, f);
-      T = T / (1.f - f.alpha);
-      const float w = f.alpha * T;
-      const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
-      float g_alpha = 0.f;
+      // This pixel's TriGrad of triangle j (zero when it does not contribute),
+      // padded to 32 for the warp reduction below.
+      float g[32];
 #pragma unroll
-      for (int c = 0; c < kCh; ++c) {
-        acc[c] = last_alpha * last_f[c] + (1.f - last_alpha) * acc[c];
-        g_alpha += (fv[c] - acc[c]) * G[c];
-        last_f[c] = fv[c];
-      }
-      g_alpha = g_alpha * T - t_final / (1.f - f.alpha) * bgdot;
-      last_alpha = f.alpha;
-      // Straight to global memory: float atomics there are native reductions
-      // (RED, fire and forget); shared-memory float atomics are CAS loops.
-      float* a = tri_grads + (int64_t)kTriGradSize * sh_id[j];
+      for (int c = 0; c < 32; ++c) g[c] = 0.f;
+      bool contributes = false;
+      const TriRect r = sh_rect[j];
+      if (inside && rank < my_last && x >= r.x0 && x < r.x1 && y >= r.y0 && y < r.y1) {
+        Fragment<float> f;
+        shade(t, px, py, rx, ry, vp.k, f);
+        if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
+          contributes = true;
+          fragment_depth(t, rx, ry, f);
+          T = T / (1.f - f.alpha);
+          const float w = f.alpha * T;
+          const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
+          float g_alpha = 0.f;
 #pragma unroll
-      for (int c = 0; c < 3; ++c) {
-        atomicAdd(a + kGColor + c, w * G[c]);
-        atomicAdd(a + kGNormal + c, w * G[4 + c]);
-      }
-      const float g_z = w * G[3];
-      if (f.zclamp == 0) {
-        const float g_invz = -g_z * f.z * f.z;
-        atomicAdd(a + kGH, g_invz * rx);
-        atomicAdd(a + kGH + 1, g_invz * ry);
-        atomicAdd(a + kGH + 2, g_invz);
-      } else {
-        atomicAdd(a + (f.zclamp < 0 ? kGZlo : kGZhi), g_z);
-      }
-      if (t.opacity * f.I < vp.k.alpha_max) {
-        atomicAdd(a + kGOpacity, g_alpha * f.I);
-        float gu[3], gsig;
-        window_backward(f.u, t.sigma, vp.k.eps, vp.k.window, f.I, g_alpha * t.opacity, gu, gsig);
-        atomicAdd(a + kGSigma, gsig);
-        float gs0 = 0.f, gs1 = 0.f;
+          for (int c = 0; c < kCh; ++c) {
+            acc[c] = last_alpha * last_f[c] + (1.f - last_alpha) * acc[c];
+            g_alpha += (fv[c] - acc[c]) * G[c];
+            last_f[c] = fv[c];
+          }
+          g_alpha = g_alpha * T - t_final / (1.f - f.alpha) * bgdot;
+          last_alpha = f.alpha;
 #pragma unroll
-        for (int i = 0; i < 3; ++i) {
-          if (gu[i] == 0.f) continue;
-          atomicAdd(a + kGN + 2 * i, gu[i] * (px - t.sx));
-          atomicAdd(a + kGN + 2 * i + 1, gu[i] * (py - t.sy));
-          gs0 -= gu[i] * t.nx[i];
-          gs1 -= gu[i] * t.ny[i];
+          for (int c = 0; c < 3; ++c) {
+            g[kGColor + c] = w * G[c];
+            g[kGNormal + c] = w * G[4 + c];
+          }
+          const float g_z = w * G[3];
+          if (f.zclamp == 0) {
+            const float g_invz = -g_z * f.z * f.z;
+            g[kGH] = g_invz * rx;
+            g[kGH + 1] = g_invz * ry;
+            g[kGH + 2] = g_invz;
+          } else if (f.zclamp < 0) {
+            g[kGZlo] = g_z;
+          } else {
+            g[kGZhi] = g_z;
+          }
+          if (t.opacity * f.I < vp.k.alpha_max) {
+            g[kGOpacity] = g_alpha * f.I;
+            float gu[3];
+            window_backward(f.u, t.sigma, vp.k.eps, vp.k.window, f.I, g_alpha * t.opacity, gu, g[kGSigma]);
+#pragma unroll
+            for (int i = 0; i < 3; ++i) {
+              g[kGN + 2 * i] = gu[i] * (px - t.sx);
+              g[kGN + 2 * i + 1] = gu[i] * (py - t.sy);
+              g[kGS] -= gu[i] * t.nx[i];
+              g[kGS + 1] -= gu[i] * t.ny[i];
+            }
+          }
         }
-        atomicAdd(a + kGS, gs0);
-        atomicAdd(a + kGS + 1, gs1);
       }
+      if (!__any_sync(0xffffffffu, contributes)) continue;  // warp-uniform
+      // Sum over the warp; lane c then holds field c. One reduction instruction
+      // for the warp's 21 fields instead of one per (pixel, field): a triangle
+      // covers a few pixels of a warp, all adding to the same 21 addresses.
+      const float sum = warp_sum_scatter(g, lane);
+      if (lane < kTriGradSize && sum != 0.f) atomicAdd(tri_grads + (int64_t)kTriGradSize * sh_id[j] + lane, sum);
     }
   }
 }
@@ -115,9 +152,9 @@ __global__ void __launch_bounds__(kBlockSize)
 }  // namespace
 
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
-                            const ViewParams& vp, const BackwardImages& in, float* tri_grads, cudaStream_t stream) {
+                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads, cudaStream_t stream) {
   const dim3 grid(vp.tiles_x, vp.tiles_y), block(kTileSize, kTileSize);
-  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, vp, in, tri_grads);
+  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, vp, in, tri_grads);
 }
 
 }  // namespace flat::render::cuda

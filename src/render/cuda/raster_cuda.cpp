@@ -25,7 +25,7 @@ namespace {
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
-static_assert(sizeof(TileRect) == 4 * sizeof(int), "TileRect layout");
+static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
 
 ViewParams make_params(const RasterInputs& in, const at::Tensor& w2c_cpu, const at::Tensor& K_cpu,
                        const at::Tensor& bg_cpu, int64_t view) {
@@ -56,7 +56,7 @@ struct TriScratch {
     keys = at::empty({n}, f);
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
-  TileRect* rect_ptr() { return reinterpret_cast<TileRect*>(rects.data_ptr<int>()); }
+  TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
 };
 
 void preprocess(const RasterInputs& in, const ViewParams& vp, TriScratch& s, cudaStream_t stream) {
@@ -131,7 +131,7 @@ RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
                       last.data_ptr<int>()};
     launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids_sorted.data_ptr<int>(),
-                          s.tri_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+                          s.tri_ptr(), s.rect_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward rasterization");
     views.insert(views.end(), {ids_sorted, ranges, t_final, last});
   }
@@ -155,18 +155,17 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   TriScratch s(N, f);
-  at::Tensor tri_grads = at::empty({N * kTriGradSize}, f);
+  at::Tensor tri_grads = at::zeros({N * kTriGradSize}, f);  // kept zero between views by preprocess backward
   for (int64_t v = 0; v < V; ++v) {
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     preprocess(in, vp, s, stream);
-    tri_grads.zero_();
     const at::Tensor& ids = views[4 * v];
     const at::Tensor& ranges = views[4 * v + 1];
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
                        grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
                        views[4 * v + 2].data_ptr<float>(),     views[4 * v + 3].data_ptr<int>()};
     launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), s.tri_ptr(),
-                           vp, img, tri_grads.data_ptr<float>(), stream);
+                           s.rect_ptr(), vp, img, tri_grads.data_ptr<float>(), stream);
     check_launch("backward rasterization");
     launch_preprocess_backward(in.vertices.data_ptr<float>(), s.rect_ptr(), tri_grads.data_ptr<float>(), N, vp,
                                g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),

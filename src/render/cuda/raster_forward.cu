@@ -1,5 +1,5 @@
-// Forward compositing: one block per 16x16 tile, one thread per pixel; the
-// tile's depth-sorted triangles are staged in shared memory in batches of 256.
+// Forward compositing: one block per 8x8 tile, one thread per pixel; the
+// tile's depth-sorted triangles are staged in shared memory in batches of 64.
 // Same per-pixel semantics as render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
 
@@ -8,11 +8,13 @@ namespace {
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
-                          const PixelTri<float>* __restrict__ tris, ViewParams vp, ForwardImages out,
+                          const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
+                          ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
   __shared__ PixelTri<float> sh_tri[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
-  const int tid = threadIdx.y * kTileSize + threadIdx.x;
+  __shared__ TriRect sh_rect[kBlockSize];
+  const int tid = threadIdx.y * kTileSize + threadIdx.x, lane = tid & 31;
   const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
@@ -29,12 +31,16 @@ __global__ void __launch_bounds__(kBlockSize)
       const int32_t id = ids[idx];
       sh_id[tid] = id;
       sh_tri[tid] = tris[id];
+      sh_rect[tid] = rects[id];
     }
     __syncthreads();
     const int batch = min(kBlockSize, total - base);
     for (int j = 0; j < batch; ++j) {
       float w = 0.f;
-      if (!done) {
+      const TriRect r = sh_rect[j];
+      // The pixel support rectangle first (as the CPU reference, which shades
+      // only those pixels): a warp whose pixels all lie outside skips the window.
+      if (!done && x >= r.x0 && x < r.x1 && y >= r.y0 && y < r.y1) {
         const PixelTri<float>& t = sh_tri[j];
         Fragment<float> f;
         shade(t, px, py, rx, ry, vp.k, f);
@@ -58,8 +64,11 @@ __global__ void __launch_bounds__(kBlockSize)
           }
         }
       }
-      // Per-triangle maximum blending weight (non-negative floats order as their bits).
-      if (w > 0.f) atomicMax(&max_weight_bits[sh_id[j]], __float_as_uint(w));
+      // Per-triangle maximum blending weight (non-negative floats order as
+      // their bits). j is the same in every lane, so the warp takes the
+      // maximum first (one redux) and one lane issues the atomic.
+      const unsigned int wmax = __reduce_max_sync(0xffffffffu, w > 0.f ? __float_as_uint(w) : 0u);
+      if (lane == 0 && wmax != 0u) atomicMax(&max_weight_bits[sh_id[j]], wmax);
     }
     __syncthreads();
   }
@@ -76,10 +85,11 @@ __global__ void __launch_bounds__(kBlockSize)
 
 }  // namespace
 
-void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream) {
+void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
+                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
+                           cudaStream_t stream) {
   const dim3 grid(vp.tiles_x, vp.tiles_y), block(kTileSize, kTileSize);
-  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, vp, out, max_weight_bits);
+  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, vp, out, max_weight_bits);
 }
 
 }  // namespace flat::render::cuda

@@ -27,15 +27,16 @@ struct ViewParams {
   float background[3] = {0.f, 0.f, 0.f};
 };
 
-// Tile rectangle of a triangle: [x0,x1) x [y0,y1) in tiles; empty when culled.
-struct TileRect {
-  int x0, y0, x1, y1;
-};
+// Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
+FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
+FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
-// Per triangle: screen data (geometry + attributes), tile rectangle, number
+// Per triangle: screen data (geometry + attributes), pixel support rectangle
+// (TriRect, all zero when culled: the CPU reference shades exactly these
+// pixels, and so do the kernels), number
 // of tiles touched (int64, for the scan) and depth sort key.
 void launch_preprocess(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TileRect* rects, int64_t* tile_counts,
+                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects, int64_t* tile_counts,
                        float* keys, cudaStream_t stream);
 
 // Inclusive prefix sum of tile_counts into offsets (cub); `temp` of temp_bytes
@@ -44,7 +45,7 @@ void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts
                       cudaStream_t stream);
 
 // One (tile | depth) key and triangle id per touched tile.
-void launch_duplicate(const TileRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
+void launch_duplicate(const TriRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
                       uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream);
 
 // Stable radix sort of the pairs by key (cub), over the bits the keys use.
@@ -64,7 +65,8 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
   int32_t* last;    // (H,W) number of list entries processed, kept for the backward
 };
 
-void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const ViewParams& vp,
+void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
+                           const ViewParams& vp,
                            const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream);
 
 struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state
@@ -78,10 +80,13 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
 
 // Accumulates TriGrad<float> (kTriGradSize floats per triangle) into tri_grads.
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
-                            const ViewParams& vp, const BackwardImages& in, float* tri_grads, cudaStream_t stream);
+                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads, cudaStream_t stream);
 
-// Chains one view's per-triangle gradients to the inputs (adds into the grads).
-void launch_preprocess_backward(const float* vertices, const TileRect* rects, const float* tri_grads, int64_t n,
+// Chains one view's per-triangle gradients to the inputs (adds into the grads)
+// and zeroes the tri_grads entries it read (those of the view's visible
+// triangles, the only ones the backward rasterization writes), so the buffer
+// is zeroed once per backward, not once per view.
+void launch_preprocess_backward(const float* vertices, const TriRect* rects, float* tri_grads, int64_t n,
                                 const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities,
                                 float* g_sigmas, cudaStream_t stream);
 
