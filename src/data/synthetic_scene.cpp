@@ -48,7 +48,9 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
     auto z = at::where(valid, hit.t * at::matmul(dir, R.select(1, 2)), at::zeros_like(hit.t));
     // Normals facing the camera (the side of the surface the ray sees).
     auto n = hit.normal * at::where((hit.normal * dir).sum(-1, true) > 0, -1.0, 1.0);
-    auto n_cam = at::matmul(n, R) * valid.unsqueeze(-1);  // R^T n for row vectors
+    auto n_cam = at::matmul(n, R);  // R^T n for row vectors
+    // Unit length to float precision (sphere normals (p - c)/r carry the hit point's rounding).
+    n_cam = n_cam / n_cam.norm(2, -1, true).clamp_min(1e-12) * valid.unsqueeze(-1);
     auto shade = 0.35 + 0.65 * at::clamp_min(at::matmul(n, light), 0).unsqueeze(-1);
     auto colour = at::clamp(hit.albedo * shade, 0, 1) * valid.unsqueeze(-1);
     auto to_chw = [&](const at::Tensor& t, int64_t c) { return t.reshape({o.height, o.width, c}).permute({2, 0, 1}); };

@@ -49,8 +49,11 @@ Path make_path(const Layout& L, bool room, const std::string& motion, int64_t fr
   auto t_of = [&](int64_t i) { return frames > 1 ? double(i) / double(frames - 1) : 0.0; };
   if (room) {
     const Vec3& h = L.room_half;
-    Vec3 eye{rng.uniform(-0.3, 0.3) * h[0], rng.uniform(1.3, 1.7), rng.uniform(-0.3, 0.3) * h[2]};
-    double yaw = rng.uniform(0, 2 * M_PI), pitch = rng.uniform(-8, 5) * deg;
+    // Start in one quadrant of the room, looking across it towards the centre
+    // and slightly down, so views show floor, far walls and furniture.
+    const double sx = rng.uniform() < 0.5 ? -1 : 1, sz = rng.uniform() < 0.5 ? -1 : 1;
+    Vec3 eye{sx * rng.uniform(0.3, 0.5) * h[0], rng.uniform(1.3, 1.7), sz * rng.uniform(0.3, 0.5) * h[2]};
+    double yaw = std::atan2(-eye[0], -eye[2]) + rng.uniform(-0.3, 0.3), pitch = rng.uniform(-15, -3) * deg;
     if (p.motion == "pan") {
       double span = rng.uniform(40, 70) * deg * (rng.uniform() < 0.5 ? -1 : 1);
       for (int64_t i = 0; i < frames; ++i) p.c2w.push_back(look(eye, heading(yaw + span * t_of(i), pitch)));
