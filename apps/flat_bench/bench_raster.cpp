@@ -6,11 +6,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 
 #include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDACachingAllocator.h>
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
+#include <torch/csrc/autograd/profiler_kineto.h>
 #include <torch/torch.h>
 
 #include "bench_registry.h"
@@ -90,6 +92,38 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// One forward+backward step under the libtorch (Kineto) profiler: GPU time per
+// kernel name, summed over the step (where the time goes, without nsys).
+void profile_scene(const std::string& label, const Scene& sc, const render::RasterSettings& settings) {
+  namespace prof = torch::autograd::profiler;
+  using torch::profiler::impl::ActivityType;
+  auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
+  auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
+  const torch::profiler::impl::ProfilerConfig cfg(torch::profiler::impl::ProfilerState::KINETO);
+  const std::set<ActivityType> acts = {ActivityType::CPU, ActivityType::CUDA};
+  prof::prepareProfiler(cfg, acts);
+  torch::cuda::synchronize();
+  prof::enableProfiler(cfg, acts);
+  auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
+  (r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.normal.sum()).backward();
+  torch::cuda::synchronize();
+  const auto result = prof::disableProfiler();
+  std::map<std::string, std::pair<double, int>> per_kernel;  // name -> (ms, launches)
+  double total = 0;
+  for (const auto& e : result->events()) {
+    if (e.deviceType() != c10::DeviceType::CUDA) continue;
+    auto& k = per_kernel[e.name().substr(0, 60)];
+    k.first += e.durationNs() * 1e-6;
+    k.second += 1;
+    total += e.durationNs() * 1e-6;
+  }
+  std::vector<std::pair<double, std::string>> rows;
+  for (const auto& [name, k] : per_kernel) rows.push_back({k.first, name + " x" + std::to_string(k.second)});
+  std::sort(rows.rbegin(), rows.rend());
+  std::printf("profile %s (one fwd+bwd step, GPU ms per kernel, total %.2f):\n", label.c_str(), total);
+  for (size_t i = 0; i < rows.size() && i < 14; ++i) std::printf("  %8.2f  %s\n", rows[i].first, rows[i].second.c_str());
+}
+
 void time_scene(const std::string& label, const Scene& sc, const render::RasterSettings& settings, int repeats) {
   const auto dev = sc.vertices.device();
   auto sync = [] { torch::cuda::synchronize(); };
@@ -148,6 +182,7 @@ void add_raster(CLI::App& app) {
   struct Opts {
     std::string size = "both", ply, cams, window = "flat";
     int repeats = 5;
+    bool profile = false;
   };
   auto opts = std::make_shared<Opts>();
   sub->add_option("--size", opts->size, "paper (49x216x384 tris, 24 views 432x768) | stage1 (17x160x288, 17 views "
@@ -157,6 +192,7 @@ void add_raster(CLI::App& app) {
   sub->add_option("--cameras", opts->cams, "cameras JSON for --triangles");
   sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}));
   sub->add_option("--repeats", opts->repeats, "timed repeats after 2 warm-ups")->check(CLI::Range(1, 1000));
+  sub->add_flag("--profile", opts->profile, "also print GPU time per kernel of one forward+backward step");
   sub->callback([opts] {
     FLAT_CHECK(torch::cuda::is_available(), "flat_bench raster: needs a CUDA device");
     const torch::Device dev(torch::kCUDA, 0);
@@ -172,10 +208,12 @@ void add_raster(CLI::App& app) {
       time_scene(opts->ply, sc, settings, opts->repeats);
       return;
     }
-    if (opts->size == "stage1" || opts->size == "both")
-      time_scene("stage1", room_scene(17, 320, 576, 17, dev), settings, opts->repeats);
-    if (opts->size == "paper" || opts->size == "both")
-      time_scene("paper", room_scene(49, 432, 768, 24, dev), settings, opts->repeats);
+    auto run = [&](const std::string& label, const Scene& sc) {
+      time_scene(label, sc, settings, opts->repeats);
+      if (opts->profile) profile_scene(label, sc, settings);
+    };
+    if (opts->size == "stage1" || opts->size == "both") run("stage1", room_scene(17, 320, 576, 17, dev));
+    if (opts->size == "paper" || opts->size == "both") run("paper", room_scene(49, 432, 768, 24, dev));
   });
 }
 
