@@ -245,8 +245,9 @@ void check_tiling(std::vector<Entry>& entries, uint64_t buffer_size, const std::
     previous = &e;
   }
   if (cursor != buffer_size) {
-    fail(label + ": gap in the data buffer: " + std::to_string(buffer_size - cursor) +
-         " trailing bytes after the last tensor (buffer " + range_text(cursor, buffer_size) + " unused)");
+    fail(label + ": gap in the data buffer: " + std::to_string(buffer_size - cursor) + " trailing bytes after the last tensor" +
+         (previous ? " " + in_quotes(previous->name) : std::string()) + " (buffer " + range_text(cursor, buffer_size) +
+         " unused)");
   }
 }
 
