@@ -8,7 +8,7 @@ bash "$ROOT/scripts/install_deps.sh"
 bash "$ROOT/scripts/build.sh"
 BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
 if [ -f "$ROOT/scripts/fuzz_smoke.sh" ]; then
-  FUZZ_SECONDS="${FUZZ_SECONDS:-15}" bash "$ROOT/scripts/fuzz_smoke.sh"
+  bash "$ROOT/scripts/fuzz_smoke.sh" "${FUZZ_SECONDS:-15}"
 fi
 cd "$BUILD_DIR"
 ctest --output-on-failure -j "${FLAT_TEST_JOBS:-2}"
