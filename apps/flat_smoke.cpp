@@ -170,7 +170,9 @@ int run(const SmokeConfig& cfg, const std::string& effective_yaml) {
       for (const auto& [name, value] : result.terms) terms[name] += item(value) / double(B);
       if (b == 0) {
         last = out;
-        last_views = {batch.target_cameras(b), H, W};
+        last_views.cameras = batch.target_cameras(b);
+        last_views.width = W;
+        last_views.height = H;
       }
     }
     if (!std::isfinite(item(total))) fail("step " + std::to_string(step) + ": the loss is not finite");
