@@ -1,27 +1,34 @@
-// Tile binning: prefix sum of tiles touched, one (tile | depth) key per
-// (triangle, tile) pair, stable radix sort (cub), per-tile ranges.
-// Key layout: tile id in the high 32 bits, the float bits of the (positive)
-// centroid depth in the low 32 bits, so one sort orders tiles, then depth.
+// Tile binning: prefix sum of tiles touched, the list of visible triangles,
+// one (tile | depth) key per (triangle, tile) pair, stable radix sort (cub),
+// per-tile ranges. Key layout: tile id in the high 32 bits, the float bits of
+// the (positive) centroid depth in the low 32 bits, so one sort orders tiles,
+// then depth. Pair ids are indices into the visible list.
 #include <cub/cub.cuh>
+#include <thrust/iterator/counting_iterator.h>
 
 #include "render/cuda/raster_kernels.h"
 
 namespace flat::render::cuda {
 namespace {
 
-__global__ void duplicate_kernel(const TriRect* __restrict__ rects, const int64_t* __restrict__ offsets,
-                                 const float* __restrict__ keys, int64_t n, int tiles_x,
+struct IsVisible {
+  const int64_t* tile_counts;
+  __device__ bool operator()(int32_t i) const { return tile_counts[i] > 0; }
+};
+
+__global__ void duplicate_kernel(const int32_t* __restrict__ visible, int64_t nv, const TriRect* __restrict__ rects,
+                                 const int64_t* __restrict__ offsets, const float* __restrict__ keys, int tiles_x,
                                  uint64_t* __restrict__ pair_keys, int32_t* __restrict__ pair_ids) {
-  const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= n) return;
-  const TriRect r = rects[i];
-  if (r.x0 >= r.x1 || r.y0 >= r.y1) return;
+  const int64_t k = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
+  if (k >= nv) return;
+  const int32_t i = visible[k];
+  const TriRect r = rects[k];
   int64_t off = i == 0 ? 0 : offsets[i - 1];
   const uint64_t depth_bits = __float_as_uint(keys[i]);
   for (int ty = tile_lo(r.y0); ty < tile_hi(r.y1); ++ty)
     for (int tx = tile_lo(r.x0); tx < tile_hi(r.x1); ++tx) {
       pair_keys[off] = ((uint64_t)(ty * tiles_x + tx) << 32) | depth_bits;
-      pair_ids[off] = (int32_t)i;
+      pair_ids[off] = (int32_t)k;
       ++off;
     }
 }
@@ -47,10 +54,17 @@ void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts
   cub::DeviceScan::InclusiveSum(temp, temp_bytes, tile_counts, offsets, (int)n, stream);
 }
 
-void launch_duplicate(const TriRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
-                      uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream) {
-  if (n == 0) return;
-  duplicate_kernel<<<(int)((n + 255) / 256), 256, 0, stream>>>(rects, offsets, keys, n, tiles_x, pair_keys, pair_ids);
+void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t n, int32_t* visible,
+                    int32_t* num_visible, cudaStream_t stream) {
+  cub::DeviceSelect::If(temp, temp_bytes, thrust::counting_iterator<int32_t>(0), visible, num_visible, (int)n,
+                        IsVisible{tile_counts}, stream);
+}
+
+void launch_duplicate(const int32_t* visible, int64_t nv, const TriRect* rects, const int64_t* offsets,
+                      const float* keys, int tiles_x, uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream) {
+  if (nv == 0) return;
+  duplicate_kernel<<<(int)((nv + 255) / 256), 256, 0, stream>>>(visible, nv, rects, offsets, keys, tiles_x, pair_keys,
+                                                                pair_ids);
 }
 
 void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* ids_in,

@@ -1,85 +1,139 @@
-// Per-(view, triangle) preprocessing: projection, window geometry, depth
-// plane, tile rectangle and sort key (forward); and its chain rule from the
-// per-triangle screen gradients to the world vertices (backward). The maths
-// is render/triangle_math.h, shared with the CPU reference.
+// Per-(view, triangle) preprocessing, in two passes (the maths is
+// render/triangle_math.h, shared with the CPU reference):
+//   cull    all N triangles: support rectangle, tiles touched (0 = culled) and
+//           depth sort key; cheap outputs, coalesced.
+//   screen  the view's visible triangles only (typically a quarter of them):
+//           the PixelTri screen data the compositing kernels read, stored
+//           compactly (index k of the visible list). The backward re-runs it
+//           from the stored visible list instead of keeping it.
+// and the chain rule from one view's per-triangle screen gradients to the
+// world vertices, over the same visible list. Every array of several floats
+// per triangle is moved through shared memory (render/cuda/row_staging.cuh).
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/row_staging.cuh"
 
 namespace flat::render::cuda {
 namespace {
 
-__global__ void preprocess_kernel(const float* __restrict__ vertices, const float* __restrict__ colors,
-                                  const float* __restrict__ opacities, const float* __restrict__ sigmas, int64_t n,
-                                  ViewParams vp, PixelTri<float>* __restrict__ tris, TriRect* __restrict__ rects,
-                                  int64_t* __restrict__ tile_counts, float* __restrict__ keys) {
-  const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= n) return;
-  TriRect tr{0, 0, 0, 0};  // pixel support rectangle, empty when culled
+constexpr int kThreads = 128;
+constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 22
+constexpr int kTriStride = kTriFloats + 1;
+constexpr int kGradStride = kTriGradSize;  // 21, odd already
+
+__device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k) {
+  return !(k.alpha_min > 0.f) || opacity >= k.alpha_min;
+}
+
+__global__ void __launch_bounds__(kThreads)
+    cull_kernel(const float* __restrict__ vertices, const float* __restrict__ opacities, int64_t n, ViewParams vp,
+                TriRect* __restrict__ rects, int64_t* __restrict__ tile_counts, float* __restrict__ keys) {
+  __shared__ float sh_v[kThreads * 9];
+  const int64_t base = (int64_t)blockIdx.x * kThreads;
+  const int rows = (int)((n - base) < kThreads ? (n - base) : kThreads);
+  load_rows<9, 9>(vertices, nullptr, base, rows, sh_v);
+  __syncthreads();
+  if ((int)threadIdx.x >= rows) return;
+  const int64_t i = base + threadIdx.x;
+  TriRect rect{0, 0, 0, 0}, r;
   int64_t count = 0;
-  const float op = opacities[i];
-  PixelTri<float> t;
-  TriRect r;
   float key = 0.f;
-  const bool can_show = !(vp.k.alpha_min > 0.f) || op >= vp.k.alpha_min;
-  float v[9];
-#pragma unroll
-  for (int c = 0; c < 9; ++c) v[c] = vertices[9 * i + c];
-  if (can_show && preprocess_forward(v, vp.cam, vp.k, vp.width, vp.height, t, r, key)) {
-    t.color[0] = colors[3 * i], t.color[1] = colors[3 * i + 1], t.color[2] = colors[3 * i + 2];
-    t.opacity = op;
-    t.sigma = sigmas[i];
-    tris[i] = t;
-    tr = r;
+  PixelTri<float> t;
+  if (can_show(opacities[i], vp.k) &&
+      preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key)) {
+    rect = r;
     count = (int64_t)(tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));
   }
-  rects[i] = tr;
+  rects[i] = rect;
   tile_counts[i] = count;
   keys[i] = key;
 }
 
-__global__ void preprocess_backward_kernel(const float* __restrict__ vertices, const TriRect* __restrict__ rects,
-                                           float* __restrict__ tri_grads, int64_t n, ViewParams vp,
-                                           float* __restrict__ g_vertices, float* __restrict__ g_colors,
-                                           float* __restrict__ g_opacities, float* __restrict__ g_sigmas) {
-  const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= n) return;
-  const TriRect tr = rects[i];
-  if (tr.x0 >= tr.x1 || tr.y0 >= tr.y1) return;  // culled in this view
-  TriGrad<float> g;
-  float* gp = reinterpret_cast<float*>(&g);
+__global__ void __launch_bounds__(kThreads)
+    screen_kernel(const float* __restrict__ vertices, const float* __restrict__ colors,
+                  const float* __restrict__ opacities, const float* __restrict__ sigmas,
+                  const int32_t* __restrict__ visible, int64_t nv, ViewParams vp, float* __restrict__ tris,
+                  TriRect* __restrict__ rects) {
+  __shared__ float sh_v[kThreads * 9];
+  __shared__ float sh_t[kThreads * kTriStride];
+  const int64_t base = (int64_t)blockIdx.x * kThreads;
+  const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
+  load_rows<9, 9>(vertices, visible, base, rows, sh_v);
+  __syncthreads();
+  if ((int)threadIdx.x < rows) {
+    const int64_t k = base + threadIdx.x, i = visible[k];
+    PixelTri<float> t;
+    TriRect r{0, 0, 0, 0};
+    float key;
+    preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key);
+    t.color[0] = colors[3 * i], t.color[1] = colors[3 * i + 1], t.color[2] = colors[3 * i + 2];
+    t.opacity = opacities[i];
+    t.sigma = sigmas[i];
+    const float* tf = reinterpret_cast<const float*>(&t);
 #pragma unroll
-  for (int c = 0; c < kTriGradSize; ++c) {
-    gp[c] = tri_grads[kTriGradSize * i + c];
-    tri_grads[kTriGradSize * i + c] = 0.f;  // ready for the next view: only visible triangles were written
+    for (int c = 0; c < kTriFloats; ++c) sh_t[kTriStride * threadIdx.x + c] = tf[c];
+    rects[k] = r;
   }
-  float v[9], gv[9];
-#pragma unroll
-  for (int c = 0; c < 9; ++c) v[c] = vertices[9 * i + c], gv[c] = 0.f;
-  preprocess_backward(v, vp.cam, g, gv);
-#pragma unroll
-  for (int c = 0; c < 9; ++c) g_vertices[9 * i + c] += gv[c];
-  for (int c = 0; c < 3; ++c) g_colors[3 * i + c] += g.color[c];
-  g_opacities[i] += g.opacity;
-  g_sigmas[i] += g.sigma;
+  __syncthreads();
+  store_rows<kTriFloats, kTriStride>(sh_t, nullptr, base, rows, tris);
 }
 
-int blocks_for(int64_t n, int threads) { return (int)((n + threads - 1) / threads); }
+__global__ void __launch_bounds__(kThreads)
+    chain_kernel(const float* __restrict__ vertices, const int32_t* __restrict__ visible, int64_t nv,
+                 const float* __restrict__ tri_grads, ViewParams vp, float* __restrict__ g_vertices,
+                 float* __restrict__ g_colors, float* __restrict__ g_opacities, float* __restrict__ g_sigmas) {
+  __shared__ float sh_v[kThreads * 9];
+  __shared__ float sh_g[kThreads * kGradStride];
+  __shared__ float sh_c[kThreads * 3];
+  const int64_t base = (int64_t)blockIdx.x * kThreads;
+  const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
+  load_rows<9, 9>(vertices, visible, base, rows, sh_v);
+  load_rows<kTriGradSize, kGradStride>(tri_grads, nullptr, base, rows, sh_g);
+  __syncthreads();
+  if ((int)threadIdx.x < rows) {
+    const int64_t k = base + threadIdx.x, i = visible[k];
+    TriGrad<float> g;
+    float* gp = reinterpret_cast<float*>(&g);
+#pragma unroll
+    for (int c = 0; c < kTriGradSize; ++c) gp[c] = sh_g[kGradStride * threadIdx.x + c];
+    float gv[9];
+#pragma unroll
+    for (int c = 0; c < 9; ++c) gv[c] = 0.f;
+    preprocess_backward(sh_v + 9 * threadIdx.x, vp.cam, g, gv);
+#pragma unroll
+    for (int c = 0; c < 9; ++c) sh_v[9 * threadIdx.x + c] = gv[c];  // own row: no other thread reads it now
+    for (int c = 0; c < 3; ++c) sh_c[3 * threadIdx.x + c] = g.color[c];
+    g_opacities[i] += g.opacity;
+    g_sigmas[i] += g.sigma;
+  }
+  __syncthreads();
+  add_rows<9, 9>(sh_v, visible, base, rows, g_vertices);
+  add_rows<3, 3>(sh_c, visible, base, rows, g_colors);
+}
+
+int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 
 }  // namespace
 
-void launch_preprocess(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects, int64_t* tile_counts,
-                       float* keys, cudaStream_t stream) {
+void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
+                 int64_t* tile_counts, float* keys, cudaStream_t stream) {
   if (n == 0) return;
-  preprocess_kernel<<<blocks_for(n, 256), 256, 0, stream>>>(vertices, colors, opacities, sigmas, n, vp, tris, rects,
-                                                            tile_counts, keys);
+  cull_kernel<<<blocks_for(n), kThreads, 0, stream>>>(vertices, opacities, n, vp, rects, tile_counts, keys);
 }
 
-void launch_preprocess_backward(const float* vertices, const TriRect* rects, float* tri_grads, int64_t n,
-                                const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities,
-                                float* g_sigmas, cudaStream_t stream) {
-  if (n == 0) return;
-  preprocess_backward_kernel<<<blocks_for(n, 256), 256, 0, stream>>>(vertices, rects, tri_grads, n, vp, g_vertices,
-                                                                     g_colors, g_opacities, g_sigmas);
+void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
+                   const int32_t* visible, int64_t nv, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects,
+                   cudaStream_t stream) {
+  if (nv == 0) return;
+  screen_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, colors, opacities, sigmas, visible, nv, vp,
+                                                         reinterpret_cast<float*>(tris), rects);
+}
+
+void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, const float* tri_grads,
+                  const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
+                  cudaStream_t stream) {
+  if (nv == 0) return;
+  chain_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, visible, nv, tri_grads, vp, g_vertices, g_colors,
+                                                        g_opacities, g_sigmas);
 }
 
 }  // namespace flat::render::cuda

@@ -2,7 +2,10 @@
 // its last contributor (3DGS-style recurrence, as render/cpu/raster_cpu.cpp);
 // the warp sums each triangle's screen gradients (TriGrad) over its pixels
 // and adds them to global memory with one native float reduction per field.
+// A warp visits only the staged triangles that can touch its pixels
+// (render/cuda/warp_mask.cuh) and that lie before its pixels' last contributor.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/warp_mask.cuh"
 
 namespace flat::render::cuda {
 namespace {
@@ -47,6 +50,7 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ int sh_max_last;
   const int tid = threadIdx.y * kTileSize + threadIdx.x, lane = tid & 31;
   const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
+  const int wx0 = blockIdx.x * kTileSize, wy0 = blockIdx.y * kTileSize + (tid >> 5) * kWarpRows;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
   const float rx = (px - vp.cam.cx) / vp.cam.fx, ry = (py - vp.cam.cy) / vp.cam.fy;
@@ -66,7 +70,8 @@ __global__ void __launch_bounds__(kBlockSize)
   __syncthreads();
   atomicMax(&sh_max_last, my_last);
   __syncthreads();
-  const int end = sh_max_last;  // entries [0, end) of the tile list matter to some pixel
+  const int end = sh_max_last;  // entries [0, end) of the tile list matter to some pixel of the tile
+  const int warp_end = __reduce_max_sync(0xffffffffu, my_last);  // ... and [0, warp_end) to this warp
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float last_alpha = 0.f;
@@ -81,7 +86,10 @@ __global__ void __launch_bounds__(kBlockSize)
       sh_rect[tid] = rects[id];
     }
     __syncthreads();
-    for (int j = top - 1 - lo; j >= 0; --j) {  // j is the same in every lane of the warp
+    uint64_t todo = warp_batch_mask(sh_rect, min(top, warp_end) - lo, wx0, wy0, lane);
+    while (todo != 0) {  // back to front: highest bit first; j is the same in every lane
+      const int j = 63 - __clzll((long long)todo);
+      todo &= ~(1ull << j);
       const int rank = lo + j;
       const PixelTri<float>& t = sh_tri[j];
       // This pixel's TriGrad of triangle j (zero when it does not contribute),

@@ -1,14 +1,17 @@
 // libtorch glue of the CUDA rasterizer: allocation, the per-view loop and the
 // launch checks. Views are rendered one after another, so scratch memory is
-// that of one view; the forward keeps per view only the sorted triangle ids,
-// the tile ranges and two per-pixel maps; the backward recomputes the
-// per-triangle screen data (one cheap kernel) instead of storing it.
+// that of one view. Per view: cull all triangles, select the visible ones,
+// compute their screen data (visible-list order), bin, sort, composite. The
+// forward keeps per view only the sorted ids, the tile ranges, two per-pixel
+// maps and the visible list; the backward recomputes the visible triangles'
+// screen data (one cheap kernel) instead of storing it.
 #include "render/cuda/raster_cuda.h"
 
 #include <limits>
 
 #include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDAGuard.h>
+#include <spdlog/spdlog.h>
 
 #include "flat/core/error.h"
 #include "render/cuda/raster_kernels.h"
@@ -23,6 +26,7 @@ void check_launch(const char* what) {
 namespace {
 
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
+constexpr int64_t kViewState = 5;  // per view: sorted ids, tile ranges, final T, last entry, visible list
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
 static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
@@ -46,25 +50,40 @@ void check_sizes(const RasterInputs& in) {
              "rasterize (cuda): at most 2^31-1 triangles, got " + std::to_string(in.vertices.size(0)));
 }
 
-// Per-triangle scratch of one view.
-struct TriScratch {
-  at::Tensor tris, rects, counts, keys;
-  TriScratch(int64_t n, const at::TensorOptions& f) {
-    tris = at::empty({n * kTriFloats}, f);
+// One view's culling and binning state over all N triangles (reused across views).
+struct CullScratch {
+  at::Tensor rects, counts, keys, offsets, visible, num_visible, scan_temp, select_temp;
+  size_t scan_bytes = 0, select_bytes = 0;
+  CullScratch(int64_t n, const at::TensorOptions& f, cudaStream_t stream) {
     rects = at::empty({n * 4}, f.dtype(at::kInt));
     counts = at::empty({n}, f.dtype(at::kLong));
     keys = at::empty({n}, f);
+    offsets = at::empty({n}, f.dtype(at::kLong));
+    visible = at::empty({n}, f.dtype(at::kInt));
+    num_visible = at::empty({1}, f.dtype(at::kInt));
+    scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
+    select_visible(nullptr, select_bytes, nullptr, n, nullptr, nullptr, stream);
+    scan_temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
+    select_temp = at::empty({(int64_t)select_bytes + 1}, f.dtype(at::kByte));
+  }
+  TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
+};
+
+// Screen data of one view's visible triangles, in visible-list order.
+struct ScreenData {
+  at::Tensor tris, rects;
+  ScreenData(const RasterInputs& in, const at::Tensor& visible, const ViewParams& vp, cudaStream_t stream) {
+    const int64_t nv = visible.size(0);
+    const auto f = in.vertices.options();
+    tris = at::empty({nv * kTriFloats}, f);
+    rects = at::empty({nv * 4}, f.dtype(at::kInt));
+    launch_screen(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
+                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, tri_ptr(), rect_ptr(), stream);
+    check_launch("screen preprocessing");
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
 };
-
-void preprocess(const RasterInputs& in, const ViewParams& vp, TriScratch& s, cudaStream_t stream) {
-  launch_preprocess(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
-                    in.sigmas.data_ptr<float>(), in.vertices.size(0), vp, s.tri_ptr(), s.rect_ptr(),
-                    s.counts.data_ptr<int64_t>(), s.keys.data_ptr<float>(), stream);
-  check_launch("preprocess");
-}
 
 }  // namespace
 
@@ -82,35 +101,41 @@ RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
   out.median_depth = at::empty({V, 1, H, W}, f);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  TriScratch s(N, f);
-  at::Tensor offsets = at::empty({N}, f.dtype(at::kLong));
-  size_t scan_bytes = 0;
-  scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, N, stream);
-  at::Tensor scan_temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
+  CullScratch s(N, f, stream);
   views.clear();
   const int64_t HW = H * W;
   for (int64_t v = 0; v < V; ++v) {
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     const int num_tiles = vp.tiles_x * vp.tiles_y;
-    int64_t count = 0;
+    int64_t count = 0, nv = 0;
     if (N > 0) {
-      preprocess(in, vp, s, stream);
-      scan_tile_counts(scan_temp.data_ptr(), scan_bytes, s.counts.data_ptr<int64_t>(), offsets.data_ptr<int64_t>(), N,
-                       stream);
+      launch_cull(in.vertices.data_ptr<float>(), in.opacities.data_ptr<float>(), N, vp, s.rect_ptr(),
+                  s.counts.data_ptr<int64_t>(), s.keys.data_ptr<float>(), stream);
+      check_launch("culling");
+      scan_tile_counts(s.scan_temp.data_ptr(), s.scan_bytes, s.counts.data_ptr<int64_t>(),
+                       s.offsets.data_ptr<int64_t>(), N, stream);
       check_launch("tile count scan");
-      count = offsets[N - 1].item<int64_t>();  // the one host sync per view: sizes the pair buffers
+      select_visible(s.select_temp.data_ptr(), s.select_bytes, s.counts.data_ptr<int64_t>(), N,
+                     s.visible.data_ptr<int>(), s.num_visible.data_ptr<int>(), stream);
+      check_launch("visible selection");
+      // The one host sync per view: sizes the visible list and the pair buffers.
+      const at::Tensor sizes = at::cat({s.offsets.narrow(0, N - 1, 1), s.num_visible.to(at::kLong)}).cpu();
+      count = sizes.data_ptr<int64_t>()[0];
+      nv = sizes.data_ptr<int64_t>()[1];
     }
     FLAT_CHECK(count <= std::numeric_limits<int32_t>::max(),
                "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
                    " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
+    const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
+    ScreenData sd(in, visible, vp, stream);
     at::Tensor keys = at::empty({count}, f.dtype(at::kLong)), keys_sorted = at::empty({count}, f.dtype(at::kLong));
     at::Tensor ids = at::empty({count}, f.dtype(at::kInt)), ids_sorted = at::empty({count}, f.dtype(at::kInt));
     at::Tensor ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
     if (count > 0) {
       auto* kin = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
       auto* kout = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
-      launch_duplicate(s.rect_ptr(), offsets.data_ptr<int64_t>(), s.keys.data_ptr<float>(), N, vp.tiles_x, kin,
-                       ids.data_ptr<int>(), stream);
+      launch_duplicate(visible.data_ptr<int>(), nv, sd.rect_ptr(), s.offsets.data_ptr<int64_t>(),
+                       s.keys.data_ptr<float>(), vp.tiles_x, kin, ids.data_ptr<int>(), stream);
       check_launch("duplicate");
       size_t sort_bytes = 0;
       sort_pairs(nullptr, sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count, num_tiles,
@@ -131,9 +156,18 @@ RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
                       last.data_ptr<int>()};
     launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids_sorted.data_ptr<int>(),
-                          s.tri_ptr(), s.rect_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+                          sd.tri_ptr(), sd.rect_ptr(), visible.data_ptr<int>(), vp, img,
+                          reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward rasterization");
-    views.insert(views.end(), {ids_sorted, ranges, t_final, last});
+    if (spdlog::should_log(spdlog::level::debug)) {  // workload statistics (host syncs: debug only)
+      const at::Tensor tile_len = (ranges.select(1, 1) - ranges.select(1, 0)).to(at::kFloat);
+      const at::Tensor last_f = last.to(at::kFloat);
+      spdlog::debug("raster view {}: {} visible triangles, {} (triangle, tile) pairs, tile list mean {:.1f} max {}, "
+                    "entries processed per pixel mean {:.1f} max {}",
+                    v, nv, count, tile_len.mean().item<float>(), tile_len.max().item<float>(),
+                    last_f.mean().item<float>(), last_f.max().item<float>());
+    }
+    views.insert(views.end(), {ids_sorted, ranges, t_final, last, visible});
   }
   out.max_weight = max_bits.view(at::kFloat);  // non-negative floats: integer max == float max
   return out;
@@ -145,7 +179,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   const c10::cuda::CUDAGuard guard(in.vertices.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
   const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
-  FLAT_CHECK((int64_t)views.size() == 4 * V, "rasterize (cuda): backward state does not match the views");
+  FLAT_CHECK((int64_t)views.size() == kViewState * V, "rasterize (cuda): backward state does not match the views");
   const auto f = in.vertices.options();
   RasterGrads g;
   g.vertices = at::zeros_like(in.vertices);
@@ -154,22 +188,24 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   g.sigmas = at::zeros_like(in.sigmas);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  TriScratch s(N, f);
-  at::Tensor tri_grads = at::zeros({N * kTriGradSize}, f);  // kept zero between views by preprocess backward
   for (int64_t v = 0; v < V; ++v) {
+    const at::Tensor& visible = views[kViewState * v + 4];
+    const int64_t nv = visible.size(0);
+    if (nv == 0) continue;
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
-    preprocess(in, vp, s, stream);
-    const at::Tensor& ids = views[4 * v];
-    const at::Tensor& ranges = views[4 * v + 1];
+    ScreenData sd(in, visible, vp, stream);  // recomputed: cheaper than keeping every view's
+    const at::Tensor tri_grads = at::zeros({nv * kTriGradSize}, f);
+    const at::Tensor& ids = views[kViewState * v];
+    const at::Tensor& ranges = views[kViewState * v + 1];
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
                        grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
-                       views[4 * v + 2].data_ptr<float>(),     views[4 * v + 3].data_ptr<int>()};
-    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), s.tri_ptr(),
-                           s.rect_ptr(), vp, img, tri_grads.data_ptr<float>(), stream);
+                       views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>()};
+    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), sd.tri_ptr(),
+                           sd.rect_ptr(), vp, img, tri_grads.data_ptr<float>(), stream);
     check_launch("backward rasterization");
-    launch_preprocess_backward(in.vertices.data_ptr<float>(), s.rect_ptr(), tri_grads.data_ptr<float>(), N, vp,
-                               g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),
-                               g.sigmas.data_ptr<float>(), stream);
+    launch_chain(in.vertices.data_ptr<float>(), visible.data_ptr<int>(), nv, tri_grads.data_ptr<float>(), vp,
+                 g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),
+                 g.sigmas.data_ptr<float>(), stream);
     check_launch("preprocess backward");
   }
   return g;

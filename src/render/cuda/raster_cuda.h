@@ -1,7 +1,8 @@
 // CUDA back end of the rasterizer (libtorch glue side). Views are processed
 // one after another; per view the forward keeps only what the backward cannot
-// cheaply recompute (sorted triangle ids, tile ranges, per-pixel final
-// transmittance and last contributor): `views` holds those tensors.
+// cheaply recompute (sorted ids, tile ranges, per-pixel final transmittance
+// and last contributor, the list of visible triangles): `views` holds those
+// tensors.
 #pragma once
 #include <vector>
 

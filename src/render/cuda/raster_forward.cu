@@ -1,21 +1,25 @@
 // Forward compositing: one block per 8x8 tile, one thread per pixel; the
-// tile's depth-sorted triangles are staged in shared memory in batches of 64.
-// Same per-pixel semantics as render/cpu/raster_cpu.cpp.
+// tile's depth-sorted triangles are staged in shared memory in batches of 64,
+// and each warp visits only those that can touch its pixels
+// (render/cuda/warp_mask.cuh). Same per-pixel semantics as
+// render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/warp_mask.cuh"
 
 namespace flat::render::cuda {
 namespace {
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
-                          const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
-                          ForwardImages out,
+                          const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
+                          const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
   __shared__ PixelTri<float> sh_tri[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
   __shared__ TriRect sh_rect[kBlockSize];
   const int tid = threadIdx.y * kTileSize + threadIdx.x, lane = tid & 31;
   const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
+  const int wx0 = blockIdx.x * kTileSize, wy0 = blockIdx.y * kTileSize + (tid >> 5) * kWarpRows;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
   const float rx = (px - vp.cam.cx) / vp.cam.fx, ry = (py - vp.cam.cy) / vp.cam.fy;
@@ -29,13 +33,16 @@ __global__ void __launch_bounds__(kBlockSize)
     const int idx = range.x + base + tid;
     if (idx < range.y) {
       const int32_t id = ids[idx];
-      sh_id[tid] = id;
+      sh_id[tid] = visible[id];
       sh_tri[tid] = tris[id];
       sh_rect[tid] = rects[id];
     }
     __syncthreads();
     const int batch = min(kBlockSize, total - base);
-    for (int j = 0; j < batch; ++j) {
+    uint64_t todo = __all_sync(0xffffffffu, done) ? 0 : warp_batch_mask(sh_rect, batch, wx0, wy0, lane);
+    while (todo != 0) {  // front to back: lowest bit first
+      const int j = __ffsll((long long)todo) - 1;
+      todo &= todo - 1;
       float w = 0.f;
       const TriRect r = sh_rect[j];
       // The pixel support rectangle first (as the CPU reference, which shades
@@ -86,10 +93,10 @@ __global__ void __launch_bounds__(kBlockSize)
 }  // namespace
 
 void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
-                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
-                           cudaStream_t stream) {
+                           const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
+                           unsigned int* max_weight_bits, cudaStream_t stream) {
   const dim3 grid(vp.tiles_x, vp.tiles_y), block(kTileSize, kTileSize);
-  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, vp, out, max_weight_bits);
+  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, visible, vp, out, max_weight_bits);
 }
 
 }  // namespace flat::render::cuda

@@ -31,22 +31,33 @@ struct ViewParams {
 FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
-// Per triangle: screen data (geometry + attributes), pixel support rectangle
-// (TriRect, all zero when culled: the CPU reference shades exactly these
-// pixels, and so do the kernels), number
-// of tiles touched (int64, for the scan) and depth sort key.
-void launch_preprocess(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                       int64_t n, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects, int64_t* tile_counts,
-                       float* keys, cudaStream_t stream);
+// Pass 1 over all n triangles (render/cuda/preprocess.cu): pixel support
+// rectangle (all zero when culled), tiles touched (int64, for the scan; 0 when
+// culled) and depth sort key.
+void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
+                 int64_t* tile_counts, float* keys, cudaStream_t stream);
+
+// Ascending ids of the triangles with tile_counts > 0 (cub select; count to
+// *num_visible on the device); `temp` of temp_bytes (ask with temp == nullptr).
+void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t n, int32_t* visible,
+                    int32_t* num_visible, cudaStream_t stream);
+
+// Pass 2 over the nv visible triangles: screen data and support rectangle of
+// visible[k] at index k (the CPU reference shades exactly these pixels, and so
+// do the kernels).
+void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
+                   const int32_t* visible, int64_t nv, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects,
+                   cudaStream_t stream);
 
 // Inclusive prefix sum of tile_counts into offsets (cub); `temp` of temp_bytes
 // (ask with temp == nullptr).
 void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t* offsets, int64_t n,
                       cudaStream_t stream);
 
-// One (tile | depth) key and triangle id per touched tile.
-void launch_duplicate(const TriRect* rects, const int64_t* offsets, const float* keys, int64_t n, int tiles_x,
-                      uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream);
+// One (tile | depth) key and visible-list index k per touched tile; rects are
+// the visible list's (launch_screen), offsets and keys those of all triangles.
+void launch_duplicate(const int32_t* visible, int64_t nv, const TriRect* rects, const int64_t* offsets,
+                      const float* keys, int tiles_x, uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream);
 
 // Stable radix sort of the pairs by key (cub), over the bits the keys use.
 void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* ids_in,
@@ -65,9 +76,10 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
   int32_t* last;    // (H,W) number of list entries processed, kept for the backward
 };
 
+// ids index the visible list (tris, rects); visible maps them to triangle ids for max_weight.
 void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
-                           const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream);
+                           const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
+                           unsigned int* max_weight_bits, cudaStream_t stream);
 
 struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state
   const float* g_rgb;
@@ -78,17 +90,16 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
   const int32_t* last;
 };
 
-// Accumulates TriGrad<float> (kTriGradSize floats per triangle) into tri_grads.
+// Accumulates TriGrad<float> (kTriGradSize floats per visible-list entry) into tri_grads.
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
-                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads, cudaStream_t stream);
+                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
+                            cudaStream_t stream);
 
-// Chains one view's per-triangle gradients to the inputs (adds into the grads)
-// and zeroes the tri_grads entries it read (those of the view's visible
-// triangles, the only ones the backward rasterization writes), so the buffer
-// is zeroed once per backward, not once per view.
-void launch_preprocess_backward(const float* vertices, const TriRect* rects, float* tri_grads, int64_t n,
-                                const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities,
-                                float* g_sigmas, cudaStream_t stream);
+// Chains one view's per-triangle gradients (tri_grads, visible-list order) to
+// the inputs of the triangles visible[0..nv) (adds into the grads).
+void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, const float* tri_grads,
+                  const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
+                  cudaStream_t stream);
 
 // Throws flat::Error naming `what` if the last launch failed (defined in the glue).
 void check_launch(const char* what);
