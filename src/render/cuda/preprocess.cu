@@ -30,7 +30,7 @@ __global__ void __launch_bounds__(kThreads)
   __shared__ float sh_v[kThreads * 9];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((n - base) < kThreads ? (n - base) : kThreads);
-  load_rows<9, 9>(vertices, nullptr, base, rows, sh_v);
+  load_rows<9, 9, kThreads>(vertices, nullptr, base, rows, sh_v);
   __syncthreads();
   if ((int)threadIdx.x >= rows) return;
   const int64_t i = base + threadIdx.x;
@@ -57,7 +57,7 @@ __global__ void __launch_bounds__(kThreads)
   __shared__ float sh_t[kThreads * kTriStride];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
-  load_rows<9, 9>(vertices, visible, base, rows, sh_v);
+  load_rows<9, 9, kThreads>(vertices, visible, base, rows, sh_v);
   __syncthreads();
   if ((int)threadIdx.x < rows) {
     const int64_t k = base + threadIdx.x, i = visible[k];
@@ -74,7 +74,7 @@ __global__ void __launch_bounds__(kThreads)
     rects[k] = r;
   }
   __syncthreads();
-  store_rows<kTriFloats, kTriStride>(sh_t, nullptr, base, rows, tris);
+  store_rows<kTriFloats, kTriStride, kThreads>(sh_t, nullptr, base, rows, tris);
 }
 
 __global__ void __launch_bounds__(kThreads)
@@ -86,8 +86,8 @@ __global__ void __launch_bounds__(kThreads)
   __shared__ float sh_c[kThreads * 3];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
-  load_rows<9, 9>(vertices, visible, base, rows, sh_v);
-  load_rows<kTriGradSize, kGradStride>(tri_grads, nullptr, base, rows, sh_g);
+  load_rows<9, 9, kThreads>(vertices, visible, base, rows, sh_v);
+  load_rows<kTriGradSize, kGradStride, kThreads>(tri_grads, nullptr, base, rows, sh_g);
   __syncthreads();
   if ((int)threadIdx.x < rows) {
     const int64_t k = base + threadIdx.x, i = visible[k];
@@ -106,8 +106,8 @@ __global__ void __launch_bounds__(kThreads)
     g_sigmas[i] += g.sigma;
   }
   __syncthreads();
-  add_rows<9, 9>(sh_v, visible, base, rows, g_vertices);
-  add_rows<3, 3>(sh_c, visible, base, rows, g_colors);
+  add_rows<9, 9, kThreads>(sh_v, visible, base, rows, g_vertices);
+  add_rows<3, 3, kThreads>(sh_c, visible, base, rows, g_colors);
 }
 
 int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }

@@ -1,13 +1,20 @@
-// Forward compositing: one block per 8x8 tile, one thread per pixel; the
+// Forward compositing: one block per 8x8 tile, one thread per pixel. The
 // tile's depth-sorted triangles are staged in shared memory in batches of 64,
-// and each warp visits only those that can touch its pixels
-// (render/cuda/warp_mask.cuh). Same per-pixel semantics as
+// and each batch runs in two phases:
+//   coverage  thread j takes staged triangle j and evaluates the window only
+//             on the tile pixels inside its support rectangle (FLAT triangles
+//             cover ~3x3 pixels of the 64), marking in each pixel's 64-bit
+//             mask the triangles whose alpha reaches alpha_min;
+//   composite each pixel walks its own marked triangles front to back.
+// Walking every staged triangle with every pixel instead leaves ~2/3 of the
+// lanes idle on small triangles. Same per-pixel semantics as
 // render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
-#include "render/cuda/warp_mask.cuh"
 
 namespace flat::render::cuda {
 namespace {
+
+static_assert(kBlockSize == 64, "one 64-bit coverage mask per pixel");
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
@@ -15,11 +22,14 @@ __global__ void __launch_bounds__(kBlockSize)
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
   __shared__ PixelTri<float> sh_tri[kBlockSize];
-  __shared__ int32_t sh_id[kBlockSize];
   __shared__ TriRect sh_rect[kBlockSize];
-  const int tid = threadIdx.y * kTileSize + threadIdx.x, lane = tid & 31;
-  const int x = blockIdx.x * kTileSize + threadIdx.x, y = blockIdx.y * kTileSize + threadIdx.y;
-  const int wx0 = blockIdx.x * kTileSize, wy0 = blockIdx.y * kTileSize + (tid >> 5) * kWarpRows;
+  __shared__ int32_t sh_id[kBlockSize];                 // triangle id (for max_weight)
+  __shared__ unsigned int sh_wmax[kBlockSize];          // per staged triangle: max weight bits in this tile
+  __shared__ unsigned long long sh_hits[kBlockSize];    // per pixel: staged triangles with alpha >= alpha_min
+  __shared__ int sh_done[kBlockSize];                   // per pixel: compositing finished
+  const int tid = threadIdx.y * kTileSize + threadIdx.x;
+  const int tx0 = blockIdx.x * kTileSize, ty0 = blockIdx.y * kTileSize;
+  const int x = tx0 + threadIdx.x, y = ty0 + threadIdx.y;
   const bool inside = x < vp.width && y < vp.height;
   const float px = x + 0.5f, py = y + 0.5f;
   const float rx = (px - vp.cam.cx) / vp.cam.fx, ry = (py - vp.cam.cy) / vp.cam.fy;
@@ -30,54 +40,59 @@ __global__ void __launch_bounds__(kBlockSize)
   int last = 0;
   for (int base = 0; base < total; base += kBlockSize) {
     if (__syncthreads_count(done) == kBlockSize) break;
-    const int idx = range.x + base + tid;
-    if (idx < range.y) {
-      const int32_t id = ids[idx];
-      sh_id[tid] = visible[id];
-      sh_tri[tid] = tris[id];
-      sh_rect[tid] = rects[id];
-    }
-    __syncthreads();
     const int batch = min(kBlockSize, total - base);
-    uint64_t todo = __all_sync(0xffffffffu, done) ? 0 : warp_batch_mask(sh_rect, batch, wx0, wy0, lane);
-    while (todo != 0) {  // front to back: lowest bit first
-      const int j = __ffsll((long long)todo) - 1;
-      todo &= todo - 1;
-      float w = 0.f;
-      const TriRect r = sh_rect[j];
-      // The pixel support rectangle first (as the CPU reference, which shades
-      // only those pixels): a warp whose pixels all lie outside skips the window.
-      if (!done && x >= r.x0 && x < r.x1 && y >= r.y0 && y < r.y1) {
-        const PixelTri<float>& t = sh_tri[j];
-        Fragment<float> f;
-        shade(t, px, py, rx, ry, vp.k, f);
-        if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
-          const float test_T = T * (1.f - f.alpha);
-          if (test_T < vp.k.t_min) {
-            done = true;
-          } else {
-            fragment_depth(t, rx, ry, f);
-            w = f.alpha * T;
-            acc[0] += w * t.color[0];
-            acc[1] += w * t.color[1];
-            acc[2] += w * t.color[2];
-            acc[3] += w * f.z;
-            acc[4] += w * t.normal[0];
-            acc[5] += w * t.normal[1];
-            acc[6] += w * t.normal[2];
-            if (T > 0.5f) median = f.z;
-            T = test_T;
-            last = base + j + 1;
-          }
+    if (tid < batch) {
+      const int32_t k = ids[range.x + base + tid];
+      sh_id[tid] = visible[k];
+      sh_tri[tid] = tris[k];
+      sh_rect[tid] = rects[k];
+      sh_wmax[tid] = 0u;
+    }
+    sh_hits[tid] = 0ull;
+    sh_done[tid] = done;
+    __syncthreads();
+    if (tid < batch) {  // coverage: triangle tid over its pixels of this tile
+      const PixelTri<float>& t = sh_tri[tid];
+      const TriRect r = sh_rect[tid];  // already clipped to the image
+      const int xa = max(r.x0, tx0), xb = min(r.x1, tx0 + kTileSize);
+      const int ya = max(r.y0, ty0), yb = min(r.y1, ty0 + kTileSize);
+      for (int yy = ya; yy < yb; ++yy)
+        for (int xx = xa; xx < xb; ++xx) {
+          const int p = (yy - ty0) * kTileSize + (xx - tx0);
+          if (sh_done[p]) continue;
+          Fragment<float> f;
+          shade(t, xx + 0.5f, yy + 0.5f, 0.f, 0.f, vp.k, f);  // alpha only: the ray is not used
+          if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << tid);
         }
-      }
-      // Per-triangle maximum blending weight (non-negative floats order as
-      // their bits). j is the same in every lane, so the warp takes the
-      // maximum first (one redux) and one lane issues the atomic.
-      const unsigned int wmax = __reduce_max_sync(0xffffffffu, w > 0.f ? __float_as_uint(w) : 0u);
-      if (lane == 0 && wmax != 0u) atomicMax(&max_weight_bits[sh_id[j]], wmax);
     }
     __syncthreads();
+    for (unsigned long long m = done ? 0ull : sh_hits[tid]; m != 0ull; m &= m - 1) {  // front to back
+      const int j = __ffsll((long long)m) - 1;
+      const PixelTri<float>& t = sh_tri[j];
+      Fragment<float> f;
+      shade(t, px, py, rx, ry, vp.k, f);
+      const float test_T = T * (1.f - f.alpha);
+      if (test_T < vp.k.t_min) {
+        done = true;
+        break;
+      }
+      fragment_depth(t, rx, ry, f);
+      const float w = f.alpha * T;
+      acc[0] += w * t.color[0];
+      acc[1] += w * t.color[1];
+      acc[2] += w * t.color[2];
+      acc[3] += w * f.z;
+      acc[4] += w * t.normal[0];
+      acc[5] += w * t.normal[1];
+      acc[6] += w * t.normal[2];
+      if (T > 0.5f) median = f.z;
+      T = test_T;
+      last = base + j + 1;
+      // Per-triangle maximum blending weight (non-negative floats order as their bits).
+      atomicMax(&sh_wmax[j], __float_as_uint(w));
+    }
+    __syncthreads();
+    if (tid < batch && sh_wmax[tid] != 0u) atomicMax(&max_weight_bits[sh_id[tid]], sh_wmax[tid]);
   }
   if (!inside) return;
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
