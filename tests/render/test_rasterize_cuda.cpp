@@ -18,7 +18,15 @@ namespace {
 constexpr double kForwardTol = 1e-4;
 constexpr double kForwardMismatchFraction = 1e-3;
 constexpr double kGradTol = 2e-3;
-constexpr double kVertexGradTol = 5e-3;  // vertices: long float32 chains (1/area, 1/edge) + atomic order
+// Vertices: long float32 chains (1/area, 1/edge) and fragments within
+// rounding of a kink of the window (u_i + eps reaching 1) or of the depth
+// clamp, which CPU and GPU can send down different branches: a handful of
+// triangles then differ by O(their gradient). So: at most kVertexOutliers of
+// the triangles may differ by more than 1e-3 of the largest gradient, and the
+// others must agree to kVertexGradTol (relative L2). A wrong kernel moves
+// most triangles and fails both.
+constexpr double kVertexGradTol = 1e-3;
+constexpr double kVertexOutliers = 0.01;
 
 struct Result {
   flat::render::RenderOutput out;
@@ -65,8 +73,21 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
     const double e = flat::test::rel_error(gpu.grads[i], cpu.grads[i]);
     INFO("grad " << g_names[i] << " rel error " << e);
     std::printf("cuda-vs-cpu seed %llu grad %s: rel %.2e\n", (unsigned long long)seed, g_names[i], e);
-    CHECK(e < (i == 0 ? kVertexGradTol : kGradTol));
     CHECK(torch::isfinite(gpu.grads[i]).all().item<bool>());
+    if (i > 0) {
+      CHECK(e < kGradTol);
+      continue;
+    }
+    const auto per_tri = (gpu.grads[0] - cpu.grads[0]).abs().reshape({n, -1}).amax(1);
+    const auto outlier = per_tri.gt(1e-3 * cpu.grads[0].abs().max().item<double>());
+    const double frac = outlier.to(torch::kDouble).mean().item<double>();
+    const auto keep = outlier.logical_not();
+    const double e_rest = flat::test::rel_error(gpu.grads[0].index({keep}), cpu.grads[0].index({keep}));
+    INFO("vertex gradient outliers " << frac << ", rel error of the others " << e_rest);
+    std::printf("cuda-vs-cpu seed %llu grad vertices: %lld outlier triangles of %lld, rel error of the others %.2e\n",
+                (unsigned long long)seed, (long long)outlier.sum().item<int64_t>(), (long long)n, e_rest);
+    CHECK(frac <= kVertexOutliers);
+    CHECK(e_rest < kVertexGradTol);
   }
 }
 
