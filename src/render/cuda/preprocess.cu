@@ -1,14 +1,14 @@
 // Per-(view, triangle) preprocessing, in two passes (the maths is
-// render/triangle_math.h, shared with the CPU reference):
+// render/triangle_math.h, shared with the CPU reference; its chain rule is
+// render/cuda/preprocess_backward.cu):
 //   cull    all N triangles: support rectangle, tiles touched (0 = culled) and
 //           depth sort key; cheap outputs, coalesced.
 //   screen  the view's visible triangles only (typically a quarter of them):
 //           the PixelTri screen data the compositing kernels read, stored
 //           compactly (index k of the visible list). The backward re-runs it
 //           from the stored visible list instead of keeping it.
-// and the chain rule from one view's per-triangle screen gradients to the
-// world vertices, over the same visible list. Every array of several floats
-// per triangle is moved through shared memory (render/cuda/row_staging.cuh).
+// Every array of several floats per triangle is moved through shared memory
+// (render/cuda/row_staging.cuh).
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/row_staging.cuh"
 
@@ -18,7 +18,6 @@ namespace {
 constexpr int kThreads = 128;
 constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 22
 constexpr int kTriStride = kTriFloats + 1;
-constexpr int kGradStride = kTriGradSize;  // 21, odd already
 
 __device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k) {
   return !(k.alpha_min > 0.f) || opacity >= k.alpha_min;
@@ -77,39 +76,6 @@ __global__ void __launch_bounds__(kThreads)
   store_rows<kTriFloats, kTriStride, kThreads>(sh_t, nullptr, base, rows, tris);
 }
 
-__global__ void __launch_bounds__(kThreads)
-    chain_kernel(const float* __restrict__ vertices, const int32_t* __restrict__ visible, int64_t nv,
-                 const float* __restrict__ tri_grads, ViewParams vp, float* __restrict__ g_vertices,
-                 float* __restrict__ g_colors, float* __restrict__ g_opacities, float* __restrict__ g_sigmas) {
-  __shared__ float sh_v[kThreads * 9];
-  __shared__ float sh_g[kThreads * kGradStride];
-  __shared__ float sh_c[kThreads * 3];
-  const int64_t base = (int64_t)blockIdx.x * kThreads;
-  const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
-  load_rows<9, 9, kThreads>(vertices, visible, base, rows, sh_v);
-  load_rows<kTriGradSize, kGradStride, kThreads>(tri_grads, nullptr, base, rows, sh_g);
-  __syncthreads();
-  if ((int)threadIdx.x < rows) {
-    const int64_t k = base + threadIdx.x, i = visible[k];
-    TriGrad<float> g;
-    float* gp = reinterpret_cast<float*>(&g);
-#pragma unroll
-    for (int c = 0; c < kTriGradSize; ++c) gp[c] = sh_g[kGradStride * threadIdx.x + c];
-    float gv[9];
-#pragma unroll
-    for (int c = 0; c < 9; ++c) gv[c] = 0.f;
-    preprocess_backward(sh_v + 9 * threadIdx.x, vp.cam, g, gv);
-#pragma unroll
-    for (int c = 0; c < 9; ++c) sh_v[9 * threadIdx.x + c] = gv[c];  // own row: no other thread reads it now
-    for (int c = 0; c < 3; ++c) sh_c[3 * threadIdx.x + c] = g.color[c];
-    g_opacities[i] += g.opacity;
-    g_sigmas[i] += g.sigma;
-  }
-  __syncthreads();
-  add_rows<9, 9, kThreads>(sh_v, visible, base, rows, g_vertices);
-  add_rows<3, 3, kThreads>(sh_c, visible, base, rows, g_colors);
-}
-
 int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 
 }  // namespace
@@ -126,14 +92,6 @@ void launch_screen(const float* vertices, const float* colors, const float* opac
   if (nv == 0) return;
   screen_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, colors, opacities, sigmas, visible, nv, vp,
                                                          reinterpret_cast<float*>(tris), rects);
-}
-
-void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, const float* tri_grads,
-                  const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
-                  cudaStream_t stream) {
-  if (nv == 0) return;
-  chain_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, visible, nv, tri_grads, vp, g_vertices, g_colors,
-                                                        g_opacities, g_sigmas);
 }
 
 }  // namespace flat::render::cuda
