@@ -2,6 +2,8 @@
 // (render/cuda/preprocess.cu): one view's per-triangle screen gradients
 // (TriGrad, visible-list order, summed by render/cuda/raster_backward.cu) to
 // the world vertices, colours, opacities and sigmas of the visible triangles.
+// It zeroes the TriGrad rows it read, so that one buffer, zeroed once per
+// backward, serves every view.
 // The maths is preprocess_backward() of render/triangle_math.h, shared with
 // the CPU reference. It runs ~50 divisions and 4 square roots per visible
 // triangle and view: this file is compiled with -prec-div=false
@@ -18,7 +20,7 @@ constexpr int kGradStride = kTriGradSize;  // 21, odd already
 
 __global__ void __launch_bounds__(kThreads)
     chain_kernel(const float* __restrict__ vertices, const int32_t* __restrict__ visible, int64_t nv,
-                 const float* __restrict__ tri_grads, ViewParams vp, float* __restrict__ g_vertices,
+                 float* __restrict__ tri_grads, ViewParams vp, float* __restrict__ g_vertices,
                  float* __restrict__ g_colors, float* __restrict__ g_opacities, float* __restrict__ g_sigmas) {
   __shared__ float sh_v[kThreads * 9];
   __shared__ float sh_g[kThreads * kGradStride];
@@ -28,6 +30,7 @@ __global__ void __launch_bounds__(kThreads)
   load_rows<9, 9, kThreads>(vertices, visible, base, rows, sh_v);
   load_rows<kTriGradSize, kGradStride, kThreads>(tri_grads, nullptr, base, rows, sh_g);
   __syncthreads();
+  zero_rows<kTriGradSize, kThreads>(tri_grads, base, rows);  // ready for the next view
   if ((int)threadIdx.x < rows) {
     const int64_t k = base + threadIdx.x, i = visible[k];
     TriGrad<float> g;
@@ -53,7 +56,7 @@ int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 
 }  // namespace
 
-void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, const float* tri_grads,
+void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, float* tri_grads,
                   const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
                   cudaStream_t stream) {
   if (nv == 0) return;

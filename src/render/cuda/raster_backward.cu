@@ -13,6 +13,7 @@
 //             add them to global memory once per (triangle, tile).
 // No warp-wide reduction and no lane idles on a triangle that misses its pixel.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/shared_tris.cuh"
 
 namespace flat::render::cuda {
 namespace {
@@ -65,7 +66,7 @@ __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
                            const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
-  __shared__ PixelTri<float> sh_tri[kBatch];
+  __shared__ SharedTris<kBatch> sh_tri;
   __shared__ TriRect sh_rect[kBatch];
   __shared__ int32_t sh_k[kBatch];              // visible-list index (row of tri_grads)
   __shared__ unsigned int sh_hits[kBlockSize];  // per pixel: staged triangles it blends
@@ -111,7 +112,7 @@ __global__ void __launch_bounds__(kBlockSize)
     if (tid < batch) {
       const int32_t k = ids[range.x + lo + tid];
       sh_k[tid] = k;
-      sh_tri[tid] = tris[k];
+      sh_tri.put(tid, tris[k]);
       sh_rect[tid] = rects[k];
     }
     sh_hits[tid] = 0u;
@@ -124,7 +125,7 @@ __global__ void __launch_bounds__(kBlockSize)
       xa = max(r.x0, tx0), xb = min(r.x1, tx0 + kTileSize);
       ya = max(r.y0, ty0), yb = min(r.y1, ty0 + kTileSize);
       ya += (ya - ty0 + row_parity) & 1;  // first row of this thread's parity
-      const PixelTri<float>& t = sh_tri[j_own];
+      const PixelTri<float> t = sh_tri.get(j_own);
       for (int yy = ya; yy < yb; yy += 2)
         for (int xx = xa; xx < xb; ++xx) {
           const int q = (yy - ty0) * kTileSize + (xx - tx0);
@@ -139,7 +140,7 @@ __global__ void __launch_bounds__(kBlockSize)
     for (unsigned int m = sh_hits[tid]; m != 0u;) {
       const int j = 31 - __clz(m);
       m &= ~(1u << j);
-      const PixelTri<float>& t = sh_tri[j];
+      const PixelTri<float> t = sh_tri.get(j);
       Fragment<float> f;
       shade(t, px, py, rx, ry, vp.k, f);
       fragment_depth(t, rx, ry, f);
@@ -164,7 +165,7 @@ __global__ void __launch_bounds__(kBlockSize)
     for (int c = 0; c < kTriGradSize; ++c) g[c] = 0.f;
     bool any = false;
     if (own) {
-      const PixelTri<float>& t = sh_tri[j_own];
+      const PixelTri<float> t = sh_tri.get(j_own);
       for (int yy = ya; yy < yb; yy += 2)
         for (int xx = xa; xx < xb; ++xx) {
           const int q = (yy - ty0) * kTileSize + (xx - tx0);

@@ -188,13 +188,15 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   g.sigmas = at::zeros_like(in.sigmas);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
+  // Per-triangle screen gradients of one view (visible-list rows); the chain
+  // kernel re-zeroes the rows it consumed, so one zeroing serves every view.
+  const at::Tensor tri_grads = at::zeros({N * kTriGradSize}, f);
   for (int64_t v = 0; v < V; ++v) {
     const at::Tensor& visible = views[kViewState * v + 4];
     const int64_t nv = visible.size(0);
     if (nv == 0) continue;
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     ScreenData sd(in, visible, vp, stream);  // recomputed: cheaper than keeping every view's
-    const at::Tensor tri_grads = at::zeros({nv * kTriGradSize}, f);
     const at::Tensor& ids = views[kViewState * v];
     const at::Tensor& ranges = views[kViewState * v + 1];
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,

@@ -10,6 +10,7 @@
 // lanes idle on small triangles. Same per-pixel semantics as
 // render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/shared_tris.cuh"
 
 namespace flat::render::cuda {
 namespace {
@@ -21,7 +22,7 @@ __global__ void __launch_bounds__(kBlockSize)
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
-  __shared__ PixelTri<float> sh_tri[kBlockSize];
+  __shared__ SharedTris<kBlockSize> sh_tri;
   __shared__ TriRect sh_rect[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];                 // triangle id (for max_weight)
   __shared__ unsigned int sh_wmax[kBlockSize];          // per staged triangle: max weight bits in this tile
@@ -44,7 +45,7 @@ __global__ void __launch_bounds__(kBlockSize)
     if (tid < batch) {
       const int32_t k = ids[range.x + base + tid];
       sh_id[tid] = visible[k];
-      sh_tri[tid] = tris[k];
+      sh_tri.put(tid, tris[k]);
       sh_rect[tid] = rects[k];
       sh_wmax[tid] = 0u;
     }
@@ -52,7 +53,7 @@ __global__ void __launch_bounds__(kBlockSize)
     sh_done[tid] = done;
     __syncthreads();
     if (tid < batch) {  // coverage: triangle tid over its pixels of this tile
-      const PixelTri<float>& t = sh_tri[tid];
+      const PixelTri<float> t = sh_tri.get(tid);
       const TriRect r = sh_rect[tid];  // already clipped to the image
       const int xa = max(r.x0, tx0), xb = min(r.x1, tx0 + kTileSize);
       const int ya = max(r.y0, ty0), yb = min(r.y1, ty0 + kTileSize);
@@ -68,7 +69,7 @@ __global__ void __launch_bounds__(kBlockSize)
     __syncthreads();
     for (unsigned long long m = done ? 0ull : sh_hits[tid]; m != 0ull; m &= m - 1) {  // front to back
       const int j = __ffsll((long long)m) - 1;
-      const PixelTri<float>& t = sh_tri[j];
+      const PixelTri<float> t = sh_tri.get(j);
       Fragment<float> f;
       shade(t, px, py, rx, ry, vp.k, f);
       const float test_T = T * (1.f - f.alpha);

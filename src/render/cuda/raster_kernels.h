@@ -96,8 +96,9 @@ void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelT
                             cudaStream_t stream);
 
 // Chains one view's per-triangle gradients (tri_grads, visible-list order) to
-// the inputs of the triangles visible[0..nv) (adds into the grads).
-void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, const float* tri_grads,
+// the inputs of the triangles visible[0..nv) (adds into the grads), and zeroes
+// the tri_grads rows it read (the buffer is zeroed once per backward).
+void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, float* tri_grads,
                   const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
                   cudaStream_t stream);
 

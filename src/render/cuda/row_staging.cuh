@@ -42,6 +42,16 @@ __device__ __forceinline__ void store_rows(const float* tile, const int32_t* __r
   }
 }
 
+// Zeroes rows [base, base + count) of a contiguous array.
+template <int W, int Threads>
+__device__ __forceinline__ void zero_rows(float* __restrict__ dst, int64_t base, int count) {
+#pragma unroll
+  for (int e = 0; e < W; ++e) {
+    const int k = e * Threads + (int)threadIdx.x;
+    if (k < count * W) dst[base * W + k] = 0.f;
+  }
+}
+
 // dst += tile (each row appears once in `rows`: no two threads touch one address).
 template <int W, int S, int Threads>
 __device__ __forceinline__ void add_rows(const float* tile, const int32_t* __restrict__ rows, int64_t base,
