@@ -10,6 +10,7 @@
 #include <limits>
 
 #include <ATen/cuda/CUDAContext.h>
+#include <ATen/cuda/CUDAEvent.h>
 #include <c10/cuda/CUDAGuard.h>
 #include <spdlog/spdlog.h>
 
@@ -50,9 +51,13 @@ void check_sizes(const RasterInputs& in) {
              "rasterize (cuda): at most 2^31-1 triangles, got " + std::to_string(in.vertices.size(0)));
 }
 
-// One view's culling and binning state over all N triangles (reused across views).
+// One view's culling and binning state over all N triangles. Two of them
+// alternate: view v + 1 is culled on a side stream while view v composites,
+// so the host's wait for v + 1's sizes does not leave the GPU idle.
 struct CullScratch {
   at::Tensor rects, counts, keys, offsets, visible, num_visible, scan_temp, select_temp;
+  at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
+  at::cuda::CUDAEvent culled, released;  // sizes ready (side stream); last read done (main stream)
   size_t scan_bytes = 0, select_bytes = 0;
   CullScratch(int64_t n, const at::TensorOptions& f, cudaStream_t stream) {
     rects = at::empty({n * 4}, f.dtype(at::kInt));
@@ -65,8 +70,33 @@ struct CullScratch {
     select_visible(nullptr, select_bytes, nullptr, n, nullptr, nullptr, stream);
     scan_temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
     select_temp = at::empty({(int64_t)select_bytes + 1}, f.dtype(at::kByte));
+    host_count = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
+    host_visible = at::zeros({1}, at::TensorOptions().dtype(at::kInt).pinned_memory(true));
   }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
+
+  // Enqueues culling, the tile-count scan and the visible selection of one
+  // view on `side` (after the previous user of this scratch released it), and
+  // the copy of the two sizes to the host.
+  void cull(const RasterInputs& in, const ViewParams& vp, const c10::cuda::CUDAStream& side) {
+    const int64_t n = in.vertices.size(0);
+    released.block(side);
+    launch_cull(in.vertices.data_ptr<float>(), in.opacities.data_ptr<float>(), n, vp, rect_ptr(),
+                counts.data_ptr<int64_t>(), keys.data_ptr<float>(), side);
+    check_launch("culling");
+    scan_tile_counts(scan_temp.data_ptr(), scan_bytes, counts.data_ptr<int64_t>(), offsets.data_ptr<int64_t>(), n,
+                     side);
+    check_launch("tile count scan");
+    select_visible(select_temp.data_ptr(), select_bytes, counts.data_ptr<int64_t>(), n, visible.data_ptr<int>(),
+                   num_visible.data_ptr<int>(), side);
+    check_launch("visible selection");
+    FLAT_CHECK(cudaMemcpyAsync(host_count.data_ptr(), offsets.data_ptr<int64_t>() + n - 1, sizeof(int64_t),
+                               cudaMemcpyDeviceToHost, side) == cudaSuccess &&
+                   cudaMemcpyAsync(host_visible.data_ptr(), num_visible.data_ptr(), sizeof(int32_t),
+                                   cudaMemcpyDeviceToHost, side) == cudaSuccess,
+               "rasterize (cuda): copying the view sizes to the host failed");
+    culled.record(side);
+  }
 };
 
 // Screen data of one view's visible triangles, in visible-list order.
@@ -101,27 +131,31 @@ RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
   out.median_depth = at::empty({V, 1, H, W}, f);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  CullScratch s(N, f, stream);
+  CullScratch scratch[2] = {CullScratch(N, f, stream), CullScratch(N, f, stream)};
+  const c10::cuda::CUDAStream side = c10::cuda::getStreamFromPool(false, in.vertices.device().index());
+  at::cuda::CUDAEvent inputs_ready;
+  inputs_ready.record(at::cuda::getCurrentCUDAStream());
+  inputs_ready.block(side);  // the inputs may have been written on the main stream
+  // Leaving early (an error below) must not free the scratch under a running cull.
+  struct SideDrain {
+    const c10::cuda::CUDAStream& stream;
+    ~SideDrain() { stream.synchronize(); }
+  } drain{side};
+  if (N > 0 && V > 0) scratch[0].cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, 0), side);
   views.clear();
   const int64_t HW = H * W;
   for (int64_t v = 0; v < V; ++v) {
+    CullScratch& s = scratch[v % 2];
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     const int num_tiles = vp.tiles_x * vp.tiles_y;
     int64_t count = 0, nv = 0;
     if (N > 0) {
-      launch_cull(in.vertices.data_ptr<float>(), in.opacities.data_ptr<float>(), N, vp, s.rect_ptr(),
-                  s.counts.data_ptr<int64_t>(), s.keys.data_ptr<float>(), stream);
-      check_launch("culling");
-      scan_tile_counts(s.scan_temp.data_ptr(), s.scan_bytes, s.counts.data_ptr<int64_t>(),
-                       s.offsets.data_ptr<int64_t>(), N, stream);
-      check_launch("tile count scan");
-      select_visible(s.select_temp.data_ptr(), s.select_bytes, s.counts.data_ptr<int64_t>(), N,
-                     s.visible.data_ptr<int>(), s.num_visible.data_ptr<int>(), stream);
-      check_launch("visible selection");
-      // The one host sync per view: sizes the visible list and the pair buffers.
-      const at::Tensor sizes = at::cat({s.offsets.narrow(0, N - 1, 1), s.num_visible.to(at::kLong)}).cpu();
-      count = sizes.data_ptr<int64_t>()[0];
-      nv = sizes.data_ptr<int64_t>()[1];
+      // The one host wait per view: the sizes of the visible list and of the
+      // pair buffers. View v - 1 may still be compositing meanwhile.
+      s.culled.synchronize();
+      s.culled.block(at::cuda::getCurrentCUDAStream());
+      count = s.host_count.data_ptr<int64_t>()[0];
+      nv = s.host_visible.data_ptr<int>()[0];
     }
     FLAT_CHECK(count <= std::numeric_limits<int32_t>::max(),
                "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
@@ -131,12 +165,16 @@ RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views) {
     at::Tensor keys = at::empty({count}, f.dtype(at::kLong)), keys_sorted = at::empty({count}, f.dtype(at::kLong));
     at::Tensor ids = at::empty({count}, f.dtype(at::kInt)), ids_sorted = at::empty({count}, f.dtype(at::kInt));
     at::Tensor ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
+    auto* kin = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
+    auto* kout = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
     if (count > 0) {
-      auto* kin = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
-      auto* kout = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
       launch_duplicate(visible.data_ptr<int>(), nv, sd.rect_ptr(), s.offsets.data_ptr<int64_t>(),
                        s.keys.data_ptr<float>(), vp.tiles_x, kin, ids.data_ptr<int>(), stream);
       check_launch("duplicate");
+    }
+    s.released.record(at::cuda::getCurrentCUDAStream());  // duplicate was the scratch's last reader
+    if (N > 0 && v + 1 < V) scratch[(v + 1) % 2].cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, v + 1), side);
+    if (count > 0) {
       size_t sort_bytes = 0;
       sort_pairs(nullptr, sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count, num_tiles,
                  stream);
