@@ -80,7 +80,9 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
     if (vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
       std::vector<at::Tensor> views;
-      out = cuda::forward(in, views);
+      const bool for_backward = vertices.requires_grad() || colors.requires_grad() || opacities.requires_grad() ||
+                                sigmas.requires_grad();
+      out = cuda::forward(in, for_backward, views);
       ctx->saved_data["views"] = views;
 #else
       fail("rasterize: tensors are on CUDA but this build has no CUDA kernels (FLAT_WITH_CUDA=OFF)");

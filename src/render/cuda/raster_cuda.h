@@ -1,7 +1,8 @@
 // CUDA back end of the rasterizer (libtorch glue side). Views are processed
 // one after another; per view the forward keeps only what the backward cannot
 // cheaply recompute (sorted ids, tile ranges, per-pixel final transmittance
-// and last contributor, the list of visible triangles): `views` holds those
+// and last contributor, the list of visible triangles, and the visible
+// triangles' screen data while it fits a memory budget): `views` holds those
 // tensors.
 #pragma once
 #include <vector>
@@ -10,7 +11,8 @@
 
 namespace flat::render::cuda {
 
-RasterOutputs forward(const RasterInputs& in, std::vector<at::Tensor>& views);
+// for_backward: keep the per-view state (else `views` stays empty).
+RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at::Tensor>& views);
 RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
                      const at::Tensor& grad_alpha, const at::Tensor& grad_depth, const at::Tensor& grad_normal);
 
