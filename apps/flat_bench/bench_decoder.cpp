@@ -39,7 +39,6 @@ struct DecoderBenchOptions {
   std::string mode = "both";        // full | streaming | both
   std::string camera = "precomputed";
   std::string heads = "independent";
-  std::string head_exec = "grouped";
   std::string dtype = "bf16";
   std::string device = "cuda";
   int64_t dim = 96;
@@ -140,7 +139,6 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   config.vae.dim = o.dim;
   config.heads = o.heads;
   SceneDecoder scene(config);
-  scene->heads->set_execution(model::parse_head_execution(o.head_exec));
   scene->eval();
   scene->to(dev, dtype);
   if (o.channels_last) to_channels_last_3d(*scene);
@@ -151,8 +149,8 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
     vae->to(dev, dtype);
     if (o.channels_last) to_channels_last_3d(*vae);
   }
-  spdlog::info("scene decoder: {} parameters ({} heads, {}), dim {}, {} on {}{}{}{}",
-               count_parameters(*scene), o.heads, o.head_exec, o.dim, o.dtype, cuda ? "cuda" : "cpu",
+  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}",
+               count_parameters(*scene), o.heads, o.dim, o.dtype, cuda ? "cuda" : "cpu",
                o.channels_last ? ", channels-last 3D" : ", NCDHW", o.fused_norm ? ", fused norm" : ", ATen norm",
                o.cudnn_benchmark ? ", cuDNN benchmark" : "");
   c10::InferenceMode inference;
@@ -214,9 +212,6 @@ void add_decoder(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--heads", opts->heads, "independent or monolithic")
       ->check(CLI::IsMember({"independent", "monolithic"}))
-      ->capture_default_str();
-  cmd->add_option("--head-exec", opts->head_exec, "independent heads as per_head convs, one grouped conv, or streams")
-      ->check(CLI::IsMember({"per_head", "grouped", "streams"}))
       ->capture_default_str();
   cmd->add_option("--dtype", opts->dtype, "bf16 or fp32")->check(CLI::IsMember({"bf16", "fp32"}))->capture_default_str();
   cmd->add_option("--device", opts->device, "cuda or cpu")->check(CLI::IsMember({"cuda", "cpu"}))->capture_default_str();

@@ -7,16 +7,13 @@
 
 namespace flat::model {
 
-at::Tensor norm_silu_padded(const at::Tensor& x, RMSNorm& norm, int64_t n, StreamCache* cache) {
-  if (cache == nullptr) return rms_norm_silu_padded(x, norm->gamma, n);
+at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache) {
+  const int64_t n = conv->past_frames();
+  if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(x, norm->gamma, n));
   at::Tensor& history = cache->next();
   at::Tensor padded = rms_norm_silu_padded(x, norm->gamma, n, history);
   history = padded.narrow(2, padded.size(2) - n, n).clone();
-  return padded;
-}
-
-at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache) {
-  return conv->forward_prepadded(norm_silu_padded(x, norm, conv->past_frames(), cache));
+  return conv->forward_prepadded(padded);
 }
 
 Encoder3dImpl::Encoder3dImpl(const WanVAEConfig& config) {

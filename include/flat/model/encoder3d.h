@@ -39,8 +39,5 @@ TORCH_MODULE(Encoder3d);
 
 // Shared by encoder and decoder: the head's RMS_norm + SiLU + causal conv.
 at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache);
-// Its first half: silu(norm(x)) with the conv's n past frames in front (zeros,
-// or the cached activations of the previous chunk; the cache is advanced).
-at::Tensor norm_silu_padded(const at::Tensor& x, RMSNorm& norm, int64_t n, StreamCache* cache);
 
 }  // namespace flat::model

@@ -46,13 +46,6 @@ struct TriangleChannels {
   std::vector<std::pair<std::string, ChannelRange>> groups() const;
 };
 
-// How independent heads run (same parameters, same result up to rounding):
-// one conv per head; one grouped conv over the heads' concatenated
-// activations (the heads' tiny output widths make cuDNN slow per head); or one
-// conv per head, concurrently on CUDA streams (inference only).
-enum class HeadExecution { per_head, grouped, streams };
-HeadExecution parse_head_execution(const std::string& name);  // "per_head" | "grouped" | "streams"
-
 class OutputHeadsImpl : public torch::nn::Module {
  public:
   // mode: "independent" or "monolithic".
@@ -61,16 +54,11 @@ class OutputHeadsImpl : public torch::nn::Module {
   at::Tensor forward(const at::Tensor& features, StreamCache* cache = nullptr);
 
   const TriangleChannels& channels() const { return channels_; }
-  void set_execution(HeadExecution e) { execution_ = e; }
-  HeadExecution execution() const { return execution_; }
   std::vector<RMSNorm> norms;
   std::vector<CausalConv3d> convs;
 
  private:
-  at::Tensor forward_grouped(const at::Tensor& features, StreamCache* cache);
-  at::Tensor forward_streams(const at::Tensor& features, StreamCache* cache);
   TriangleChannels channels_;
-  HeadExecution execution_ = HeadExecution::grouped;
 };
 TORCH_MODULE(OutputHeads);
 
