@@ -231,11 +231,7 @@ int main(int argc, char** argv) {
       return 0;
     }
     return run(cfg, yaml);
-  } catch (const flat::Error& e) {
-    spdlog::error("{}", e.what());
-    return 1;
-  } catch (const std::exception& e) {
-    spdlog::error("unexpected error: {}", e.what());
-    return 1;
+  } catch (...) {
+    return flat::report_current_error();
   }
 }

@@ -37,12 +37,8 @@ int main(int argc, char** argv) {
       scene = flat::data::import_re10k(in, frames, out, o);
     }
     spdlog::info("wrote {} ({} frames, {}x{})", scene.json_path(), scene.size(), scene.width, scene.height);
-  } catch (const flat::Error& e) {
-    spdlog::error("{}", e.what());
-    return 1;
-  } catch (const std::exception& e) {
-    spdlog::error("unexpected error: {}", e.what());
-    return 1;
+  } catch (...) {
+    return flat::report_current_error();
   }
   return 0;
 }

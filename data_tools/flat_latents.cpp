@@ -156,12 +156,8 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   try {
     run(o);
-  } catch (const flat::Error& e) {
-    spdlog::error("{}", e.what());
-    return 1;
-  } catch (const std::exception& e) {
-    spdlog::error("unexpected error: {}", e.what());
-    return 1;
+  } catch (...) {
+    return flat::report_current_error();
   }
   return 0;
 }

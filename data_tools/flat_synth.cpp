@@ -51,12 +51,8 @@ int main(int argc, char** argv) {
     }
     progress.finish();
     spdlog::info("wrote {} {} scenes of {} frames at {}x{} to {}", scenes, o.family, o.frames, o.height, o.width, out);
-  } catch (const flat::Error& e) {
-    spdlog::error("{}", e.what());
-    return 1;
-  } catch (const std::exception& e) {
-    spdlog::error("unexpected error: {}", e.what());
-    return 1;
+  } catch (...) {
+    return flat::report_current_error();
   }
   return 0;
 }

@@ -188,12 +188,8 @@ int main(int argc, char** argv) {
     if (d->parsed()) decode(dec);
   } catch (const CLI::ParseError& err) {
     return app.exit(err);
-  } catch (const flat::Error& err) {
-    spdlog::error("{}", err.what());
-    return 1;
-  } catch (const std::exception& err) {
-    spdlog::error("unexpected error: {}", err.what());
-    return 1;
+  } catch (...) {
+    return flat::report_current_error();
   }
   return 0;
 }

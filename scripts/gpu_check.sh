@@ -20,6 +20,11 @@ summary+=("build rc=$build_rc in $(( $(date +%s) - t0 )) s")
 (cd "$BUILD" && ctest --output-on-failure ${GPU_CTEST_ARGS:-} >"$OUT/ctest.log" 2>&1); test_rc=$?
 summary+=("ctest rc=$test_rc: $(grep -E 'tests passed|tests failed' "$OUT/ctest.log" | tail -1)")
 grep -E "Failed|\*\*\*|FAILED" "$OUT/ctest.log" | head -20
+if [ -x "$BUILD/tests/flat_test_render" ]; then
+  # The CUDA-vs-CPU errors of the rasterizer (docs/rasterizer.md, "Tolerances held").
+  "$BUILD/tests/flat_test_render" "*cuda*" -s 2>&1 | grep "cuda-vs-cpu" >"$OUT/cuda_vs_cpu.log"
+  summary+=("cuda-vs-cpu rasterizer comparisons: $(wc -l <"$OUT/cuda_vs_cpu.log") lines in cuda_vs_cpu.log")
+fi
 if [ "$MODE" = "bench" ] && [ -x "$BUILD/flat_bench" ]; then
   # Paper sizes: decoder 13 and 21 latent frames, full and streaming; raster at
   # stage-1 and paper scale (see docs/benchmarks.md).

@@ -98,6 +98,33 @@ FLAT_HD void to_camera(const T* v, const CameraView<T>& cam, T c[3][3]) {
       c[k][r] = cam.R[3 * r] * v[3 * k] + cam.R[3 * r + 1] * v[3 * k + 1] + cam.R[3 * r + 2] * v[3 * k + 2] + cam.t[r];
 }
 
+// The projected triangle (paper eq. 1, pixel-centre convention): vertices q_k
+// in pixels, edges e_i = q_{i+1} - q_i with lengths l_i, perimeter P and twice
+// the signed area A2. Shared by the preprocessing's forward and backward.
+template <class T>
+struct ScreenTriangle {
+  T q[3][2], e[3][2], l[3];
+  T P, A2;
+};
+
+template <class T>
+FLAT_HD ScreenTriangle<T> project_triangle(const T c[3][3], const CameraView<T>& cam) {
+  ScreenTriangle<T> st;
+  for (int i = 0; i < 3; ++i) {
+    st.q[i][0] = cam.fx * c[i][0] / c[i][2] + cam.cx;
+    st.q[i][1] = cam.fy * c[i][1] / c[i][2] + cam.cy;
+  }
+  for (int i = 0; i < 3; ++i) {
+    const int j = (i + 1) % 3;
+    st.e[i][0] = st.q[j][0] - st.q[i][0];
+    st.e[i][1] = st.q[j][1] - st.q[i][1];
+    st.l[i] = std::sqrt(st.e[i][0] * st.e[i][0] + st.e[i][1] * st.e[i][1]);
+  }
+  st.P = st.l[0] + st.l[1] + st.l[2];
+  st.A2 = (st.q[1][0] - st.q[0][0]) * (st.q[2][1] - st.q[0][1]) - (st.q[1][1] - st.q[0][1]) * (st.q[2][0] - st.q[0][0]);
+  return st;
+}
+
 // Forward of the per-(view, triangle) preprocessing. Returns false when the
 // triangle is culled (docs/rasterizer.md, "Culling"); fills geometry of `out`
 // (not colour/opacity/sigma), the support rectangle and the depth sort key.
@@ -121,21 +148,11 @@ FLAT_HD bool preprocess_forward(const T* v, const CameraView<T>& cam, const Rast
   const T D = N[0] * c[0][0] + N[1] * c[0][1] + N[2] * c[0][2];
   const T Dc = N[0] * cen[0] + N[1] * cen[1] + N[2] * cen[2];
   if (!(nN > T(0)) || !(std::fabs(Dc) >= T(k.min_cos) * nN * nC)) return false;
-  // Projection (paper eq. 1), pixel-centre convention.
-  T q[3][2];
-  for (int i = 0; i < 3; ++i) {
-    q[i][0] = cam.fx * c[i][0] / c[i][2] + cam.cx;
-    q[i][1] = cam.fy * c[i][1] / c[i][2] + cam.cy;
-  }
-  T e[3][2], l[3];
-  for (int i = 0; i < 3; ++i) {
-    const int j = (i + 1) % 3;
-    e[i][0] = q[j][0] - q[i][0];
-    e[i][1] = q[j][1] - q[i][1];
-    l[i] = std::sqrt(e[i][0] * e[i][0] + e[i][1] * e[i][1]);
-  }
-  const T P = l[0] + l[1] + l[2];
-  const T A2 = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[1][1] - q[0][1]) * (q[2][0] - q[0][0]);
+  const ScreenTriangle<T> st = project_triangle(c, cam);
+  const auto& q = st.q;
+  const auto& e = st.e;
+  const auto& l = st.l;
+  const T P = st.P, A2 = st.A2;
   if (!(P > T(0)) || !(std::fabs(A2) >= T(k.min_inradius) * P)) return false;  // degenerate: rho < min_inradius
   const T K = P / A2;
   for (int i = 0; i < 3; ++i) {
@@ -226,20 +243,11 @@ FLAT_HD void preprocess_backward(const T* v, const CameraView<T>& cam, const Tri
     gc[ihi][2] += g.zhi;
   }
   // --- screen-space window geometry
-  T q[3][2];
-  for (int i = 0; i < 3; ++i) {
-    q[i][0] = cam.fx * c[i][0] / c[i][2] + cam.cx;
-    q[i][1] = cam.fy * c[i][1] / c[i][2] + cam.cy;
-  }
-  T e[3][2], l[3];
-  for (int i = 0; i < 3; ++i) {
-    const int j = (i + 1) % 3;
-    e[i][0] = q[j][0] - q[i][0];
-    e[i][1] = q[j][1] - q[i][1];
-    l[i] = std::sqrt(e[i][0] * e[i][0] + e[i][1] * e[i][1]);
-  }
-  const T P = l[0] + l[1] + l[2];
-  const T A2 = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[1][1] - q[0][1]) * (q[2][0] - q[0][0]);
+  const ScreenTriangle<T> st = project_triangle(c, cam);
+  const auto& q = st.q;
+  const auto& e = st.e;
+  const auto& l = st.l;
+  const T P = st.P, A2 = st.A2;
   const T K = P / A2;
   T gq[3][2] = {{0, 0}, {0, 0}, {0, 0}}, ge[3][2], gl[3];
   T gK = 0;

@@ -19,4 +19,9 @@ class Error : public std::runtime_error {
     if (!(cond)) ::flat::fail(message); \
   } while (0)
 
+// For the outermost catch (...) of a program's main(): logs the exception in
+// flight (a flat::Error as is, anything else as "unexpected error: ...") and
+// returns the exit status 1.
+int report_current_error();
+
 }  // namespace flat
