@@ -109,13 +109,8 @@ int run(const SmokeConfig& cfg, const std::string& effective_yaml) {
   torch::manual_seed(static_cast<uint64_t>(cfg.seed));
 
   data::Loader loader(cfg.data);
-  model::SceneDecoder decoder(cfg.model);
+  model::SceneDecoder decoder(cfg.model, cfg.triangles.channels());  // heads sized for the triangle layout
   decoder->to(device);
-  const auto& channels = decoder->channels();
-  const int64_t expected = cfg.triangles.channels().total;
-  if (channels.total != expected)
-    fail("model heads emit " + std::to_string(channels.total) + " channels but triangles." +
-         cfg.triangles.parameterisation + " needs " + std::to_string(expected));
   loss::Objective objective(cfg.loss, device);
   torch::optim::AdamW optimiser(decoder->parameters(),
                                 torch::optim::AdamWOptions(cfg.lr).weight_decay(cfg.weight_decay));

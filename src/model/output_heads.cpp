@@ -7,38 +7,25 @@
 
 namespace flat::model {
 
-TriangleChannels TriangleChannels::make(int64_t colour_channels) {
-  FLAT_CHECK(colour_channels > 0, "TriangleChannels: colour_channels must be positive");
-  TriangleChannels c;
-  int64_t next = 0;
-  auto take = [&](int64_t n) { ChannelRange r{next, n}; next += n; return r; };
-  c.depth = take(1);
-  c.cholesky = take(3);
-  c.tilt = take(2);
-  c.spin = take(1);
-  c.colour = take(colour_channels);
-  c.opacity = take(1);
-  c.sigma = take(1);
-  c.total = next;
-  return c;
+std::vector<std::pair<std::string, ChannelRange>> head_groups(const primitives::TriangleChannels& c) {
+  // Three free offsets replace the Cholesky shape; the other layouts keep its name.
+  const std::string shape = c.shape_count == 6 ? "offsets" : "cholesky";
+  return {{"depth", ChannelRange{c.depth, 1}},
+          {shape, ChannelRange{c.shape, c.shape_count}},
+          {"rotation", ChannelRange{c.rotation, c.rotation_count}},
+          {"colour", ChannelRange{c.colour, c.colour_count}},
+          {"opacity", ChannelRange{c.opacity, 1}},
+          {"sigma", ChannelRange{c.sigma, 1}}};
 }
 
-std::vector<std::pair<std::string, ChannelRange>> TriangleChannels::groups() const {
-  return {{"depth", depth},
-          {"cholesky", cholesky},
-          {"rotation", ChannelRange{tilt.start, tilt.count + spin.count}},
-          {"colour", colour},
-          {"opacity", opacity},
-          {"sigma", sigma}};
-}
-
-OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const TriangleChannels& channels, const std::string& mode)
-    : channels_(channels) {
+OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const primitives::TriangleChannels& layout,
+                                 const std::string& mode)
+    : channels_(layout) {
   std::vector<std::pair<std::string, ChannelRange>> heads;
   if (mode == "independent") {
-    heads = channels.groups();
+    heads = head_groups(layout);
   } else if (mode == "monolithic") {
-    heads = {{"all", ChannelRange{0, channels.total}}};
+    heads = {{"all", ChannelRange{0, layout.total}}};
   } else {
     fail("OutputHeads: mode must be 'independent' or 'monolithic', got '" + mode + "'");
   }

@@ -8,7 +8,8 @@
 
 namespace flat::model {
 
-SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config) : config_(config) {
+SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config, const primitives::TriangleChannels& layout)
+    : config_(config) {
   config_.vae.check();
   if (config_.camera) {
     adapter = register_module("adapter", CameraAdapter(config_.camera_channels, config_.vae.z_dim,
@@ -16,8 +17,7 @@ SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config) : config_(c
   }
   conv2 = register_module("conv2", CausalConv3d(config_.vae.z_dim, config_.vae.z_dim, Int3{1, 1, 1}));
   decoder = register_module("decoder", Decoder3d(config_.vae, /*scene_variant=*/true));
-  heads = register_module("heads", OutputHeads(decoder->out_features(),
-                                               TriangleChannels::make(config_.colour_channels), config_.heads));
+  heads = register_module("heads", OutputHeads(decoder->out_features(), layout, config_.heads));
 }
 
 at::Tensor SceneDecoderImpl::channels_last_input(const at::Tensor& x) const {

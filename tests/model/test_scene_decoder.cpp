@@ -50,21 +50,35 @@ TEST_CASE("Scene decoder parameter count at the paper's size", "[model][scene]")
   CHECK(count_parameters(*scene_mono, "heads.") == 96 + 96 * 27 * 12 + 12);
 }
 
-TEST_CASE("Triangle channel map", "[model][scene]") {
-  auto c = TriangleChannels::make(3);
-  CHECK(c.total == 12);
-  CHECK(c.depth.start == 0);
-  CHECK(c.cholesky.start == 1);
-  CHECK(c.cholesky.count == 3);
-  CHECK(c.tilt.start == 4);
-  CHECK(c.tilt.count == 2);
-  CHECK(c.spin.start == 6);
-  CHECK(c.colour.start == 7);
-  CHECK(c.opacity.start == 10);
-  CHECK(c.sigma.start == 11);
-  auto sh = TriangleChannels::make(48);
-  CHECK(sh.total == 57);
-  CHECK(sh.sigma.start == 56);
+TEST_CASE("Heads follow the triangle channel layout, ablations and SH included", "[model][scene]") {
+  using flat::primitives::triangle_channels;
+  const auto groups = head_groups(triangle_channels("ray_centred"));
+  REQUIRE(groups.size() == 6);
+  const std::vector<std::tuple<std::string, int64_t, int64_t>> expected = {
+      {"depth", 0, 1}, {"cholesky", 1, 3}, {"rotation", 4, 3}, {"colour", 7, 3}, {"opacity", 10, 1}, {"sigma", 11, 1}};
+  for (size_t i = 0; i < groups.size(); ++i) {
+    INFO(groups[i].first);
+    CHECK(groups[i].first == std::get<0>(expected[i]));
+    CHECK(groups[i].second.start == std::get<1>(expected[i]));
+    CHECK(groups[i].second.count == std::get<2>(expected[i]));
+  }
+  CHECK(head_groups(triangle_channels("three_offsets"))[1].first == "offsets");
+  // Every layout: the decoder emits exactly its channels, independent and monolithic.
+  struct Case {
+    std::string param;
+    int64_t sh_degree, total;
+  };
+  for (const Case& c : {Case{"ray_centred", 0, 12}, Case{"three_offsets", 0, 15}, Case{"global_rotation", 0, 13},
+                        Case{"ray_centred", 1, 21}}) {
+    for (const std::string mode : {"independent", "monolithic"}) {
+      INFO(c.param << " sh " << c.sh_degree << " " << mode);
+      torch::NoGradGuard no_grad;
+      SceneDecoder scene(tiny_config(mode), triangle_channels(c.param, c.sh_degree));
+      CHECK(scene->channels().total == c.total);
+      const auto out = scene->forward(torch::randn({1, 16, 2, 2, 3}), torch::randn({1, 32, 2, 2, 3}));
+      CHECK(out.size(1) == c.total);
+    }
+  }
 }
 
 TEST_CASE("Scene decoder shapes, both head modes, streaming == full", "[model][scene]") {

@@ -30,7 +30,6 @@ namespace flat::model {
 struct SceneDecoderConfig {
   WanVAEConfig vae;                  // the decoder's architecture (dim 96 = pretrained)
   std::string heads = "independent";  // "independent" | "monolithic"
-  int64_t colour_channels = 3;       // RGB
   bool camera = true;                // build the camera adapter
   int64_t camera_channels = 32;      // [E_ref; E_dir]
   int64_t adapter_zero_kernel = 3;   // the zero conv's kernel (3: 3x3x3, 1: 1x1x1)
@@ -39,7 +38,6 @@ struct SceneDecoderConfig {
   void visit(V& v) {
     v.section("vae", vae);
     v.field("heads", heads, config::one_of({"independent", "monolithic"}), "one head per parameter group, or one");
-    v.field("colour_channels", colour_channels, config::positive(), "colour values per triangle");
     v.field("camera", camera, "camera conditioning through the zero-initialised adapter");
     v.field("camera_channels", camera_channels, config::positive(), "channels of the camera latents");
     v.field("adapter_zero_kernel", adapter_zero_kernel, config::range(1, 3), "kernel of the zero conv: 1 or 3");
@@ -48,7 +46,11 @@ struct SceneDecoderConfig {
 
 class SceneDecoderImpl : public torch::nn::Module {
  public:
-  explicit SceneDecoderImpl(const SceneDecoderConfig& config = {});
+  // layout: the heads' output channels (the triangle parameterisation and
+  // colour model: primitives::TriangleParamConfig::channels()); the default is
+  // the paper's ray-centred RGB layout, 12 channels.
+  explicit SceneDecoderImpl(const SceneDecoderConfig& config = {},
+                            const primitives::TriangleChannels& layout = primitives::triangle_channels("ray_centred"));
 
   // latent (B,16,T',h,w) normalised; camera_latents (B,32,T',h,w) or undefined
   // (no camera term). Returns raw head outputs (B, channels().total, T, 4h, 4w).
@@ -60,7 +62,7 @@ class SceneDecoderImpl : public torch::nn::Module {
   // x re-laid out as ChannelsLast3d when the weights are (to_channels_last_3d).
   at::Tensor channels_last_input(const at::Tensor& x) const;
 
-  const TriangleChannels& channels() const { return heads->channels(); }
+  const primitives::TriangleChannels& channels() const { return heads->channels(); }
   const SceneDecoderConfig& config() const { return config_; }
 
   // Initialise conv2 and the decoder from a Wan 2.1 VAE file (either naming);
