@@ -24,7 +24,7 @@ bool little_endian_host() {
 
 }  // namespace
 
-void write_triangle_ply(const std::string& path, const TriangleSoup& soup) {
+void write_triangle_ply(const std::string& path, const primitives::TriangleSoup& soup) {
   check_shape(soup.vertices, {-1, 3, 3}, "triangle ply: vertices", "(N,3,3)");
   const int64_t n = soup.vertices.size(0);
   check_shape(soup.colors, {n, 3}, "triangle ply: colors", "(N,3)");
@@ -56,7 +56,7 @@ void write_triangle_ply(const std::string& path, const TriangleSoup& soup) {
   });
 }
 
-TriangleSoup read_triangle_ply(const std::string& path) {
+primitives::TriangleSoup read_triangle_ply(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   FLAT_CHECK(in.good(), path + ": cannot open triangle PLY");
   const auto bad = [&](const std::string& what) -> Error { return Error(path + ": " + what); };
@@ -126,7 +126,7 @@ TriangleSoup read_triangle_ply(const std::string& path) {
   std::vector<float> verts(3 * n_vertex);
   in.read(reinterpret_cast<char*>(verts.data()), (std::streamsize)(verts.size() * sizeof(float)));
   if (!in) throw bad("element 'vertex': file ends after fewer than " + std::to_string(n_vertex) + " vertices");
-  TriangleSoup soup;
+  primitives::TriangleSoup soup;
   soup.vertices = at::empty({n_face, 3, 3}, at::kFloat);
   soup.colors = at::empty({n_face, 3}, at::kFloat);
   soup.opacities = at::empty({n_face}, at::kFloat);

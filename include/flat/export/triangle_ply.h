@@ -10,18 +10,15 @@
 
 #include <ATen/ATen.h>
 
+#include "flat/primitives/triangle_soup.h"
+
 namespace flat::exporter {
 
-struct TriangleSoup {
-  at::Tensor vertices;   // (N,3,3) float32
-  at::Tensor colors;     // (N,3)
-  at::Tensor opacities;  // (N)
-  at::Tensor sigmas;     // (N)
-};
-
+// One scene (no batch dimension: vertices (N,3,3), colors (N,3) RGB,
+// opacities (N), sigmas (N); primitives::TriangleSoup::scene(b) gives it).
 // Writes atomically; throws flat::Error on bad shapes (naming the tensor).
-void write_triangle_ply(const std::string& path, const TriangleSoup& soup);
+void write_triangle_ply(const std::string& path, const primitives::TriangleSoup& scene);
 // Throws flat::Error naming the file and the element/property at fault.
-TriangleSoup read_triangle_ply(const std::string& path);
+primitives::TriangleSoup read_triangle_ply(const std::string& path);
 
 }  // namespace flat::exporter
