@@ -87,40 +87,55 @@ camera::Cameras orbit(int64_t n) {
   return cams;
 }
 
-// Full-sequence forward, timed stage by stage (synchronised, so slightly slower overall).
-void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tensor& cams, const torch::Device& dev) {
-  std::vector<std::pair<std::string, double>> stages;
+// One forward timed stage by stage (synchronised, so slightly slower overall):
+// the full sequence, or the streaming loop with each stage's time summed over
+// the latent frames (same layer order and caches as SceneDecoder::forward).
+void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tensor& cams, const torch::Device& dev,
+                   bool streaming) {
+  std::vector<std::pair<std::string, double>> stages;  // first-seen order
   auto timed = [&](const std::string& name, auto&& fn) {
     sync(dev);
     const double t0 = now_ms();
     at::Tensor out = fn();
     sync(dev);
-    stages.emplace_back(name, now_ms() - t0);
+    const double ms = now_ms() - t0;
+    auto it = std::find_if(stages.begin(), stages.end(), [&](const auto& st) { return st.first == name; });
+    if (it == stages.end()) stages.emplace_back(name, ms);
+    else it->second += ms;
     return out;
   };
   auto& d = scene->decoder;
-  at::Tensor z = timed("adapter + denormalise + conv2", [&] {
-    at::Tensor x = cams.defined() ? latent + scene->adapter->forward(cams) : latent;
-    x = scene->conv2->forward(denormalise_latent(x));
-    return scene->channels_last_input(x);
-  });
-  at::Tensor h = timed("decoder.conv1", [&] { return d->conv1->forward(z); });
-  h = timed("middle (res, attn, res)", [&] { return d->mid2->forward(d->mid_attn->forward(d->mid1->forward(h))); });
-  size_t r = 0, s = 0;
-  int index = 0;
-  for (int kind : d->up_kind) {
-    const std::string name = "upsamples." + std::to_string(index++) + (kind == 0 ? " res " : " resample ");
-    if (kind == 0) {
-      h = timed(name + std::to_string(h.size(1)) + "ch T=" + std::to_string(h.size(2)) + " " +
-                    std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
-                [&] { return d->up_res[r++]->forward(h); });
-    } else {
-      h = timed(name, [&] { return d->up_resample[s++]->forward(h); });
+  StreamCache cache;
+  StreamCache* c = streaming ? &cache : nullptr;
+  const int64_t chunks = streaming ? latent.size(2) : 1;
+  for (int64_t i = 0; i < chunks; ++i) {
+    cache.begin_chunk();
+    const at::Tensor l = streaming ? latent.narrow(2, i, 1) : latent;
+    const at::Tensor cam = cams.defined() && streaming ? cams.narrow(2, i, 1) : cams;
+    at::Tensor z = timed("adapter + denormalise + conv2", [&] {
+      at::Tensor x = cam.defined() ? l + scene->adapter->forward(cam, c) : l;
+      x = scene->conv2->forward(denormalise_latent(x));
+      return scene->channels_last_input(x);
+    });
+    at::Tensor h = timed("decoder.conv1", [&] { return c ? d->conv1->forward_cached(z, c->next()) : d->conv1->forward(z); });
+    h = timed("middle (res, attn, res)",
+              [&] { return d->mid2->forward(d->mid_attn->forward(d->mid1->forward(h, c)), c); });
+    size_t r = 0, s = 0;
+    int index = 0;
+    for (int kind : d->up_kind) {
+      const std::string name = "upsamples." + std::to_string(index++) + (kind == 0 ? " res " : " resample");
+      if (kind == 0) {
+        h = timed(name + std::to_string(h.size(1)) + "ch " + std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
+                  [&] { return d->up_res[r++]->forward(h, c); });
+      } else {
+        h = timed(name, [&] { return d->up_resample[s++]->forward(h, c); });
+      }
     }
+    timed("heads", [&] { return scene->heads->forward(h, c); });
   }
-  h = timed("heads", [&] { return scene->heads->forward(h); });
   double total = 0;
   for (auto& st : stages) total += st.second;
+  spdlog::info("stages of one {} forward:", streaming ? "streaming" : "full-sequence");
   for (auto& st : stages) spdlog::info("  {:<45} {:8.2f} ms {:5.1f}%", st.first, st.second, 100.0 * st.second / total);
   spdlog::info("  {:<45} {:8.2f} ms", "sum of stages", total);
 }
@@ -190,8 +205,8 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
           times.size(), peak_gib(dev), out.size(0), out.size(1), out.size(2), out.size(3), out.size(4));
     }
     if (o.breakdown) {
-      spdlog::info("breakdown, full sequence, T'={} (camera latents precomputed):", t);
-      run_breakdown(scene, latent, cam_pre, dev);
+      spdlog::info("breakdown, T'={} (camera latents precomputed):", t);
+      for (const auto& mode : modes) run_breakdown(scene, latent, cam_pre, dev, mode == "streaming");
     }
   }
 }
@@ -221,7 +236,7 @@ void add_decoder(CLI::App& app) {
   cmd->add_option("--channels-last", opts->channels_last, "channels-last 3D layout (true/false)")->capture_default_str();
   cmd->add_option("--fused-norm", opts->fused_norm, "fused CUDA RMS_norm+SiLU kernel (true/false)")->capture_default_str();
   cmd->add_option("--cudnn-benchmark", opts->cudnn_benchmark, "cuDNN autotuning (true/false)")->capture_default_str();
-  cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a full-sequence forward");
+  cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a forward (each --mode)");
   cmd->callback([opts] { run_decoder_bench(*opts); });
 }
 
