@@ -39,6 +39,7 @@ struct DecoderBenchOptions {
   std::string mode = "both";        // full | streaming | both
   std::string camera = "precomputed";
   std::string heads = "independent";
+  int64_t stream_trunk_frames = SceneDecoderConfig{}.stream_trunk_frames;
   std::string dtype = "bf16";
   std::string device = "cuda";
   int64_t dim = 96;
@@ -88,8 +89,9 @@ camera::Cameras orbit(int64_t n) {
 }
 
 // One forward timed stage by stage (synchronised, so slightly slower overall):
-// the full sequence, or the streaming loop with each stage's time summed over
-// the latent frames (same layer order and caches as SceneDecoder::forward).
+// the full sequence, or the streaming loop (the low-resolution trunk in steps
+// of stream_trunk_frames latent frames, the rest one latent frame at a time,
+// as SceneDecoder::forward) with each stage's time summed over the steps.
 void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tensor& cams, const torch::Device& dev,
                    bool streaming) {
   std::vector<std::pair<std::string, double>> stages;  // first-seen order
@@ -105,13 +107,23 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
     return out;
   };
   auto& d = scene->decoder;
-  StreamCache cache;
-  StreamCache* c = streaming ? &cache : nullptr;
-  const int64_t chunks = streaming ? latent.size(2) : 1;
-  for (int64_t i = 0; i < chunks; ++i) {
-    cache.begin_chunk();
-    const at::Tensor l = streaming ? latent.narrow(2, i, 1) : latent;
-    const at::Tensor cam = cams.defined() && streaming ? cams.narrow(2, i, 1) : cams;
+  const size_t split = d->trunk_stages();
+  // Stages [begin, end) of `upsamples` (r residual blocks and s resamples before begin).
+  auto upsamples = [&](at::Tensor h, StreamCache* c, size_t begin, size_t end) {
+    size_t r = 0, s = 0;
+    for (size_t i = 0; i < begin; ++i) (d->up_kind[i] == 0 ? r : s)++;
+    for (size_t i = begin; i < end; ++i) {
+      const std::string name = "upsamples." + std::to_string(i) + (d->up_kind[i] == 0 ? " res " : " resample");
+      if (d->up_kind[i] == 0) {
+        h = timed(name + std::to_string(h.size(1)) + "ch " + std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
+                  [&] { return d->up_res[r++]->forward(h, c); });
+      } else {
+        h = timed(name, [&] { return d->up_resample[s++]->forward(h, c); });
+      }
+    }
+    return h;
+  };
+  auto trunk = [&](const at::Tensor& l, const at::Tensor& cam, StreamCache* c) {
     at::Tensor z = timed("adapter + denormalise + conv2", [&] {
       at::Tensor x = cam.defined() ? l + scene->adapter->forward(cam, c) : l;
       x = scene->conv2->forward(denormalise_latent(x));
@@ -120,18 +132,29 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
     at::Tensor h = timed("decoder.conv1", [&] { return c ? d->conv1->forward_cached(z, c->next()) : d->conv1->forward(z); });
     h = timed("middle (res, attn, res)",
               [&] { return d->mid2->forward(d->mid_attn->forward(d->mid1->forward(h, c)), c); });
-    size_t r = 0, s = 0;
-    int index = 0;
-    for (int kind : d->up_kind) {
-      const std::string name = "upsamples." + std::to_string(index++) + (kind == 0 ? " res " : " resample");
-      if (kind == 0) {
-        h = timed(name + std::to_string(h.size(1)) + "ch " + std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
-                  [&] { return d->up_res[r++]->forward(h, c); });
-      } else {
-        h = timed(name, [&] { return d->up_resample[s++]->forward(h, c); });
+    return upsamples(h, c, 0, split);
+  };
+  auto tail = [&](const at::Tensor& h, StreamCache* c) {
+    const at::Tensor f = upsamples(h, c, split, d->up_kind.size());
+    return timed("heads", [&] { return scene->heads->forward(f, c); });
+  };
+  if (!streaming) {
+    tail(trunk(latent, cams, nullptr), nullptr);
+  } else {
+    StreamCache trunk_cache, tail_cache;
+    const int64_t T = latent.size(2), step = scene->config().stream_trunk_frames;
+    for (int64_t i = 0; i < T; i += step) {
+      const int64_t n = std::min(step, T - i);
+      trunk_cache.begin_chunk();
+      const at::Tensor h = trunk(latent.narrow(2, i, n), cams.defined() ? cams.narrow(2, i, n) : cams, &trunk_cache);
+      int64_t frame = 0;
+      for (int64_t j = i; j < i + n; ++j) {
+        const int64_t frames = (j == 0 && split > 0) ? 1 : (split > 0 ? 2 : 1);
+        tail_cache.begin_chunk();
+        tail(h.narrow(2, frame, frames), &tail_cache);
+        frame += frames;
       }
     }
-    timed("heads", [&] { return scene->heads->forward(h, c); });
   }
   double total = 0;
   for (auto& st : stages) total += st.second;
@@ -153,6 +176,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   SceneDecoderConfig config;
   config.vae.dim = o.dim;
   config.heads = o.heads;
+  config.stream_trunk_frames = o.stream_trunk_frames;
   SceneDecoder scene(config);
   scene->eval();
   scene->to(dev, dtype);
@@ -227,6 +251,10 @@ void add_decoder(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--heads", opts->heads, "independent or monolithic")
       ->check(CLI::IsMember({"independent", "monolithic"}))
+      ->capture_default_str();
+  cmd->add_option("--stream-trunk-frames", opts->stream_trunk_frames,
+                  "streaming: latent frames per step of the low-resolution trunk")
+      ->check(CLI::PositiveNumber)
       ->capture_default_str();
   cmd->add_option("--dtype", opts->dtype, "bf16 or fp32")->check(CLI::IsMember({"bf16", "fp32"}))->capture_default_str();
   cmd->add_option("--device", opts->device, "cuda or cpu")->check(CLI::IsMember({"cuda", "cpu"}))->capture_default_str();

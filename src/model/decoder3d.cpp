@@ -63,18 +63,40 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : s
 }
 
 at::Tensor Decoder3dImpl::forward(const at::Tensor& z, StreamCache* cache) {
+  return forward_tail(forward_trunk(z, cache, up_kind.size()), cache, up_kind.size());
+}
+
+at::Tensor Decoder3dImpl::forward_trunk(const at::Tensor& z, StreamCache* cache, size_t end) {
   FLAT_CHECK(z.dim() == 5 && z.size(1) == conv1->in_channels(),
              "Decoder3d: expected latent (B," + std::to_string(conv1->in_channels()) + ",T,h,w), got " + shape_str(z));
   at::Tensor h = cache ? conv1->forward_cached(z, cache->next()) : conv1->forward(z);
   h = mid1->forward(h, cache);
   h = mid_attn->forward(h);
   h = mid2->forward(h, cache);
-  size_t r = 0, s = 0;
-  for (int kind : up_kind) {
-    h = kind == 0 ? up_res[r++]->forward(h, cache) : up_resample[s++]->forward(h, cache);
+  return forward_upsamples(h, cache, 0, end);
+}
+
+at::Tensor Decoder3dImpl::forward_tail(const at::Tensor& h, StreamCache* cache, size_t begin) {
+  at::Tensor out = forward_upsamples(h, cache, begin, up_kind.size());
+  if (scene_variant_) return out;
+  return norm_silu_conv(out, head_norm, head_conv, cache);
+}
+
+at::Tensor Decoder3dImpl::forward_upsamples(at::Tensor h, StreamCache* cache, size_t begin, size_t end) {
+  size_t r = 0, s = 0;  // residual blocks and resamples before stage `begin`
+  for (size_t i = 0; i < begin; ++i) (up_kind[i] == 0 ? r : s)++;
+  for (size_t i = begin; i < end; ++i) {
+    h = up_kind[i] == 0 ? up_res[r++]->forward(h, cache) : up_resample[s++]->forward(h, cache);
   }
-  if (scene_variant_) return h;
-  return norm_silu_conv(h, head_norm, head_conv, cache);
+  return h;
+}
+
+size_t Decoder3dImpl::trunk_stages() const {
+  size_t s = 0;
+  for (size_t i = 0; i < up_kind.size(); ++i) {
+    if (up_kind[i] == 1 && up_resample[s++]->mode() == ResampleMode::upsample3d) return i + 1;
+  }
+  return 0;
 }
 
 }  // namespace flat::model

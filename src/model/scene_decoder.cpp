@@ -26,12 +26,16 @@ at::Tensor SceneDecoderImpl::channels_last_input(const at::Tensor& x) const {
   return cl ? x.contiguous(at::MemoryFormat::ChannelsLast3d) : x;
 }
 
-at::Tensor SceneDecoderImpl::chunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache,
-                                   bool with_heads) {
+at::Tensor SceneDecoderImpl::trunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache,
+                                   size_t split) {
   at::Tensor z = latent;
   if (camera_latents.defined()) z = z + adapter->forward(camera_latents, cache);
   z = channels_last_input(conv2->forward(denormalise_latent(z)));
-  at::Tensor f = decoder->forward(z, cache);
+  return decoder->forward_trunk(z, cache, split);
+}
+
+at::Tensor SceneDecoderImpl::tail(const at::Tensor& h, StreamCache* cache, size_t split, bool with_heads) {
+  at::Tensor f = decoder->forward_tail(h, cache, split);
   return with_heads ? heads->forward(f, cache) : f;
 }
 
@@ -46,13 +50,29 @@ at::Tensor SceneDecoderImpl::run(const at::Tensor& latent, const at::Tensor& cam
                "SceneDecoder: camera latents " + shape_str(camera_latents) + " do not match the latent " +
                    shape_str(latent) + " (expected (B," + std::to_string(config_.camera_channels) + ",T',h,w))");
   }
-  if (!streaming) return chunk(latent, camera_latents, nullptr, with_heads);
-  StreamCache cache;
+  const size_t split = decoder->trunk_stages();
+  if (!streaming) return tail(trunk(latent, camera_latents, nullptr, split), nullptr, split, with_heads);
+  // The trunk takes stream_trunk_frames latent frames per step; its output is
+  // cut per latent frame (after its temporal x2: 1 frame for latent frame 0,
+  // 2 for every other) and the tail streams those one at a time.
+  FLAT_CHECK(config_.stream_trunk_frames > 0, "SceneDecoder: stream_trunk_frames must be positive");
+  const int64_t T = latent.size(2), step = config_.stream_trunk_frames, per_frame = split > 0 ? 2 : 1;
+  StreamCache trunk_cache, tail_cache;
   std::vector<at::Tensor> outs;
-  for (int64_t i = 0; i < latent.size(2); ++i) {
-    cache.begin_chunk();
-    at::Tensor cam = camera_latents.defined() ? camera_latents.narrow(2, i, 1) : at::Tensor();
-    outs.push_back(chunk(latent.narrow(2, i, 1), cam, &cache, with_heads));
+  for (int64_t i = 0; i < T; i += step) {
+    const int64_t n = std::min(step, T - i);
+    trunk_cache.begin_chunk();
+    at::Tensor cam = camera_latents.defined() ? camera_latents.narrow(2, i, n) : at::Tensor();
+    const at::Tensor h = trunk(latent.narrow(2, i, n), cam, &trunk_cache, split);
+    int64_t frame = 0;
+    for (int64_t j = i; j < i + n; ++j) {
+      const int64_t frames = (j == 0 && split > 0) ? 1 : per_frame;
+      tail_cache.begin_chunk();
+      outs.push_back(tail(h.narrow(2, frame, frames), &tail_cache, split, with_heads));
+      frame += frames;
+    }
+    FLAT_CHECK(frame == h.size(2), "SceneDecoder: the streaming trunk gave " + std::to_string(h.size(2)) +
+                                       " frames for " + std::to_string(n) + " latent frames");
   }
   return at::cat(outs, 2);
 }

@@ -90,9 +90,16 @@ TEST_CASE("Scene decoder shapes, both head modes, streaming == full", "[model][s
     auto cams = torch::randn({1, 32, 3, 2, 3});
     auto full = scene->forward(latent, cams, /*streaming=*/false);
     REQUIRE(full.sizes() == at::IntArrayRef({1, 12, 9, 8, 12}));  // T = 1+4(3-1), (4h, 4w) = (H/2, W/2)
-    auto stream = scene->forward(latent, cams, /*streaming=*/true);
-    INFO(mode);
-    CHECK(flat::test::rel_error(stream, full) < 1e-5);
+    // Streaming, with the low-resolution trunk taking 1, 2 or all latent frames per step.
+    for (const int64_t trunk_frames : {1, 2, 8}) {
+      SceneDecoderConfig cfg = tiny_config(mode);
+      cfg.stream_trunk_frames = trunk_frames;
+      torch::manual_seed(7);
+      SceneDecoder same(cfg);
+      auto stream = same->forward(latent, cams, /*streaming=*/true);
+      INFO(mode << ", trunk frames per step " << trunk_frames);
+      CHECK(flat::test::rel_error(stream, full) < 1e-5);
+    }
     CHECK(scene->features(latent, cams).size(1) == 8);
   }
   SceneDecoder scene(tiny_config());

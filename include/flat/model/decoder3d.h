@@ -29,6 +29,15 @@ class Decoder3dImpl : public torch::nn::Module {
   Decoder3dImpl(const WanVAEConfig& config, bool scene_variant = false);
   // Full sequence (cache == nullptr) or one latent frame with the caches.
   at::Tensor forward(const at::Tensor& z, StreamCache* cache = nullptr);
+  // forward() in two parts: conv1, middle and the `upsamples` stages [0, end),
+  // then the stages [begin, size) and (VAE) the RGB head; forward(z) ==
+  // forward_tail(forward_trunk(z, c, k), c, k). With caches, the two parts
+  // may be fed chunks of different lengths (each part keeps its own cache).
+  at::Tensor forward_trunk(const at::Tensor& z, StreamCache* cache, size_t end);
+  at::Tensor forward_tail(const at::Tensor& h, StreamCache* cache, size_t begin);
+  // Stages up to and including the first temporal upsample (0 if none): the
+  // low-resolution trunk, whose activations are small whatever its chunk length.
+  size_t trunk_stages() const;
 
   bool scene_variant() const { return scene_variant_; }
   int64_t out_features() const { return out_features_; }  // channels before the head (dim)
@@ -43,6 +52,7 @@ class Decoder3dImpl : public torch::nn::Module {
   CausalConv3d head_conv{nullptr};
 
  private:
+  at::Tensor forward_upsamples(at::Tensor h, StreamCache* cache, size_t begin, size_t end);
   bool scene_variant_;
   int64_t out_features_ = 0;
 };

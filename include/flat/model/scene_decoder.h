@@ -33,6 +33,12 @@ struct SceneDecoderConfig {
   bool camera = true;                // build the camera adapter
   int64_t camera_channels = 32;      // [E_ref; E_dir]
   int64_t adapter_zero_kernel = 3;   // the zero conv's kernel (3: 3x3x3, 1: 1x1x1)
+  // Streaming: latent frames the low-resolution trunk (adapter, conv1, middle,
+  // up to the first temporal upsample) takes per step. Its activations are
+  // small (~25 MB a latent frame at 54x96), and one frame at a time leaves the
+  // GPU idle there; the high-resolution rest always streams one latent frame
+  // at a time. Any value gives the same output.
+  int64_t stream_trunk_frames = 8;
 
   template <class V>
   void visit(V& v) {
@@ -41,6 +47,8 @@ struct SceneDecoderConfig {
     v.field("camera", camera, "camera conditioning through the zero-initialised adapter");
     v.field("camera_channels", camera_channels, config::positive(), "channels of the camera latents");
     v.field("adapter_zero_kernel", adapter_zero_kernel, config::range(1, 3), "kernel of the zero conv: 1 or 3");
+    v.field("stream_trunk_frames", stream_trunk_frames, config::positive(),
+            "streaming: latent frames per step of the low-resolution trunk");
   }
 };
 
@@ -78,7 +86,9 @@ class SceneDecoderImpl : public torch::nn::Module {
  private:
   SceneDecoderConfig config_;
   at::Tensor run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming, bool with_heads);
-  at::Tensor chunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache, bool with_heads);
+  // adapter, conv2 and the decoder's first `split` stages / the rest and the heads.
+  at::Tensor trunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache, size_t split);
+  at::Tensor tail(const at::Tensor& h, StreamCache* cache, size_t split, bool with_heads);
 };
 TORCH_MODULE(SceneDecoder);
 
