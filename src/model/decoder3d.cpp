@@ -63,7 +63,7 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : s
 }
 
 at::Tensor Decoder3dImpl::forward(const at::Tensor& z, StreamCache* cache) {
-  return forward_tail(forward_trunk(z, cache, up_kind.size()), cache, up_kind.size());
+  return forward_tail(forward_trunk(z, cache, up_kind.size()), cache, up_kind.size());  // (a temporary: moved)
 }
 
 at::Tensor Decoder3dImpl::forward_trunk(const at::Tensor& z, StreamCache* cache, size_t end) {
@@ -76,8 +76,8 @@ at::Tensor Decoder3dImpl::forward_trunk(const at::Tensor& z, StreamCache* cache,
   return forward_upsamples(h, cache, 0, end);
 }
 
-at::Tensor Decoder3dImpl::forward_tail(const at::Tensor& h, StreamCache* cache, size_t begin) {
-  at::Tensor out = forward_upsamples(h, cache, begin, up_kind.size());
+at::Tensor Decoder3dImpl::forward_tail(at::Tensor h, StreamCache* cache, size_t begin) {
+  at::Tensor out = forward_upsamples(std::move(h), cache, begin, up_kind.size());  // h freed as the stages run
   if (scene_variant_) return out;
   return norm_silu_conv(out, head_norm, head_conv, cache);
 }

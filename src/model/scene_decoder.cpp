@@ -34,8 +34,8 @@ at::Tensor SceneDecoderImpl::trunk(const at::Tensor& latent, const at::Tensor& c
   return decoder->forward_trunk(z, cache, split);
 }
 
-at::Tensor SceneDecoderImpl::tail(const at::Tensor& h, StreamCache* cache, size_t split, bool with_heads) {
-  at::Tensor f = decoder->forward_tail(h, cache, split);
+at::Tensor SceneDecoderImpl::tail(at::Tensor h, StreamCache* cache, size_t split, bool with_heads) {
+  at::Tensor f = decoder->forward_tail(std::move(h), cache, split);
   return with_heads ? heads->forward(f, cache) : f;
 }
 

@@ -34,7 +34,7 @@ class Decoder3dImpl : public torch::nn::Module {
   // forward_tail(forward_trunk(z, c, k), c, k). With caches, the two parts
   // may be fed chunks of different lengths (each part keeps its own cache).
   at::Tensor forward_trunk(const at::Tensor& z, StreamCache* cache, size_t end);
-  at::Tensor forward_tail(const at::Tensor& h, StreamCache* cache, size_t begin);
+  at::Tensor forward_tail(at::Tensor h, StreamCache* cache, size_t begin);
   // Stages up to and including the first temporal upsample (0 if none): the
   // low-resolution trunk, whose activations are small whatever its chunk length.
   size_t trunk_stages() const;

@@ -35,10 +35,10 @@ struct SceneDecoderConfig {
   int64_t adapter_zero_kernel = 3;   // the zero conv's kernel (3: 3x3x3, 1: 1x1x1)
   // Streaming: latent frames the low-resolution trunk (adapter, conv1, middle,
   // up to the first temporal upsample) takes per step. Its activations are
-  // small (~25 MB a latent frame at 54x96), and one frame at a time leaves the
-  // GPU idle there; the high-resolution rest always streams one latent frame
-  // at a time. Any value gives the same output.
-  int64_t stream_trunk_frames = 8;
+  // small (~14 MB a latent frame at 54x96, bf16), and one frame at a time
+  // leaves the GPU idle there; the high-resolution rest always streams one
+  // latent frame at a time. Any value gives the same output.
+  int64_t stream_trunk_frames = 16;
 
   template <class V>
   void visit(V& v) {
@@ -88,7 +88,7 @@ class SceneDecoderImpl : public torch::nn::Module {
   at::Tensor run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming, bool with_heads);
   // adapter, conv2 and the decoder's first `split` stages / the rest and the heads.
   at::Tensor trunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache, size_t split);
-  at::Tensor tail(const at::Tensor& h, StreamCache* cache, size_t split, bool with_heads);
+  at::Tensor tail(at::Tensor h, StreamCache* cache, size_t split, bool with_heads);
 };
 TORCH_MODULE(SceneDecoder);
 
