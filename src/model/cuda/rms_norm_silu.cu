@@ -1,10 +1,6 @@
 // Fused RMS_norm + SiLU over the channels of a channels-last video tensor, one
 // warp per pixel: read the C values, reduce the sum of squares with shuffles,
 // write silu(x * scale / ||x|| * gamma) straight into the (pre-padded) output.
-// When C is a multiple of 16 bytes' worth of elements (8 bf16 or 4 float: every
-// Wan width) and the rows are 16-byte aligned, each lane moves 16 bytes per
-// access (a 96-channel bf16 row is 12 such accesses instead of 96 2-byte
-// ones, which left the kernel far below memory bandwidth).
 #include <cuda_bf16.h>
 
 #include "rms_norm_silu_kernel.h"
@@ -20,64 +16,6 @@ template <>
 __device__ inline float from_float<float>(float v) { return v; }
 template <>
 __device__ inline __nv_bfloat16 from_float<__nv_bfloat16>(float v) { return __float2bfloat16(v); }
-
-// 16 bytes of T.
-template <class T>
-struct alignas(16) Pack {
-  static constexpr int kN = 16 / sizeof(T);
-  T v[kN];
-};
-
-template <class T>
-__global__ void rms_norm_silu_vec_kernel(const T* __restrict__ x, const T* __restrict__ gamma, T* __restrict__ out,
-                                         int64_t rows, int64_t frames, int64_t pixels, int64_t channels,
-                                         int64_t out_frames, int64_t frame_offset, float scale, bool silu) {
-  constexpr int kN = Pack<T>::kN;
-  const int64_t warps_per_block = blockDim.x / 32;
-  const int64_t row = int64_t(blockIdx.x) * warps_per_block + threadIdx.x / 32;
-  const int lane = threadIdx.x % 32;
-  if (row >= rows) return;
-  const int64_t p = row % pixels;
-  const int64_t bt = row / pixels;
-  const int64_t t = bt % frames;
-  const int64_t b = bt / frames;
-  const auto* xr = reinterpret_cast<const Pack<T>*>(x + row * channels);
-  const auto* gr = reinterpret_cast<const Pack<T>*>(gamma);
-  auto* orow = reinterpret_cast<Pack<T>*>(out + ((b * out_frames + frame_offset + t) * pixels + p) * channels);
-  const int64_t packs = channels / kN;
-  // Up to 4 packs per lane stay in registers (C <= 1024 for bf16): one read of x.
-  Pack<T> held[4];
-  float ss = 0.f;
-#pragma unroll
-  for (int k = 0; k < 4; ++k) {
-    const int64_t i = lane + 32 * k;
-    if (i < packs) {
-      held[k] = xr[i];
-#pragma unroll
-      for (int e = 0; e < kN; ++e) {
-        const float v = to_float(held[k].v[e]);
-        ss += v * v;
-      }
-    }
-  }
-  for (int off = 16; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
-  const float inv = scale / fmaxf(sqrtf(ss), 1e-12f);
-#pragma unroll
-  for (int k = 0; k < 4; ++k) {
-    const int64_t i = lane + 32 * k;
-    if (i < packs) {
-      const Pack<T> g = gr[i];
-      Pack<T> o;
-#pragma unroll
-      for (int e = 0; e < kN; ++e) {
-        float v = to_float(held[k].v[e]) * inv * to_float(g.v[e]);
-        if (silu) v = v / (1.f + __expf(-v));
-        o.v[e] = from_float<T>(v);
-      }
-      orow[i] = o;
-    }
-  }
-}
 
 template <class T>
 __global__ void rms_norm_silu_kernel(const T* __restrict__ x, const T* __restrict__ gamma, T* __restrict__ out,
@@ -117,19 +55,7 @@ void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t b
   if (rows == 0) return;
   const int threads = 256;
   const int64_t blocks = (rows + threads / 32 - 1) / (threads / 32);
-  const int elem = is_bf16 ? 2 : 4, per_pack = 16 / elem;
-  auto aligned = [](const void* ptr) { return reinterpret_cast<uintptr_t>(ptr) % 16 == 0; };
-  const bool vec = channels % per_pack == 0 && channels / per_pack <= 4 * 32 && aligned(x) && aligned(gamma) &&
-                   aligned(out);
-  if (vec && is_bf16) {
-    rms_norm_silu_vec_kernel<__nv_bfloat16><<<blocks, threads, 0, stream>>>(
-        static_cast<const __nv_bfloat16*>(x), static_cast<const __nv_bfloat16*>(gamma),
-        static_cast<__nv_bfloat16*>(out), rows, frames, pixels, channels, out_frames, frame_offset, scale, silu);
-  } else if (vec) {
-    rms_norm_silu_vec_kernel<float><<<blocks, threads, 0, stream>>>(
-        static_cast<const float*>(x), static_cast<const float*>(gamma), static_cast<float*>(out), rows, frames,
-        pixels, channels, out_frames, frame_offset, scale, silu);
-  } else if (is_bf16) {
+  if (is_bf16) {
     rms_norm_silu_kernel<__nv_bfloat16><<<blocks, threads, 0, stream>>>(
         static_cast<const __nv_bfloat16*>(x), static_cast<const __nv_bfloat16*>(gamma),
         static_cast<__nv_bfloat16*>(out), rows, frames, pixels, channels, out_frames, frame_offset, scale, silu);
