@@ -112,6 +112,9 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
     if (in.vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
       const auto views = ctx->saved_data["views"].toTensorVector();
+      // No state was kept when no scene input required grad (only the
+      // cameras did, which get no gradient): nothing to compute.
+      if (views.empty()) return variable_list(10);
       g = cuda::backward(in, views, g_rgb, g_alpha, g_depth, g_normal);
 #endif
     } else {

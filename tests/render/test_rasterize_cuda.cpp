@@ -139,3 +139,20 @@ TEST_CASE("rasterize cuda: empty scene and culled triangles", "[render][cuda]") 
                      30, RasterSettings{});
   CHECK(r.alpha.abs().max().item<float>() == 0.0f);
 }
+
+TEST_CASE("rasterize cuda: a backward through the cameras only (scene frozen) runs and gives them no gradient",
+          "[render][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  // The forward keeps no backward state when no scene input requires grad;
+  // autograd still calls the backward when the cameras do.
+  const torch::Device dev(torch::kCUDA, 0);
+  auto soup = flat::test::random_soup(200, torch::kFloat, 606, 0.5);
+  auto cams = flat::test::test_cameras(2).to(dev);
+  cams.c2w = cams.c2w.clone().requires_grad_(true);
+  auto out = rasterize(soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev), soup.sigmas.to(dev), cams,
+                       40, 56, RasterSettings{});
+  REQUIRE(out.alpha.max().item<float>() > 0.0f);
+  REQUIRE(out.rgb.requires_grad());
+  REQUIRE_NOTHROW(out.rgb.sum().backward());
+  CHECK((!cams.c2w.grad().defined() || cams.c2w.grad().abs().sum().item<double>() == 0.0));
+}

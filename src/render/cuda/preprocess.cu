@@ -16,7 +16,7 @@ namespace flat::render::cuda {
 namespace {
 
 constexpr int kThreads = 128;
-constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 22
+constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 24 (22 + alignment padding)
 constexpr int kTriStride = kTriFloats + 1;
 
 __device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k) {
@@ -50,8 +50,8 @@ __global__ void __launch_bounds__(kThreads)
 __global__ void __launch_bounds__(kThreads)
     screen_kernel(const float* __restrict__ vertices, const float* __restrict__ colors,
                   const float* __restrict__ opacities, const float* __restrict__ sigmas,
-                  const int32_t* __restrict__ visible, int64_t nv, ViewParams vp, float* __restrict__ tris,
-                  TriRect* __restrict__ rects) {
+                  const int32_t* __restrict__ visible, int64_t nv, ViewParams vp,
+                  const TriRect* __restrict__ cull_rects, float* __restrict__ tris, TriRect* __restrict__ rects) {
   __shared__ float sh_v[kThreads * 9];
   __shared__ float sh_t[kThreads * kTriStride];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
@@ -70,7 +70,9 @@ __global__ void __launch_bounds__(kThreads)
     const float* tf = reinterpret_cast<const float*>(&t);
 #pragma unroll
     for (int c = 0; c < kTriFloats; ++c) sh_t[kTriStride * threadIdx.x + c] = tf[c];
-    rects[k] = r;
+    // The forward copies the cull pass's rectangle: the pair buffers were sized
+    // from it, so the binning must see exactly that one.
+    rects[k] = cull_rects ? cull_rects[i] : r;
   }
   __syncthreads();
   store_rows<kTriFloats, kTriStride, kThreads>(sh_t, nullptr, base, rows, tris);
@@ -87,11 +89,11 @@ void launch_cull(const float* vertices, const float* opacities, int64_t n, const
 }
 
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                   const int32_t* visible, int64_t nv, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects,
-                   cudaStream_t stream) {
+                   const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
+                   PixelTri<float>* tris, TriRect* rects, cudaStream_t stream) {
   if (nv == 0) return;
   screen_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, colors, opacities, sigmas, visible, nv, vp,
-                                                         reinterpret_cast<float*>(tris), rects);
+                                                         cull_rects, reinterpret_cast<float*>(tris), rects);
 }
 
 }  // namespace flat::render::cuda

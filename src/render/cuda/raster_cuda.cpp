@@ -111,13 +111,15 @@ struct CullScratch {
 struct ScreenData {
   at::Tensor tris, rects;
   ScreenData(at::Tensor t, at::Tensor r) : tris(std::move(t)), rects(std::move(r)) {}
-  ScreenData(const RasterInputs& in, const at::Tensor& visible, const ViewParams& vp, cudaStream_t stream) {
+  ScreenData(const RasterInputs& in, const at::Tensor& visible, const ViewParams& vp, const TriRect* cull_rects,
+             cudaStream_t stream) {
     const int64_t nv = visible.size(0);
     const auto f = in.vertices.options();
     tris = at::empty({nv * kTriFloats}, f);
     rects = at::empty({nv * 4}, f.dtype(at::kInt));
     launch_screen(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
-                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, tri_ptr(), rect_ptr(), stream);
+                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, cull_rects, tri_ptr(), rect_ptr(),
+                  stream);
     check_launch("screen preprocessing");
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
@@ -172,7 +174,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
                    " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
     const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
-    ScreenData sd(in, visible, vp, stream);
+    ScreenData sd(in, visible, vp, s.rect_ptr(), stream);
     at::Tensor keys = at::empty({count}, f.dtype(at::kLong)), keys_sorted = at::empty({count}, f.dtype(at::kLong));
     at::Tensor ids = at::empty({count}, f.dtype(at::kInt)), ids_sorted = at::empty({count}, f.dtype(at::kInt));
     at::Tensor ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
@@ -253,7 +255,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     const at::Tensor& kept_tris = views[kViewState * v + 5];
     ScreenData sd = kept_tris.numel() > 0 ? ScreenData(kept_tris, views[kViewState * v + 6])
-                                        : ScreenData(in, visible, vp, stream);
+                                        : ScreenData(in, visible, vp, nullptr, stream);
     const at::Tensor& ids = views[kViewState * v];
     const at::Tensor& ranges = views[kViewState * v + 1];
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,

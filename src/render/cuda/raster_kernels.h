@@ -44,10 +44,12 @@ void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, 
 
 // Pass 2 over the nv visible triangles: screen data and support rectangle of
 // visible[k] at index k (the CPU reference shades exactly these pixels, and so
-// do the kernels).
+// do the kernels). cull_rects: the cull pass's rectangles of all triangles,
+// copied instead of recomputed (the forward: binning relies on them); nullptr
+// recomputes them (the backward).
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
-                   const int32_t* visible, int64_t nv, const ViewParams& vp, PixelTri<float>* tris, TriRect* rects,
-                   cudaStream_t stream);
+                   const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
+                   PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
 
 // Inclusive prefix sum of tile_counts into offsets (cub); `temp` of temp_bytes
 // (ask with temp == nullptr).
