@@ -149,7 +149,7 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
       const at::Tensor h = trunk(latent.narrow(2, i, n), cams.defined() ? cams.narrow(2, i, n) : cams, &trunk_cache);
       int64_t frame = 0;
       for (int64_t j = i; j < i + n; ++j) {
-        const int64_t frames = (j == 0 && split > 0) ? 1 : (split > 0 ? 2 : 1);
+        const int64_t frames = Decoder3dImpl::trunk_frames(j, split);
         tail_cache.begin_chunk();
         tail(h.narrow(2, frame, frames), &tail_cache);
         frame += frames;

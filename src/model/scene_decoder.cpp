@@ -56,7 +56,7 @@ at::Tensor SceneDecoderImpl::run(const at::Tensor& latent, const at::Tensor& cam
   // cut per latent frame (after its temporal x2: 1 frame for latent frame 0,
   // 2 for every other) and the tail streams those one at a time.
   FLAT_CHECK(config_.stream_trunk_frames > 0, "SceneDecoder: stream_trunk_frames must be positive");
-  const int64_t T = latent.size(2), step = config_.stream_trunk_frames, per_frame = split > 0 ? 2 : 1;
+  const int64_t T = latent.size(2), step = config_.stream_trunk_frames;
   StreamCache trunk_cache, tail_cache;
   std::vector<at::Tensor> outs;
   for (int64_t i = 0; i < T; i += step) {
@@ -66,7 +66,7 @@ at::Tensor SceneDecoderImpl::run(const at::Tensor& latent, const at::Tensor& cam
     const at::Tensor h = trunk(latent.narrow(2, i, n), cam, &trunk_cache, split);
     int64_t frame = 0;
     for (int64_t j = i; j < i + n; ++j) {
-      const int64_t frames = (j == 0 && split > 0) ? 1 : per_frame;
+      const int64_t frames = Decoder3dImpl::trunk_frames(j, split);
       tail_cache.begin_chunk();
       outs.push_back(tail(h.narrow(2, frame, frames), &tail_cache, split, with_heads));
       frame += frames;

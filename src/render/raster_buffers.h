@@ -19,6 +19,20 @@ struct RasterInputs {
 struct RasterOutputs {
   at::Tensor rgb, alpha, depth, normal, median_depth;  // (V,C,H,W)
   at::Tensor max_weight;                               // (N)
+
+  // The per-view images of `in`, uninitialised (every pixel gets written);
+  // max_weight is left to the back end (its accumulation type differs).
+  static RasterOutputs images_for(const RasterInputs& in) {
+    const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
+    const auto f = in.vertices.options();
+    RasterOutputs out;
+    out.rgb = at::empty({V, 3, H, W}, f);
+    out.alpha = at::empty({V, 1, H, W}, f);
+    out.depth = at::empty({V, 1, H, W}, f);
+    out.normal = at::empty({V, 3, H, W}, f);
+    out.median_depth = at::empty({V, 1, H, W}, f);
+    return out;
+  }
 };
 
 struct RasterGrads {

@@ -38,6 +38,9 @@ class Decoder3dImpl : public torch::nn::Module {
   // Stages up to and including the first temporal upsample (0 if none): the
   // low-resolution trunk, whose activations are small whatever its chunk length.
   size_t trunk_stages() const;
+  // Frames the trunk (split = trunk_stages()) emits for latent frame `t`:
+  // its temporal x2 passes frame 0 and doubles the others; 1 without one.
+  static int64_t trunk_frames(int64_t t, size_t split) { return split > 0 && t > 0 ? 2 : 1; }
 
   bool scene_variant() const { return scene_variant_; }
   int64_t out_features() const { return out_features_; }  // channels before the head (dim)

@@ -137,15 +137,9 @@ PixelState<T> forward_view(const RasterInputs& in, const ViewSetup<T>& vs, int64
 
 template <class T>
 RasterOutputs forward_impl(const RasterInputs& in) {
-  const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
-  const auto opts = in.vertices.options();
-  RasterOutputs out;
-  out.rgb = at::empty({V, 3, H, W}, opts);
-  out.alpha = at::empty({V, 1, H, W}, opts);
-  out.depth = at::empty({V, 1, H, W}, opts);
-  out.normal = at::empty({V, 3, H, W}, opts);
-  out.median_depth = at::empty({V, 1, H, W}, opts);
-  out.max_weight = at::zeros({in.vertices.size(0)}, opts);
+  const int64_t V = in.w2c.size(0);
+  RasterOutputs out = RasterOutputs::images_for(in);
+  out.max_weight = at::zeros({in.vertices.size(0)}, in.vertices.options());
   for (int64_t v = 0; v < V; ++v) {
     const ViewSetup<T> vs = setup_view<T>(in, v);
     forward_view<T>(in, vs, v, &out, out.max_weight.data_ptr<T>());

@@ -13,6 +13,7 @@
 //             add them to global memory once per (triangle, tile).
 // No warp-wide reduction and no lane idles on a triangle that misses its pixel.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
 
 namespace flat::render::cuda {
@@ -76,18 +77,13 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ float sh_ga[kBatch][kBlockSize];   //   and dL/dalpha
   __shared__ float sh_part[kBatch][kTriGradSize];  // odd-row partial sums
   __shared__ int sh_end;
-  const int tid = threadIdx.y * kTileSize + threadIdx.x;
-  const int tx0 = blockIdx.x * kTileSize, ty0 = blockIdx.y * kTileSize;
-  const int x = tx0 + threadIdx.x, y = ty0 + threadIdx.y;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = x + 0.5f, py = y + 0.5f;
-  const float rx = (px - vp.cam.cx) / vp.cam.fx, ry = (py - vp.cam.cy) / vp.cam.fy;
+  const TilePixel pix = tile_pixel(vp);
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;
   int my_last = 0;
-  if (inside) {
+  if (pix.inside) {
     for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p], G[4 + c] = in.g_normal[c * HW + p];
     G[3] = in.g_depth[p];
     G[7] = in.g_alpha[p];
@@ -95,9 +91,9 @@ __global__ void __launch_bounds__(kBlockSize)
     my_last = in.last[p];
   }
 #pragma unroll
-  for (int c = 0; c < kCh; ++c) sh_G[c][tid] = G[c];
-  sh_last[tid] = my_last;
-  if (tid == 0) sh_end = 0;
+  for (int c = 0; c < kCh; ++c) sh_G[c][pix.tid] = G[c];
+  sh_last[pix.tid] = my_last;
+  if (pix.tid == 0) sh_end = 0;
   __syncthreads();
   atomicMax(&sh_end, my_last);
   __syncthreads();
@@ -105,30 +101,30 @@ __global__ void __launch_bounds__(kBlockSize)
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float last_alpha = 0.f;
-  const int j_own = tid % kBatch, row_parity = tid / kBatch;  // this thread's triangle and rows in phases 1 and 3
+  const int j_own = pix.tid % kBatch, row_parity = pix.tid / kBatch;  // this thread's triangle and rows in phases 1 and 3
   for (int top = end; top > 0; top -= kBatch) {
     const int lo = max(0, top - kBatch), batch = top - lo;  // stage entries [lo, top)
     __syncthreads();
-    if (tid < batch) {
-      const int32_t k = ids[range.x + lo + tid];
-      sh_k[tid] = k;
-      sh_tri.put(tid, tris[k]);
-      sh_rect[tid] = rects[k];
+    if (pix.tid < batch) {
+      const int32_t k = ids[range.x + lo + pix.tid];
+      sh_k[pix.tid] = k;
+      sh_tri.put(pix.tid, tris[k]);
+      sh_rect[pix.tid] = rects[k];
     }
-    sh_hits[tid] = 0u;
+    sh_hits[pix.tid] = 0u;
     __syncthreads();
     // Phase 1, coverage.
     const bool own = j_own < batch;
     int xa = 0, xb = 0, ya = 0, yb = 0;
     if (own) {
       const TriRect r = sh_rect[j_own];  // already clipped to the image
-      xa = max(r.x0, tx0), xb = min(r.x1, tx0 + kTileSize);
-      ya = max(r.y0, ty0), yb = min(r.y1, ty0 + kTileSize);
-      ya += (ya - ty0 + row_parity) & 1;  // first row of this thread's parity
+      xa = max(r.x0, pix.tx0), xb = min(r.x1, pix.tx0 + kTileSize);
+      ya = max(r.y0, pix.ty0), yb = min(r.y1, pix.ty0 + kTileSize);
+      ya += (ya - pix.ty0 + row_parity) & 1;  // first row of this thread's parity
       const PixelTri<float> t = sh_tri.get(j_own);
       for (int yy = ya; yy < yb; yy += 2)
         for (int xx = xa; xx < xb; ++xx) {
-          const int q = (yy - ty0) * kTileSize + (xx - tx0);
+          const int q = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
           if (lo + j_own >= sh_last[q]) continue;  // after the pixel's last blended entry
           Fragment<float> f;
           shade(t, xx + 0.5f, yy + 0.5f, 0.f, 0.f, vp.k, f);  // alpha only: the ray is not used
@@ -137,13 +133,13 @@ __global__ void __launch_bounds__(kBlockSize)
     }
     __syncthreads();
     // Phase 2, replay back to front (highest bit first).
-    for (unsigned int m = sh_hits[tid]; m != 0u;) {
+    for (unsigned int m = sh_hits[pix.tid]; m != 0u;) {
       const int j = 31 - __clz(m);
       m &= ~(1u << j);
       const PixelTri<float> t = sh_tri.get(j);
       Fragment<float> f;
-      shade(t, px, py, rx, ry, vp.k, f);
-      fragment_depth(t, rx, ry, f);
+      shade(t, pix.px, pix.py, pix.rx, pix.ry, vp.k, f);
+      fragment_depth(t, pix.rx, pix.ry, f);
       const float inv_keep = __fdividef(1.f, 1.f - f.alpha);
       T = T * inv_keep;
       const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
@@ -155,8 +151,8 @@ __global__ void __launch_bounds__(kBlockSize)
         last_f[c] = fv[c];
       }
       last_alpha = f.alpha;
-      sh_w[j][tid] = f.alpha * T;
-      sh_ga[j][tid] = g_alpha * T - t_final * inv_keep * bgdot;
+      sh_w[j][pix.tid] = f.alpha * T;
+      sh_ga[j][pix.tid] = g_alpha * T - t_final * inv_keep * bgdot;
     }
     __syncthreads();
     // Phase 3, per-triangle gradients over its marked pixels.
@@ -168,18 +164,18 @@ __global__ void __launch_bounds__(kBlockSize)
       const PixelTri<float> t = sh_tri.get(j_own);
       for (int yy = ya; yy < yb; yy += 2)
         for (int xx = xa; xx < xb; ++xx) {
-          const int q = (yy - ty0) * kTileSize + (xx - tx0);
+          const int q = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
           if (!((sh_hits[q] >> j_own) & 1u)) continue;
           any = true;
           const float qx = xx + 0.5f, qy = yy + 0.5f;
-          const float qrx = (qx - vp.cam.cx) / vp.cam.fx, qry = (qy - vp.cam.cy) / vp.cam.fy;
+          const float2 qr = pixel_ray(vp, qx, qy);  // bit-identical to that pixel's own ray in phase 2
           Fragment<float> f;
-          shade(t, qx, qy, qrx, qry, vp.k, f);
-          fragment_depth(t, qrx, qry, f);
+          shade(t, qx, qy, qr.x, qr.y, vp.k, f);
+          fragment_depth(t, qr.x, qr.y, f);
           float Gq[kCh];
 #pragma unroll
           for (int c = 0; c < kCh; ++c) Gq[c] = sh_G[c][q];
-          add_fragment_grads(t, f, qx, qy, qrx, qry, sh_w[j_own][q], sh_ga[j_own][q], Gq, vp.k, g);
+          add_fragment_grads(t, f, qx, qy, qr.x, qr.y, sh_w[j_own][q], sh_ga[j_own][q], Gq, vp.k, g);
         }
     }
     // Odd rows hand their sums to the even-row thread of the same triangle,

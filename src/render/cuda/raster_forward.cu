@@ -10,6 +10,7 @@
 // lanes idle on small triangles. Same per-pixel semantics as
 // render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
+#include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
 
 namespace flat::render::cuda {
@@ -28,56 +29,51 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ unsigned int sh_wmax[kBlockSize];          // per staged triangle: max weight bits in this tile
   __shared__ unsigned long long sh_hits[kBlockSize];    // per pixel: staged triangles with alpha >= alpha_min
   __shared__ int sh_done[kBlockSize];                   // per pixel: compositing finished
-  const int tid = threadIdx.y * kTileSize + threadIdx.x;
-  const int tx0 = blockIdx.x * kTileSize, ty0 = blockIdx.y * kTileSize;
-  const int x = tx0 + threadIdx.x, y = ty0 + threadIdx.y;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = x + 0.5f, py = y + 0.5f;
-  const float rx = (px - vp.cam.cx) / vp.cam.fx, ry = (py - vp.cam.cy) / vp.cam.fy;
+  const TilePixel pix = tile_pixel(vp);
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
   const int total = range.y - range.x;
-  bool done = !inside;
+  bool done = !pix.inside;
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int last = 0;
   for (int base = 0; base < total; base += kBlockSize) {
     if (__syncthreads_count(done) == kBlockSize) break;
     const int batch = min(kBlockSize, total - base);
-    if (tid < batch) {
-      const int32_t k = ids[range.x + base + tid];
-      sh_id[tid] = visible[k];
-      sh_tri.put(tid, tris[k]);
-      sh_rect[tid] = rects[k];
-      sh_wmax[tid] = 0u;
+    if (pix.tid < batch) {
+      const int32_t k = ids[range.x + base + pix.tid];
+      sh_id[pix.tid] = visible[k];
+      sh_tri.put(pix.tid, tris[k]);
+      sh_rect[pix.tid] = rects[k];
+      sh_wmax[pix.tid] = 0u;
     }
-    sh_hits[tid] = 0ull;
-    sh_done[tid] = done;
+    sh_hits[pix.tid] = 0ull;
+    sh_done[pix.tid] = done;
     __syncthreads();
-    if (tid < batch) {  // coverage: triangle tid over its pixels of this tile
-      const PixelTri<float> t = sh_tri.get(tid);
-      const TriRect r = sh_rect[tid];  // already clipped to the image
-      const int xa = max(r.x0, tx0), xb = min(r.x1, tx0 + kTileSize);
-      const int ya = max(r.y0, ty0), yb = min(r.y1, ty0 + kTileSize);
+    if (pix.tid < batch) {  // coverage: staged triangle pix.tid over its pixels of this tile
+      const PixelTri<float> t = sh_tri.get(pix.tid);
+      const TriRect r = sh_rect[pix.tid];  // already clipped to the image
+      const int xa = max(r.x0, pix.tx0), xb = min(r.x1, pix.tx0 + kTileSize);
+      const int ya = max(r.y0, pix.ty0), yb = min(r.y1, pix.ty0 + kTileSize);
       for (int yy = ya; yy < yb; ++yy)
         for (int xx = xa; xx < xb; ++xx) {
-          const int p = (yy - ty0) * kTileSize + (xx - tx0);
+          const int p = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
           if (sh_done[p]) continue;
           Fragment<float> f;
           shade(t, xx + 0.5f, yy + 0.5f, 0.f, 0.f, vp.k, f);  // alpha only: the ray is not used
-          if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << tid);
+          if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << pix.tid);
         }
     }
     __syncthreads();
-    for (unsigned long long m = done ? 0ull : sh_hits[tid]; m != 0ull; m &= m - 1) {  // front to back
+    for (unsigned long long m = done ? 0ull : sh_hits[pix.tid]; m != 0ull; m &= m - 1) {  // front to back
       const int j = __ffsll((long long)m) - 1;
       const PixelTri<float> t = sh_tri.get(j);
       Fragment<float> f;
-      shade(t, px, py, rx, ry, vp.k, f);
+      shade(t, pix.px, pix.py, pix.rx, pix.ry, vp.k, f);
       const float test_T = T * (1.f - f.alpha);
       if (test_T < vp.k.t_min) {
         done = true;
         break;
       }
-      fragment_depth(t, rx, ry, f);
+      fragment_depth(t, pix.rx, pix.ry, f);
       const float w = f.alpha * T;
       acc[0] += w * t.color[0];
       acc[1] += w * t.color[1];
@@ -93,10 +89,10 @@ __global__ void __launch_bounds__(kBlockSize)
       atomicMax(&sh_wmax[j], __float_as_uint(w));
     }
     __syncthreads();
-    if (tid < batch && sh_wmax[tid] != 0u) atomicMax(&max_weight_bits[sh_id[tid]], sh_wmax[tid]);
+    if (pix.tid < batch && sh_wmax[pix.tid] != 0u) atomicMax(&max_weight_bits[sh_id[pix.tid]], sh_wmax[pix.tid]);
   }
-  if (!inside) return;
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  if (!pix.inside) return;
+  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   for (int c = 0; c < 3; ++c) out.rgb[c * HW + p] = acc[c] + T * vp.background[c];
   out.alpha[p] = 1.f - T;
   out.depth[p] = acc[3];
