@@ -50,6 +50,34 @@ endif()
 find_package(Torch REQUIRED)
 message(STATUS "libtorch ${Torch_VERSION} from ${Torch_DIR}")
 
+# CUTLASS (header-only, NVIDIA): the Hopper implicit-GEMM convs of
+# src/model/cuda_sm90. Looked up in FLAT_CUTLASS_DIR, then .deps/cutlass (what
+# scripts/prepare_device_carry.sh extracts), then the nvidia-cutlass wheel that
+# scripts/install_deps.sh puts next to torch. The folder holds include/ and
+# tools/util/include/.
+set(FLAT_WITH_CUTLASS OFF)
+if(FLAT_WITH_CUDA AND FLAT_CUTLASS)
+  set(FLAT_CUTLASS_DIR "" CACHE PATH "CUTLASS source folder (holds include/cutlass/cutlass.h)")
+  set(_cutlass "${FLAT_CUTLASS_DIR}")
+  if(NOT _cutlass AND EXISTS "${CMAKE_SOURCE_DIR}/.deps/cutlass/include/cutlass/cutlass.h")
+    set(_cutlass "${CMAKE_SOURCE_DIR}/.deps/cutlass")
+  endif()
+  if(NOT _cutlass AND _py)
+    execute_process(COMMAND "${_py}" -c
+                    "import cutlass_library, os; print(os.path.join(os.path.dirname(cutlass_library.__file__), 'source'))"
+                    OUTPUT_VARIABLE _cutlass OUTPUT_STRIP_TRAILING_WHITESPACE ERROR_QUIET)
+  endif()
+  if(NOT _cutlass OR NOT EXISTS "${_cutlass}/include/cutlass/cutlass.h")
+    message(FATAL_ERROR "CUTLASS headers not found (looked in FLAT_CUTLASS_DIR, .deps/cutlass and the "
+                        "nvidia-cutlass wheel of ${_py}). Run scripts/install_deps.sh, pass "
+                        "-DFLAT_CUTLASS_DIR=<cutlass source folder>, or configure with -DFLAT_CUTLASS=OFF "
+                        "(the decoder then uses cuDNN for every conv).")
+  endif()
+  set(FLAT_WITH_CUTLASS ON)
+  set(FLAT_CUTLASS_INCLUDE_DIRS "${_cutlass}/include" "${_cutlass}/tools/util/include")
+  message(STATUS "CUTLASS from ${_cutlass}")
+endif()
+
 if(FLAT_BUILD_TESTS)
   find_package(Catch2 REQUIRED)   # v2 on Debian 12, v3 on Ubuntu 24.04: tests/catch.h bridges both
 endif()
@@ -70,6 +98,7 @@ target_link_libraries(flat_deps INTERFACE "-Wl,--push-state,--no-as-needed" stdc
                       nlohmann_json::nlohmann_json glm::glm Threads::Threads)
 target_compile_definitions(flat_deps INTERFACE
   FLAT_WITH_CUDA=$<BOOL:${FLAT_WITH_CUDA}> FLAT_WITH_OIIO=$<BOOL:${FLAT_WITH_OIIO}>
+  FLAT_WITH_CUTLASS=$<BOOL:${FLAT_WITH_CUTLASS}>
   GLM_FORCE_XYZW_ONLY)
 if(FLAT_WITH_OIIO)
   target_link_libraries(flat_deps INTERFACE OpenImageIO::OpenImageIO)

@@ -18,6 +18,8 @@ function(flat_add_module name)
   else()
     list(FILTER srcs EXCLUDE REGEX "/cuda/")
   endif()
+  # sm_90a-only kernels are their own target (CMakeLists.txt).
+  list(FILTER srcs EXCLUDE REGEX "/cuda_sm90/")
   if(NOT srcs)
     return()
   endif()

@@ -5,11 +5,14 @@
 #     GLM, Catch2, clang's libFuzzer runtime, ninja);
 #   - libtorch as shipped in PyTorch's `torch` wheel (pinned to the GPU
 #     machine's version), in a virtual environment outside the checkout. The
-#     wheels are downloaded once into a cache folder and reused afterwards.
+#     wheels are downloaded once into a cache folder and reused afterwards;
+#   - CUTLASS's headers (NVIDIA's `nvidia-cutlass` wheel, header-only for us:
+#     the Hopper convs of src/model/cuda_sm90), into the same environment.
 # Python is only the installer of libtorch; nothing in the product runs it.
 set -euo pipefail
 
 TORCH_VERSION="${FLAT_TORCH_VERSION:-2.11.0}"
+CUTLASS_VERSION="${FLAT_CUTLASS_VERSION:-4.2.0.0}"
 CACHE="${FLAT_CACHE_DIR:-$HOME/.cache/flat}"
 VENV="$CACHE/venv"
 WHEELS="$CACHE/wheels-torch-$TORCH_VERSION"
@@ -45,3 +48,10 @@ else
   "$VENV/bin/python3" -m pip install -q --no-index --find-links "$WHEELS" "torch==$TORCH_VERSION"
 fi
 echo "[install_deps] libtorch cmake prefix: $("$VENV/bin/python3" -c 'import torch.utils; print(torch.utils.cmake_prefix_path)' 2>/dev/null)"
+if "$VENV/bin/python3" -c "import importlib.metadata as m, sys; sys.exit(m.version('nvidia-cutlass') != '$CUTLASS_VERSION')" 2>/dev/null; then
+  echo "[install_deps] CUTLASS $CUTLASS_VERSION: present in $VENV"
+else
+  # --no-deps: only the headers are used (the wheel's Python tooling is not).
+  echo "[install_deps] installing the CUTLASS $CUTLASS_VERSION headers (nvidia-cutlass wheel) into $VENV"
+  "$VENV/bin/python3" -m pip install -q --no-deps "nvidia-cutlass==$CUTLASS_VERSION"
+fi

@@ -19,6 +19,7 @@
 #include "flat/camera/cameras.h"
 #include "flat/core/error.h"
 #include "flat/model/camera_latents.h"
+#include "flat/model/conv3d_inference.h"
 #include "flat/model/rms_norm.h"
 #include "flat/model/scene_decoder.h"
 #include "flat/model/wan_vae.h"
@@ -45,6 +46,7 @@ struct DecoderBenchOptions {
   int64_t dim = 96;
   int repeats = 5, warmup = 2;
   bool channels_last = true, fused_norm = true, breakdown = false, cudnn_benchmark = true;
+  std::string conv = "auto";  // auto | cudnn | a CUTLASS configuration name
 };
 
 void sync(const torch::Device& d) {
@@ -171,6 +173,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
   set_fused_norm_enabled(o.fused_norm);
   // cuDNN autotuning: the warm-up runs try the algorithms for every conv shape.
   at::globalContext().setBenchmarkCuDNN(o.cudnn_benchmark);
+  set_cutlass_conv_choice(o.conv == "auto" ? "" : o.conv);
   torch::manual_seed(0);
 
   SceneDecoderConfig config;
@@ -188,10 +191,12 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
     vae->to(dev, dtype);
     if (o.channels_last) to_channels_last_3d(*vae);
   }
-  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}",
+  spdlog::info("scene decoder: {} parameters ({} heads), dim {}, {} on {}{}{}{}, convs: {}",
                count_parameters(*scene), o.heads, o.dim, o.dtype, cuda ? "cuda" : "cpu",
                o.channels_last ? ", channels-last 3D" : ", NCDHW", o.fused_norm ? ", fused norm" : ", ATen norm",
-               o.cudnn_benchmark ? ", cuDNN benchmark" : "");
+               o.cudnn_benchmark ? ", cuDNN benchmark" : "",
+               o.conv == "auto" ? (cutlass_conv_compiled() ? "fastest of cuDNN and CUTLASS per shape" : "cuDNN")
+                                : o.conv);
   c10::InferenceMode inference;
   std::vector<std::string> modes;
   if (o.mode == "both" || o.mode == "full") modes.push_back("full");
@@ -233,6 +238,8 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
       for (const auto& mode : modes) run_breakdown(scene, latent, cam_pre, dev, mode == "streaming");
     }
   }
+  const std::string report = cutlass_conv_report();
+  if (!report.empty()) spdlog::info("conv shapes timed (candidate ms -> choice):\n{}", report);
 }
 
 }  // namespace
@@ -264,6 +271,10 @@ void add_decoder(CLI::App& app) {
   cmd->add_option("--channels-last", opts->channels_last, "channels-last 3D layout (true/false)")->capture_default_str();
   cmd->add_option("--fused-norm", opts->fused_norm, "fused CUDA RMS_norm+SiLU kernel (true/false)")->capture_default_str();
   cmd->add_option("--cudnn-benchmark", opts->cudnn_benchmark, "cuDNN autotuning (true/false)")->capture_default_str();
+  cmd->add_option("--conv", opts->conv,
+                  "bf16 convs on sm_90: auto (fastest of cuDNN and CUTLASS, timed per shape), cudnn, or one CUTLASS "
+                  "tile configuration (e.g. 128x192x64)")
+      ->capture_default_str();
   cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a forward (each --mode)");
   cmd->callback([opts] { run_decoder_bench(*opts); });
 }

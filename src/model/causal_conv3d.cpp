@@ -6,6 +6,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "flat/model/conv3d_inference.h"
 
 namespace flat::model {
 
@@ -41,11 +42,13 @@ void CausalConv3dImpl::reset_parameters(bool zero) {
   bias.uniform_(-bound, bound);
 }
 
-at::Tensor CausalConv3dImpl::forward_prepadded(const at::Tensor& x_padded) {
+at::Tensor CausalConv3dImpl::forward_prepadded(const at::Tensor& x_padded, const at::Tensor& residual) {
   FLAT_CHECK(x_padded.dim() == 5 && x_padded.size(1) == in_channels(),
              "CausalConv3d: expected input (B," + std::to_string(in_channels()) + ",T,H,W), got " +
                  shape_str(x_padded));
-  return at::conv3d(x_padded, weight, bias, {stride_[0], stride_[1], stride_[2]}, {0, padding_[1], padding_[2]});
+  if (stride_ == Int3{1, 1, 1}) return conv3d_inference(x_padded, weight, bias, {0, padding_[1], padding_[2]}, residual);
+  at::Tensor y = at::conv3d(x_padded, weight, bias, {stride_[0], stride_[1], stride_[2]}, {0, padding_[1], padding_[2]});
+  return residual.defined() ? y + residual : y;
 }
 
 at::Tensor CausalConv3dImpl::forward(const at::Tensor& x) { return forward_prepadded(pad_past_frames(x, past_frames())); }

@@ -7,6 +7,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "flat/model/conv3d_inference.h"
 
 namespace flat::model {
 namespace {
@@ -29,7 +30,7 @@ at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& w, cons
   if (x.suggest_memory_format() == at::MemoryFormat::ChannelsLast3d) {
     weight = weight.contiguous(at::MemoryFormat::ChannelsLast3d);
   }
-  at::Tensor y = at::conv3d(x, weight, bias.repeat({4}), {1, 1, 1}, {0, 1, 1});  // (B,4O,T,H+1,W+1)
+  at::Tensor y = conv3d_inference(x, weight, bias.repeat({4}), {0, 1, 1});  // (B,4O,T,H+1,W+1)
   at::Tensor out = at::empty({B, O, T, 2 * H, 2 * W}, x.options().memory_format(x.suggest_memory_format()));
   at::Tensor phases = out.unflatten(4, {W, 2}).unflatten(3, {H, 2});  // (B,O,T,H,2,W,2)
   for (int64_t a = 0; a < 2; ++a) {
@@ -77,7 +78,7 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
       return at::conv3d(up, w, conv_bias, {1, 1, 1}, {0, 1, 1});
     }
     case ResampleMode::conv_only:
-      return at::conv3d(x, w, conv_bias, {1, 1, 1}, {0, 1, 1});
+      return conv3d_inference(x, w.contiguous(x.suggest_memory_format()), conv_bias, {0, 1, 1});
     case ResampleMode::downsample2d:
     case ResampleMode::downsample3d: {
       at::Tensor padded = at::constant_pad_nd(x, {0, 1, 0, 1});  // right and bottom (ZeroPad2d(0,1,0,1))

@@ -22,20 +22,19 @@ ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels) 
 at::Tensor ResidualBlockImpl::forward(const at::Tensor& x, StreamCache* cache) {
   // Each norm+SiLU writes straight into the causally padded input of its conv;
   // in streaming mode the padding is the layer's history instead of zeros.
-  auto stage = [&](const at::Tensor& in, RMSNorm& norm, CausalConv3d& conv) {
+  auto stage = [&](const at::Tensor& in, RMSNorm& norm, CausalConv3d& conv, const at::Tensor& residual) {
     const int64_t n = conv->past_frames();
-    if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(in, norm->gamma, n));
+    if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(in, norm->gamma, n), residual);
     at::Tensor& history = cache->next();
     at::Tensor padded = rms_norm_silu_padded(in, norm->gamma, n, history);
     history = padded.narrow(2, padded.size(2) - n, n).clone();
-    return conv->forward_prepadded(padded);
+    return conv->forward_prepadded(padded, residual);
   };
-  at::Tensor h = stage(x, norm1, conv1);
-  h = stage(h, norm2, conv2);
-  // Dropout(0) is the identity.
-  at::Tensor skip = shortcut ? shortcut->forward(x) : x;
-  if (at::GradMode::is_enabled() && (h.requires_grad() || skip.requires_grad())) return h + skip;
-  return h.add_(skip);
+  at::Tensor h = stage(x, norm1, conv1, {});
+  // Dropout(0) is the identity; the skip is added by the second conv (in its
+  // epilogue on the CUTLASS path, one pass over memory fewer).
+  const at::Tensor skip = shortcut ? shortcut->forward(x) : x;
+  return stage(h, norm2, conv2, skip);
 }
 
 }  // namespace flat::model

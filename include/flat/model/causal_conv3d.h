@@ -27,8 +27,10 @@ class CausalConv3dImpl : public torch::nn::Module {
   // of the zero frames, and keeps the last 2*pt input frames as the new history.
   at::Tensor forward_cached(const at::Tensor& x, at::Tensor& history);
   // The conv alone, on an input that already carries its 2*pt past frames
-  // (written there by the fused norm + SiLU, which saves the padding copy).
-  at::Tensor forward_prepadded(const at::Tensor& x_padded);
+  // (written there by the fused norm + SiLU, which saves the padding copy);
+  // `residual`, when given, is added to the output (fused into the conv's
+  // epilogue where conv3d_inference runs a CUTLASS kernel).
+  at::Tensor forward_prepadded(const at::Tensor& x_padded, const at::Tensor& residual = {});
 
   int64_t past_frames() const { return 2 * padding_[0]; }
   int64_t in_channels() const { return weight.size(1); }

@@ -1,0 +1,115 @@
+// conv3d_inference: every CUTLASS configuration against an fp32 reference conv
+// of the same bf16 inputs, on the decoder's kinds of conv (3x3x3 causal with
+// pre-padded time, (1,3,3) per frame, the sub-pixel (1,2,2), 1x1x1 shortcut),
+// with and without the fused residual, on sizes that do not divide the tiles.
+// The CUDA cases skip without an sm_90 GPU; the CPU case checks the fallback.
+#include "flat/model/conv3d_inference.h"
+#include "flat/core/shape.h"
+#include "test_support.h"
+
+#if FLAT_WITH_CUDA
+#include <ATen/cuda/CUDAContext.h>
+#endif
+
+using namespace flat::model;
+
+namespace {
+
+struct Case {
+  int64_t n, c, d, h, w, k, t, r, s;
+  std::array<int64_t, 3> pad;
+};
+
+bool sm90() {
+#if FLAT_WITH_CUDA
+  if (!flat::test::cuda_available()) return false;
+  const auto* p = at::cuda::getCurrentDeviceProperties();
+  return p->major == 9 && p->minor == 0;
+#else
+  return false;
+#endif
+}
+
+}  // namespace
+
+TEST_CASE("conv3d_inference on the CPU is conv3d + residual", "[model]") {
+  torch::manual_seed(3);
+  auto x = torch::randn({1, 8, 4, 5, 6});
+  auto w = torch::randn({16, 8, 3, 3, 3});
+  auto b = torch::randn({16});
+  auto res = torch::randn({1, 16, 2, 5, 6});
+  auto ref = at::conv3d(x, w, b, {1, 1, 1}, {0, 1, 1}) + res;
+  CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}, res), ref) < 1e-6);
+}
+
+TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  if (!cutlass_conv_compiled()) FLAT_SKIP("built without CUTLASS");
+  if (!sm90()) FLAT_SKIP("the CUTLASS convs are sm_90 code");
+  torch::manual_seed(5);
+  torch::NoGradGuard no_grad;
+  const auto cl = at::MemoryFormat::ChannelsLast3d;
+  const std::vector<Case> cases = {
+      {1, 96, 7, 19, 37, 96, 3, 3, 3, {0, 1, 1}},    // full-resolution block conv (time pre-padded)
+      {2, 192, 4, 9, 13, 96, 3, 3, 3, {0, 1, 1}},    // 192 -> 96, batch 2
+      {1, 192, 5, 11, 17, 384, 3, 3, 3, {0, 1, 1}},  // two N tiles of 192 / three of 128
+      {1, 384, 3, 8, 10, 192, 1, 3, 3, {0, 1, 1}},   // per-frame 3x3 (Resample conv)
+      {1, 384, 3, 8, 10, 768, 1, 2, 2, {0, 1, 1}},   // sub-pixel upsample conv (4 x 192 outputs)
+      {1, 192, 3, 8, 10, 384, 1, 1, 1, {0, 0, 0}},   // 1x1x1 shortcut
+      {1, 64, 4, 6, 6, 16, 3, 3, 3, {0, 1, 1}},      // narrow output (one partial N tile)
+  };
+  set_cutlass_conv_enabled(true);
+  for (const Case& k : cases) {
+    auto x = torch::randn({k.n, k.c, k.d, k.h, k.w}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
+    auto w = (torch::randn({k.k, k.c, k.t, k.r, k.s}, torch::kCUDA) / std::sqrt(double(k.c * k.t * k.r * k.s)))
+                 .to(torch::kBFloat16)
+                 .contiguous(cl);
+    auto b = torch::randn({k.k}, torch::kCUDA).to(torch::kBFloat16);
+    auto ref0 = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), b.to(torch::kFloat), {1, 1, 1}, k.pad);
+    auto res = torch::randn(ref0.sizes(), torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
+    auto ref1 = ref0 + res.to(torch::kFloat);
+    int ran = 0;
+    for (const char* config : {"128x96x32", "128x96x64", "128x128x64", "128x192x64", ""}) {
+      set_cutlass_conv_choice(config);
+      for (bool with_res : {false, true}) {
+        auto out = conv3d_inference(x, w, b, k.pad, with_res ? res : at::Tensor());
+        INFO("x " << flat::shape_str(x) << " w " << flat::shape_str(w) << " config '" << config << "' residual "
+                  << with_res);
+        REQUIRE(out.sizes() == ref0.sizes());
+        CHECK(out.is_contiguous(cl));
+        // bf16 output: a few ulp of the output's scale; a wrong layout or
+        // tap is O(1).
+        CHECK(flat::test::rel_error(out.to(torch::kFloat), with_res ? ref1 : ref0) < 1e-2);
+        ++ran;
+      }
+    }
+    CHECK(ran == 10);
+  }
+  set_cutlass_conv_choice("");
+  // The per-shape timing recorded a choice for every auto-timed shape.
+  const std::string report = cutlass_conv_report();
+  CHECK(report.find("-> ") != std::string::npos);
+  CHECK_THROWS_WITH(set_cutlass_conv_choice("64x64x64"), FLAT_CONTAINS("unknown CUTLASS configuration"));
+}
+
+TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  torch::manual_seed(6);
+  torch::NoGradGuard no_grad;
+  const auto cl = at::MemoryFormat::ChannelsLast3d;
+  // 12 output channels (not a multiple of 8): cuDNN, same result.
+  auto x = torch::randn({1, 96, 4, 6, 7}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
+  auto w = (torch::randn({12, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
+  auto b = torch::randn({12}, torch::kCUDA).to(torch::kBFloat16);
+  set_cutlass_conv_choice("128x96x32");
+  auto ref = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), b.to(torch::kFloat), {1, 1, 1}, {0, 1, 1});
+  CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}).to(torch::kFloat), ref) < 1e-2);
+  // Under autograd the differentiable cuDNN path runs: gradients reach x.
+  auto xg = x.detach().clone().requires_grad_(true);
+  {
+    torch::AutoGradMode grad(true);
+    conv3d_inference(xg, w, b, {0, 1, 1}).to(torch::kFloat).sum().backward();
+  }
+  CHECK(xg.grad().defined());
+  set_cutlass_conv_choice("");
+}
