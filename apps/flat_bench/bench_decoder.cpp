@@ -45,7 +45,7 @@ struct DecoderBenchOptions {
   std::string device = "cuda";
   int64_t dim = 96;
   int repeats = 5, warmup = 2;
-  bool channels_last = true, fused_norm = true, breakdown = false, cudnn_benchmark = true;
+  bool channels_last = true, fused_norm = true, breakdown = false, ops = false, cudnn_benchmark = true;
   std::string conv = "auto";  // auto | cudnn | a CUTLASS configuration name
 };
 
@@ -90,12 +90,52 @@ camera::Cameras orbit(int64_t n) {
   return cams;
 }
 
+// Mean ms of fn over 5 runs after one warm-up, synchronised.
+template <class Fn>
+double op_ms(const torch::Device& dev, Fn&& fn) {
+  fn();
+  sync(dev);
+  const double t0 = now_ms();
+  for (int i = 0; i < 5; ++i) fn();
+  sync(dev);
+  return (now_ms() - t0) / 5.0;
+}
+
+// The operations inside one residual block (its norm + SiLU, each conv, the
+// residual add on its own for scale) and inside the heads, on real inputs.
+void time_block_ops(const std::string& name, ResidualBlock& block, const at::Tensor& h, const torch::Device& dev) {
+  const at::Tensor p1 = rms_norm_silu_padded(h, block->norm1->gamma, 2);
+  const at::Tensor y1 = block->conv1->forward_prepadded(p1);
+  const at::Tensor p2 = rms_norm_silu_padded(y1, block->norm2->gamma, 2);
+  const at::Tensor skip = block->shortcut ? block->shortcut->forward(h) : h;
+  const double norm1 = op_ms(dev, [&] { (void)rms_norm_silu_padded(h, block->norm1->gamma, 2); });
+  const double conv1 = op_ms(dev, [&] { (void)block->conv1->forward_prepadded(p1); });
+  const double norm2 = op_ms(dev, [&] { (void)rms_norm_silu_padded(y1, block->norm2->gamma, 2); });
+  const double conv2 = op_ms(dev, [&] { (void)block->conv2->forward_prepadded(p2, skip); });
+  const double add = op_ms(dev, [&] { (void)(y1 + skip); });
+  const double gib = double(h.numel() * h.element_size()) / double(1ull << 30);
+  spdlog::info("  {:<28} norm1 {:6.2f} conv1 {:6.2f} norm2 {:6.2f} conv2+skip {:6.2f} (a plain add: {:5.2f}) ms; "
+               "input {:.2f} GiB",
+               name, norm1, conv1, norm2, conv2, add, gib);
+}
+
+void time_head_ops(OutputHeads& heads, const at::Tensor& f, const torch::Device& dev) {
+  for (size_t i = 0; i < heads->convs.size(); ++i) {
+    const at::Tensor p = rms_norm_silu_padded(f, heads->norms[i]->gamma, 2);
+    const double norm = op_ms(dev, [&] { (void)rms_norm_silu_padded(f, heads->norms[i]->gamma, 2); });
+    const double conv = op_ms(dev, [&] { (void)heads->convs[i]->forward_prepadded(p); });
+    spdlog::info("  head {} ({} outputs): norm {:6.2f} conv {:6.2f} ms", i, heads->convs[i]->out_channels(), norm, conv);
+  }
+  spdlog::info("  heads, whole forward: {:6.2f} ms", op_ms(dev, [&] { (void)heads->forward(f); }));
+}
+
 // One forward timed stage by stage (synchronised, so slightly slower overall):
 // the full sequence, or the streaming loop (the low-resolution trunk in steps
 // of stream_trunk_frames latent frames, the rest one latent frame at a time,
 // as SceneDecoder::forward) with each stage's time summed over the steps.
 void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tensor& cams, const torch::Device& dev,
-                   bool streaming) {
+                   bool streaming, bool ops) {
+  std::vector<std::pair<std::string, at::Tensor>> block_inputs;  // first block of each width and size
   std::vector<std::pair<std::string, double>> stages;  // first-seen order
   auto timed = [&](const std::string& name, auto&& fn) {
     sync(dev);
@@ -117,8 +157,10 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
     for (size_t i = begin; i < end; ++i) {
       const std::string name = "upsamples." + std::to_string(i) + (d->up_kind[i] == 0 ? " res " : " resample");
       if (d->up_kind[i] == 0) {
-        h = timed(name + std::to_string(h.size(1)) + "ch " + std::to_string(h.size(3)) + "x" + std::to_string(h.size(4)),
-                  [&] { return d->up_res[r++]->forward(h, c); });
+        const std::string what = std::to_string(h.size(1)) + "ch " + std::to_string(h.size(3)) + "x" +
+                                 std::to_string(h.size(4));
+        if (ops && c == nullptr) block_inputs.emplace_back("upsamples." + std::to_string(i) + " " + what, h);
+        h = timed(name + what, [&] { return d->up_res[r++]->forward(h, c); });
       } else {
         h = timed(name, [&] { return d->up_resample[s++]->forward(h, c); });
       }
@@ -138,6 +180,7 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
   };
   auto tail = [&](const at::Tensor& h, StreamCache* c) {
     const at::Tensor f = upsamples(h, c, split, d->up_kind.size());
+    if (ops && c == nullptr) block_inputs.emplace_back("heads", f);
     return timed("heads", [&] { return scene->heads->forward(f, c); });
   };
   if (!streaming) {
@@ -163,6 +206,22 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
   spdlog::info("stages of one {} forward:", streaming ? "streaming" : "full-sequence");
   for (auto& st : stages) spdlog::info("  {:<45} {:8.2f} ms {:5.1f}%", st.first, st.second, 100.0 * st.second / total);
   spdlog::info("  {:<45} {:8.2f} ms", "sum of stages", total);
+  if (block_inputs.empty()) return;
+  spdlog::info("operations (mean of 5, synchronised):");
+  std::vector<std::string> seen;
+  for (auto& [name, input] : block_inputs) {
+    if (name == "heads") {
+      time_head_ops(scene->heads, input, dev);
+      continue;
+    }
+    const size_t index = std::stoul(name.substr(10));  // "upsamples.<i> ..."
+    const std::string what = name.substr(name.find(' ') + 1);
+    if (std::find(seen.begin(), seen.end(), what) != seen.end()) continue;
+    seen.push_back(what);
+    size_t r = 0;
+    for (size_t i = 0; i < index; ++i) r += d->up_kind[i] == 0 ? 1 : 0;
+    time_block_ops(name, d->up_res[r], input, dev);
+  }
 }
 
 void run_decoder_bench(const DecoderBenchOptions& o) {
@@ -235,7 +294,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
     }
     if (o.breakdown) {
       spdlog::info("breakdown, T'={} (camera latents precomputed):", t);
-      for (const auto& mode : modes) run_breakdown(scene, latent, cam_pre, dev, mode == "streaming");
+      for (const auto& mode : modes) run_breakdown(scene, latent, cam_pre, dev, mode == "streaming", o.ops);
     }
   }
   const std::string report = cutlass_conv_report();
@@ -276,6 +335,9 @@ void add_decoder(CLI::App& app) {
                   "tile configuration (e.g. 128x192x64)")
       ->capture_default_str();
   cmd->add_flag("--breakdown", opts->breakdown, "also time each stage of a forward (each --mode)");
+  cmd->add_flag("--ops", opts->ops,
+                "with --breakdown: also time the norm, convs and add inside one residual block of each width and "
+                "size, and each head");
   cmd->callback([opts] { run_decoder_bench(*opts); });
 }
 

@@ -53,7 +53,7 @@ bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
   const bool dtype_ok = (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
                         gamma.scalar_type() == x.scalar_type();
   return g_fused_enabled && x.is_cuda() && !grad && dtype_ok && x.dim() == 5 &&
-         x.is_contiguous(at::MemoryFormat::ChannelsLast3d);
+         x.is_contiguous(at::MemoryFormat::ChannelsLast3d) && cuda::rms_norm_silu_supported(x.size(1));
 #else
   (void)x;
   (void)gamma;

@@ -69,7 +69,7 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
     auto res = torch::randn(ref0.sizes(), torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto ref1 = ref0 + res.to(torch::kFloat);
     int ran = 0;
-    for (const char* config : {"128x96x32", "128x96x64", "128x128x64", "128x192x64", ""}) {
+    for (const char* config : {"128x96x32", "256x96x32", "128x96x64", "256x96x64", "128x128x64", "128x192x64", ""}) {
       set_cutlass_conv_choice(config);
       for (bool with_res : {false, true}) {
         auto out = conv3d_inference(x, w, b, k.pad, with_res ? res : at::Tensor());
@@ -83,7 +83,7 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
         ++ran;
       }
     }
-    CHECK(ran == 10);
+    CHECK(ran == 14);
   }
   set_cutlass_conv_choice("");
   // The per-shape timing recorded a choice for every auto-timed shape.

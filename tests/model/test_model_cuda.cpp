@@ -11,7 +11,9 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::NoGradGuard no_grad;
   for (auto dtype : {torch::kFloat, torch::kBFloat16}) {
-    for (int64_t c : {8, 96, 384}) {
+    // 5, 12 (bf16) and 500 take the warp-per-pixel path, the rest 16-byte packs
+    // with 4 lanes per pixel; a block of pixels straddles the two batch entries.
+    for (int64_t c : {5, 8, 12, 96, 384, 500}) {
       auto x = torch::randn({2, c, 3, 5, 7}, torch::kCUDA).to(dtype).contiguous(at::MemoryFormat::ChannelsLast3d);
       auto gamma = (torch::rand({c, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
       auto history = torch::randn({2, c, 2, 5, 7}, torch::kCUDA).to(dtype);
@@ -25,6 +27,9 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
       CHECK(flat::test::rel_error(fused, aten) < (dtype == torch::kFloat ? 1e-5 : 1e-2));
     }
   }
+  // Wider than the kernel takes: the ATen path serves it.
+  auto wide = torch::randn({1, 1000, 2, 3, 3}, torch::kCUDA).contiguous(at::MemoryFormat::ChannelsLast3d);
+  CHECK_FALSE(fused_norm_available(wide, torch::ones({1000, 1, 1, 1}, torch::kCUDA)));
 }
 
 TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cuda]") {

@@ -1,12 +1,25 @@
-// Fused RMS_norm + SiLU over the channels of a channels-last video tensor, one
-// warp per pixel: read the C values, reduce the sum of squares with shuffles,
-// write silu(x * scale / ||x|| * gamma) straight into the (pre-padded) output.
+// Fused RMS_norm + SiLU over the channels of a channels-last video tensor:
+// y = silu(x * scale / ||x|| * gamma), written straight into the (pre-padded)
+// input of the next causal conv.
+//
+// A group of L lanes owns a pixel: with 16-byte packs, the fewest lanes that
+// hold a pixel in at most 4 packs each (4 for 96 bf16 channels, 8 for 192, 16
+// for 384), else the whole warp with single elements. Each lane first issues
+// all of its loads, then the group reduces with shuffles, so a warp keeps
+// 1.5 KB in flight at full occupancy. (The earlier one-warp-per-pixel form had
+// one pixel's 192-768 bytes in flight per warp; a first rewrite with up to 16
+// packs per lane needed 158 registers, one block per SM: both reached under
+// half of the H100's bandwidth.)
 #include <cuda_bf16.h>
+
+#include <cstdint>
 
 #include "rms_norm_silu_kernel.h"
 
 namespace flat::model::cuda {
 namespace {
+
+constexpr int kThreads = 256;
 
 __device__ inline float to_float(float v) { return v; }
 __device__ inline float to_float(__nv_bfloat16 v) { return __bfloat162float(v); }
@@ -17,52 +30,117 @@ __device__ inline float from_float<float>(float v) { return v; }
 template <>
 __device__ inline __nv_bfloat16 from_float<__nv_bfloat16>(float v) { return __float2bfloat16(v); }
 
-template <class T>
-__global__ void rms_norm_silu_kernel(const T* __restrict__ x, const T* __restrict__ gamma, T* __restrict__ out,
-                                     int64_t rows, int64_t frames, int64_t pixels, int64_t channels,
-                                     int64_t out_frames, int64_t frame_offset, float scale, bool silu) {
-  const int64_t warps_per_block = blockDim.x / 32;
-  const int64_t row = int64_t(blockIdx.x) * warps_per_block + threadIdx.x / 32;
-  const int lane = threadIdx.x % 32;
-  if (row >= rows) return;
-  // row = ((b * frames) + t) * pixels + p
-  const int64_t p = row % pixels;
-  const int64_t bt = row / pixels;
-  const int64_t t = bt % frames;
-  const int64_t b = bt / frames;
-  const T* xr = x + row * channels;
-  T* orow = out + ((b * out_frames + frame_offset + t) * pixels + p) * channels;
+// N consecutive elements moved as one access (16 bytes when N * sizeof(T) = 16).
+template <class T, int N>
+struct alignas(sizeof(T) * N) Pack {
+  T v[N];
+};
+
+// L lanes per pixel, N elements per access, at most M accesses per lane; lane
+// l of a group handles packs l, l+L, l+2L, ... of its pixel (so a group's
+// accesses are contiguous).
+template <class T, int N, int L, int M>
+__global__ void __launch_bounds__(kThreads)
+    rms_norm_silu_kernel(const T* __restrict__ x, const T* __restrict__ gamma, T* __restrict__ out, int64_t rows,
+                         int64_t frames, int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
+                         float scale, bool silu) {
+  using P = Pack<T, N>;
+  const int64_t r = (int64_t(blockIdx.x) * kThreads + threadIdx.x) / L;
+  const int lane = threadIdx.x % L;
+  const bool active = r < rows;  // inactive lanes still join the shuffles
+  const int packs = int(channels / N);
+  const P* src = reinterpret_cast<const P*>(x + (active ? r : 0) * channels);
+  P held[M];
   float ss = 0.f;
-  for (int64_t c = lane; c < channels; c += 32) {
-    const float v = to_float(xr[c]);
-    ss += v * v;
+#pragma unroll
+  for (int k = 0; k < M; ++k) {
+    const int i = lane + k * L;
+    if (active && i < packs) held[k] = src[i];
   }
-  for (int off = 16; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
+#pragma unroll
+  for (int k = 0; k < M; ++k) {
+    const int i = lane + k * L;
+    if (active && i < packs) {
+#pragma unroll
+      for (int e = 0; e < N; ++e) {
+        const float v = to_float(held[k].v[e]);
+        ss += v * v;
+      }
+    }
+  }
+#pragma unroll
+  for (int off = L / 2; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
+  if (!active) return;
   const float inv = scale / fmaxf(sqrtf(ss), 1e-12f);
-  for (int64_t c = lane; c < channels; c += 32) {
-    float v = to_float(xr[c]) * inv * to_float(gamma[c]);
-    if (silu) v = v / (1.f + __expf(-v));
-    orow[c] = from_float<T>(v);
+  // Input row r = (b*frames + t)*pixels + p lands at (b*out_frames + offset + t)*pixels + p.
+  const int64_t b = r / (frames * pixels);
+  P* dst = reinterpret_cast<P*>(out + (r + (b * (out_frames - frames) + frame_offset) * pixels) * channels);
+  const P* g = reinterpret_cast<const P*>(gamma);
+#pragma unroll
+  for (int k = 0; k < M; ++k) {
+    const int i = lane + k * L;
+    if (i < packs) {
+      const P gv = g[i];
+      P o;
+#pragma unroll
+      for (int e = 0; e < N; ++e) {
+        float v = to_float(held[k].v[e]) * inv * to_float(gv.v[e]);
+        if (silu) v = __fdividef(v, 1.f + __expf(-v));  // -> 0 (not NaN) for very negative v
+        o.v[e] = from_float<T>(v);
+      }
+      dst[i] = o;
+    }
+  }
+}
+
+template <class T, int N, int L, int M>
+void launch(const void* x, const void* gamma, void* out, int64_t rows, int64_t frames, int64_t pixels,
+            int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu, cudaStream_t stream) {
+  const int64_t blocks = (rows * L + kThreads - 1) / kThreads;
+  rms_norm_silu_kernel<T, N, L, M><<<blocks, kThreads, 0, stream>>>(
+      static_cast<const T*>(x), static_cast<const T*>(gamma), static_cast<T*>(out), rows, frames, pixels, channels,
+      out_frames, frame_offset, scale, silu);
+}
+
+constexpr int kVecPacks = 4;      // 16-byte packs per lane
+constexpr int kScalarPacks = 16;  // elements per lane, warp per pixel
+
+// 16-byte packs with the fewest lanes per pixel that hold it in kVecPacks
+// accesses each; else single elements with a warp per pixel.
+template <class T>
+void dispatch(bool vec, const void* x, const void* gamma, void* out, int64_t rows, int64_t frames, int64_t pixels,
+              int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu,
+              cudaStream_t stream) {
+  constexpr int N = 16 / sizeof(T);
+  const int64_t packs = channels / N;
+  if (vec && packs <= 4 * kVecPacks) {
+    launch<T, N, 4, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+  } else if (vec && packs <= 8 * kVecPacks) {
+    launch<T, N, 8, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+  } else if (vec && packs <= 16 * kVecPacks) {
+    launch<T, N, 16, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+  } else {
+    launch<T, 1, 32, kScalarPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu,
+                                   stream);
   }
 }
 
 }  // namespace
+
+bool rms_norm_silu_supported(int64_t channels) { return channels <= 32 * kScalarPacks; }
 
 void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t batch, int64_t frames,
                           int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
                           float scale, bool silu, bool is_bf16, cudaStream_t stream) {
   const int64_t rows = batch * frames * pixels;
   if (rows == 0) return;
-  const int threads = 256;
-  const int64_t blocks = (rows + threads / 32 - 1) / (threads / 32);
+  auto aligned = [](const void* ptr) { return reinterpret_cast<uintptr_t>(ptr) % 16 == 0; };
+  const bool vec = channels % (is_bf16 ? 8 : 4) == 0 && aligned(x) && aligned(gamma) && aligned(out);
   if (is_bf16) {
-    rms_norm_silu_kernel<__nv_bfloat16><<<blocks, threads, 0, stream>>>(
-        static_cast<const __nv_bfloat16*>(x), static_cast<const __nv_bfloat16*>(gamma),
-        static_cast<__nv_bfloat16*>(out), rows, frames, pixels, channels, out_frames, frame_offset, scale, silu);
+    dispatch<__nv_bfloat16>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
+                            silu, stream);
   } else {
-    rms_norm_silu_kernel<float><<<blocks, threads, 0, stream>>>(
-        static_cast<const float*>(x), static_cast<const float*>(gamma), static_cast<float*>(out), rows, frames,
-        pixels, channels, out_frames, frame_offset, scale, silu);
+    dispatch<float>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
   }
 }
 

@@ -96,9 +96,12 @@ struct Kernel {
 
 // The configurations, by output width: 96 (the full-resolution 96-channel
 // convs, whose 96 input channels need TileK 32), 128 and 192 (two or one
-// N tiles for 384 and 192 outputs).
+// N tiles for 384 and 192 outputs). 256-pixel tiles halve the filter loads
+// per output of the narrow 96-output convs.
 using K128x96x32 = Kernel<128, 96, 32>;
+using K256x96x32 = Kernel<256, 96, 32>;
 using K128x96x64 = Kernel<128, 96, 64>;
+using K256x96x64 = Kernel<256, 96, 64>;
 using K128x128x64 = Kernel<128, 128, 64>;
 using K128x192x64 = Kernel<128, 192, 64>;
 
@@ -117,7 +120,9 @@ constexpr Entry entry(const char* name) {
 
 const Entry kEntries[] = {
     entry<K128x96x32>("128x96x32"),
+    entry<K256x96x32>("256x96x32"),
     entry<K128x96x64>("128x96x64"),
+    entry<K256x96x64>("256x96x64"),
     entry<K128x128x64>("128x128x64"),
     entry<K128x192x64>("128x192x64"),
 };
