@@ -7,15 +7,6 @@
 
 namespace flat::model {
 
-at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache) {
-  const int64_t n = conv->past_frames();
-  if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(x, norm->gamma, n));
-  at::Tensor& history = cache->next();
-  at::Tensor padded = rms_norm_silu_padded(x, norm->gamma, n, history);
-  history = padded.narrow(2, padded.size(2) - n, n).clone();
-  return conv->forward_prepadded(padded);
-}
-
 Encoder3dImpl::Encoder3dImpl(const WanVAEConfig& config) {
   config.check();
   // dims = dim * [1] + dim_mult: [96, 96, 192, 384, 384] for the pretrained model.

@@ -3,7 +3,7 @@
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
-#include "flat/model/encoder3d.h"
+#include "flat/model/residual_block.h"
 
 namespace flat::model {
 

@@ -13,6 +13,17 @@ namespace flat::model {
 namespace {
 std::atomic<bool> g_subpixel{true};
 
+// The four phase filters of upsample_conv_subpixel, (4*O, I, 1, 2, 2), and the
+// bias repeated for them.
+std::pair<at::Tensor, at::Tensor> subpixel_filters(const at::Tensor& w, const at::Tensor& bias,
+                                                   at::MemoryFormat format) {
+  const int64_t O = w.size(0), I = w.size(1);
+  at::Tensor R = torch::tensor({1.f, 0.f, 0.f, 0.f, 1.f, 1.f, 1.f, 1.f, 0.f, 0.f, 0.f, 1.f},
+                               w.options().dtype(at::kFloat)).view({2, 2, 3});  // (parity, tap, original tap)
+  at::Tensor K = at::einsum("apy,oiyx,bqx->aboipq", {R, w.to(at::kFloat), R}).to(w.scalar_type());
+  return {K.reshape({4 * O, I, 1, 2, 2}).contiguous(format), bias.repeat({4})};
+}
+
 // Nearest x2 followed by a 3x3 conv (pad 1) equals, for each output parity
 // (a, b), a 2x2 conv of the low-resolution input with summed taps: rows
 // (y-1, y, y+1) of the upsampled image are input rows (i-1, i, i) for a = 0 and
@@ -20,17 +31,10 @@ std::atomic<bool> g_subpixel{true};
 // padding 1 (so (H+1) x (W+1) positions); phase (a, b) is the window starting
 // at (a, b). 4/9 of the multiply-adds, and the 4x larger upsampled tensor is
 // never materialised.
-at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& w, const at::Tensor& bias) {
+at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias4) {
   const int64_t B = x.size(0), T = x.size(2), H = x.size(3), W = x.size(4);
-  const int64_t O = w.size(0), I = w.size(1);
-  at::Tensor R = torch::tensor({1.f, 0.f, 0.f, 0.f, 1.f, 1.f, 1.f, 1.f, 0.f, 0.f, 0.f, 1.f},
-                               w.options().dtype(at::kFloat)).view({2, 2, 3});  // (parity, tap, original tap)
-  at::Tensor K = at::einsum("apy,oiyx,bqx->aboipq", {R, w.to(at::kFloat), R}).to(w.scalar_type());
-  at::Tensor weight = K.reshape({4 * O, I, 1, 2, 2});
-  if (x.suggest_memory_format() == at::MemoryFormat::ChannelsLast3d) {
-    weight = weight.contiguous(at::MemoryFormat::ChannelsLast3d);
-  }
-  at::Tensor y = conv3d_inference(x, weight, bias.repeat({4}), {0, 1, 1});  // (B,4O,T,H+1,W+1)
+  const int64_t O = weight.size(0) / 4;
+  at::Tensor y = conv3d_inference(x, weight, bias4, {0, 1, 1});  // (B,4O,T,H+1,W+1)
   at::Tensor out = at::empty({B, O, T, 2 * H, 2 * W}, x.options().memory_format(x.suggest_memory_format()));
   at::Tensor phases = out.unflatten(4, {W, 2}).unflatten(3, {H, 2});  // (B,O,T,H,2,W,2)
   for (int64_t a = 0; a < 2; ++a) {
@@ -70,7 +74,23 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
   switch (mode_) {
     case ResampleMode::upsample2d:
     case ResampleMode::upsample3d: {
-      if (g_subpixel) return upsample_conv_subpixel(x, conv_weight, conv_bias);
+      if (g_subpixel) {
+        const auto format = x.suggest_memory_format();
+        if (at::GradMode::is_enabled() && (conv_weight.requires_grad() || conv_bias.requires_grad())) {
+          const auto [weight, bias4] = subpixel_filters(conv_weight, conv_bias, format);
+          return upsample_conv_subpixel(x, weight, bias4);
+        }
+        // Without autograd the phase filters are built once per weight
+        // version, dtype, device and layout (each build syncs on a tiny
+        // host-to-device copy; streaming would pay it every chunk).
+        const auto key = std::make_tuple(conv_weight.data_ptr(), conv_weight._version(), conv_bias._version(),
+                                         conv_weight.scalar_type(), format);
+        if (!subpixel_cache_.weight.defined() || subpixel_cache_.key != key) {
+          std::tie(subpixel_cache_.weight, subpixel_cache_.bias) = subpixel_filters(conv_weight, conv_bias, format);
+          subpixel_cache_.key = key;
+        }
+        return upsample_conv_subpixel(x, subpixel_cache_.weight, subpixel_cache_.bias);
+      }
       // Nearest x2 is exact in any dtype (the reference's fp32 detour changes nothing).
       const std::vector<int64_t> size{x.size(2), 2 * x.size(3), 2 * x.size(4)};
       at::Tensor up = at::upsample_nearest3d(x, at::IntArrayRef(size), std::optional<double>(),

@@ -4,6 +4,15 @@
 
 namespace flat::model {
 
+at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache,
+                          const at::Tensor& residual) {
+  // The norm + SiLU writes straight into the causally padded input of the
+  // conv; in streaming mode the padding is the layer's history instead of zeros.
+  const int64_t n = conv->past_frames();
+  if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(x, norm->gamma, n), residual);
+  return conv->forward_prepadded(rms_norm_silu_streamed(x, norm->gamma, n, cache->next()), residual);
+}
+
 ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels) {
   auto residual = register_module("residual", std::make_shared<torch::nn::Module>());
   norm1 = RMSNorm(in_channels, /*images=*/false);
@@ -20,21 +29,11 @@ ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels) 
 }
 
 at::Tensor ResidualBlockImpl::forward(const at::Tensor& x, StreamCache* cache) {
-  // Each norm+SiLU writes straight into the causally padded input of its conv;
-  // in streaming mode the padding is the layer's history instead of zeros.
-  auto stage = [&](const at::Tensor& in, RMSNorm& norm, CausalConv3d& conv, const at::Tensor& residual) {
-    const int64_t n = conv->past_frames();
-    if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(in, norm->gamma, n), residual);
-    at::Tensor& history = cache->next();
-    at::Tensor padded = rms_norm_silu_padded(in, norm->gamma, n, history);
-    history = padded.narrow(2, padded.size(2) - n, n).clone();
-    return conv->forward_prepadded(padded, residual);
-  };
-  at::Tensor h = stage(x, norm1, conv1, {});
+  const at::Tensor h = norm_silu_conv(x, norm1, conv1, cache);
   // Dropout(0) is the identity; the skip is added by the second conv (in its
-  // epilogue on the CUTLASS path, one pass over memory fewer).
+  // epilogue on the CUTLASS path: one pass over memory fewer).
   const at::Tensor skip = shortcut ? shortcut->forward(x) : x;
-  return stage(h, norm2, conv2, skip);
+  return norm_silu_conv(h, norm2, conv2, cache, skip);
 }
 
 }  // namespace flat::model

@@ -61,11 +61,18 @@ bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
 #endif
 }
 
-at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history) {
+namespace {
+
+// rms_norm_silu_padded, and when history_out is given, the last n frames of
+// the result as the layer's next streaming history (written by the fused
+// kernel as a second destination, so no copy of them afterwards).
+at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history,
+                            at::Tensor* history_out) {
   FLAT_CHECK(x.dim() == 5 && x.size(1) == gamma.numel(),
              "RMS_norm+SiLU: expected (B," + std::to_string(gamma.numel()) + ",T,H,W), got " + shape_str(x));
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
-  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(x.suggest_memory_format()));
+  const auto format = x.suggest_memory_format();
+  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(format));
   if (n > 0) {
     if (history.defined()) {
       FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
@@ -75,14 +82,24 @@ at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, in
       out.narrow(2, 0, n).zero_();
     }
   }
+  auto keep_history = [&](const at::Tensor& result) {
+    if (history_out != nullptr) *history_out = result.narrow(2, result.size(2) - n, n).clone();
+    return result;
+  };
   at::Tensor body = out.narrow(2, n, T);
 #if FLAT_WITH_CUDA
   if (fused_norm_available(x, gamma) && out.is_contiguous(at::MemoryFormat::ChannelsLast3d)) {
     at::Tensor g = gamma.contiguous();
+    at::Tensor next;
+    if (history_out != nullptr && n > 0 && T >= n) next = at::empty({B, C, n, H, W}, x.options().memory_format(format));
     cuda::launch_rms_norm_silu(x.data_ptr(), g.data_ptr(), out.data_ptr(), B, T, H * W, C, n + T, n,
                                float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16,
-                               at::cuda::getCurrentCUDAStream());
-    return out;
+                               next.defined() ? next.data_ptr() : nullptr, n, at::cuda::getCurrentCUDAStream());
+    if (next.defined()) {
+      *history_out = next;
+      return out;
+    }
+    return keep_history(out);
   }
 #endif
   at::Tensor y = x * inverse_norm(x).to(x.scalar_type());
@@ -92,10 +109,21 @@ at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, in
     at::Tensor act = at::silu(y);
     if (n == 0) return act;
     at::Tensor past = history.defined() ? history : at::zeros({B, C, n, H, W}, x.options());
-    return at::cat({past, act}, 2);
+    return keep_history(at::cat({past, act}, 2));
   }
   at::silu_out(body, y);
-  return out;
+  return keep_history(out);
+}
+
+}  // namespace
+
+at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history) {
+  return norm_silu_padded(x, gamma, n, history, nullptr);
+}
+
+at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history) {
+  const at::Tensor past = history;
+  return norm_silu_padded(x, gamma, n, past, &history);
 }
 
 }  // namespace flat::model

@@ -32,6 +32,23 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
   CHECK_FALSE(fused_norm_available(wide, torch::ones({1000, 1, 1, 1}, torch::kCUDA)));
 }
 
+TEST_CASE("CUDA streamed RMS_norm + SiLU hands on its last frames as history", "[model][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  torch::NoGradGuard no_grad;
+  for (auto dtype : {torch::kFloat, torch::kBFloat16}) {
+    for (int64_t T : {1, 2, 5}) {  // T < 2: the history mixes old and new frames
+      auto x = torch::randn({2, 96, T, 5, 7}, torch::kCUDA).to(dtype).contiguous(at::MemoryFormat::ChannelsLast3d);
+      auto gamma = (torch::rand({96, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
+      at::Tensor history = torch::randn({2, 96, 2, 5, 7}, torch::kCUDA).to(dtype);
+      const at::Tensor before = history;
+      auto padded = rms_norm_silu_streamed(x, gamma, 2, history);
+      INFO("T = " << T << " dtype " << dtype);
+      CHECK(torch::equal(padded, rms_norm_silu_padded(x, gamma, 2, before)));
+      CHECK(torch::equal(history, padded.narrow(2, T, 2)));
+    }
+  }
+}
+
 TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::manual_seed(11);

@@ -37,7 +37,4 @@ class Encoder3dImpl : public torch::nn::Module {
 };
 TORCH_MODULE(Encoder3d);
 
-// Shared by encoder and decoder: the head's RMS_norm + SiLU + causal conv.
-at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache);
-
 }  // namespace flat::model

@@ -9,6 +9,7 @@
 #pragma once
 #include <cstdint>
 #include <string>
+#include <tuple>
 
 #include <ATen/ATen.h>
 #include <torch/nn/module.h>
@@ -40,6 +41,12 @@ class ResampleImpl : public torch::nn::Module {
   void interleave_into(at::Tensor out, const at::Tensor& y) const;  // (B,2C,T,..) -> out (B,C,2T,..)
   // upsample3d's temporal half: [frame 0 if pass_first] + frames doubled by time_conv.
   at::Tensor upsample_time(const at::Tensor& x, bool pass_first, at::Tensor* history);
+  // The sub-pixel phase filters built from conv_weight (inference only).
+  struct SubpixelCache {
+    std::tuple<void*, int64_t, int64_t, at::ScalarType, at::MemoryFormat> key;
+    at::Tensor weight, bias;
+  };
+  mutable SubpixelCache subpixel_cache_;
 };
 TORCH_MODULE(Resample);
 

@@ -27,4 +27,10 @@ class ResidualBlockImpl : public torch::nn::Module {
 };
 TORCH_MODULE(ResidualBlock);
 
+// conv(silu(norm(x))) (+ residual): the unit of residual blocks and of the
+// encoder's, decoder's and scene decoder's heads. cache == nullptr: full
+// sequence (zero past frames); else one streaming chunk (the layer's history).
+at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache,
+                          const at::Tensor& residual = {});
+
 }  // namespace flat::model

@@ -30,6 +30,10 @@ at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, in
 // rms_norm over dim 1 (no SiLU, no padding); gamma of any shape with C entries.
 at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma);
 
+// One streaming chunk: rms_norm_silu_padded(x, gamma, n, history), and
+// `history` becomes the last n frames of the result (the next chunk's past).
+at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history);
+
 // True when the fused CUDA kernel would serve rms_norm_silu_padded for x.
 bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma);
 // Test hook: force the ATen path even where the fused kernel would run.

@@ -43,7 +43,7 @@ template <class T, int N, int L, int M>
 __global__ void __launch_bounds__(kThreads)
     rms_norm_silu_kernel(const T* __restrict__ x, const T* __restrict__ gamma, T* __restrict__ out, int64_t rows,
                          int64_t frames, int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
-                         float scale, bool silu) {
+                         float scale, bool silu, T* __restrict__ history, int64_t history_frames) {
   using P = Pack<T, N>;
   const int64_t r = (int64_t(blockIdx.x) * kThreads + threadIdx.x) / L;
   const int lane = threadIdx.x % L;
@@ -75,6 +75,12 @@ __global__ void __launch_bounds__(kThreads)
   // Input row r = (b*frames + t)*pixels + p lands at (b*out_frames + offset + t)*pixels + p.
   const int64_t b = r / (frames * pixels);
   P* dst = reinterpret_cast<P*>(out + (r + (b * (out_frames - frames) + frame_offset) * pixels) * channels);
+  // The last history_frames frames also go to `history` (B,history_frames,pixels,C).
+  P* hist = nullptr;
+  if (history != nullptr) {
+    const int64_t t = (r / pixels) % frames, first = frames - history_frames;
+    if (t >= first) hist = reinterpret_cast<P*>(history + (r + (b * history_frames - b * frames - first) * pixels) * channels);
+  }
   const P* g = reinterpret_cast<const P*>(gamma);
 #pragma unroll
   for (int k = 0; k < M; ++k) {
@@ -89,17 +95,19 @@ __global__ void __launch_bounds__(kThreads)
         o.v[e] = from_float<T>(v);
       }
       dst[i] = o;
+      if (hist != nullptr) hist[i] = o;
     }
   }
 }
 
 template <class T, int N, int L, int M>
 void launch(const void* x, const void* gamma, void* out, int64_t rows, int64_t frames, int64_t pixels,
-            int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu, cudaStream_t stream) {
+            int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu, void* history,
+            int64_t history_frames, cudaStream_t stream) {
   const int64_t blocks = (rows * L + kThreads - 1) / kThreads;
   rms_norm_silu_kernel<T, N, L, M><<<blocks, kThreads, 0, stream>>>(
       static_cast<const T*>(x), static_cast<const T*>(gamma), static_cast<T*>(out), rows, frames, pixels, channels,
-      out_frames, frame_offset, scale, silu);
+      out_frames, frame_offset, scale, silu, static_cast<T*>(history), history_frames);
 }
 
 constexpr int kVecPacks = 4;      // 16-byte packs per lane
@@ -109,19 +117,22 @@ constexpr int kScalarPacks = 16;  // elements per lane, warp per pixel
 // accesses each; else single elements with a warp per pixel.
 template <class T>
 void dispatch(bool vec, const void* x, const void* gamma, void* out, int64_t rows, int64_t frames, int64_t pixels,
-              int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu,
-              cudaStream_t stream) {
+              int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu, void* history,
+              int64_t history_frames, cudaStream_t stream) {
   constexpr int N = 16 / sizeof(T);
   const int64_t packs = channels / N;
   if (vec && packs <= 4 * kVecPacks) {
-    launch<T, N, 4, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+    launch<T, N, 4, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
+        history_frames, stream);
   } else if (vec && packs <= 8 * kVecPacks) {
-    launch<T, N, 8, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+    launch<T, N, 8, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
+        history_frames, stream);
   } else if (vec && packs <= 16 * kVecPacks) {
-    launch<T, N, 16, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+    launch<T, N, 16, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
+        history_frames, stream);
   } else {
-    launch<T, 1, 32, kScalarPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu,
-                                   stream);
+    launch<T, 1, 32, kScalarPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
+        history_frames, stream);
   }
 }
 
@@ -131,16 +142,19 @@ bool rms_norm_silu_supported(int64_t channels) { return channels <= 32 * kScalar
 
 void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t batch, int64_t frames,
                           int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
-                          float scale, bool silu, bool is_bf16, cudaStream_t stream) {
+                          float scale, bool silu, bool is_bf16, void* history, int64_t history_frames,
+                          cudaStream_t stream) {
   const int64_t rows = batch * frames * pixels;
   if (rows == 0) return;
   auto aligned = [](const void* ptr) { return reinterpret_cast<uintptr_t>(ptr) % 16 == 0; };
-  const bool vec = channels % (is_bf16 ? 8 : 4) == 0 && aligned(x) && aligned(gamma) && aligned(out);
+  const bool vec = channels % (is_bf16 ? 8 : 4) == 0 && aligned(x) && aligned(gamma) && aligned(out) &&
+                   (history == nullptr || aligned(history));
   if (is_bf16) {
     dispatch<__nv_bfloat16>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
-                            silu, stream);
+                            silu, history, history_frames, stream);
   } else {
-    dispatch<float>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, stream);
+    dispatch<float>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
+                    history_frames, stream);
   }
 }
 

@@ -10,11 +10,15 @@ namespace flat::model::cuda {
 // x: channels-last (B,T,HW,C) contiguous; out: (B,out_frames,HW,C) contiguous,
 // frames [frame_offset, frame_offset+T) written. y = x / max(||x||,1e-12) *
 // scale * gamma[c], then SiLU when `silu`. is_bf16: elements are bfloat16, else float.
+// history (may be null): (B,history_frames,HW,C) also receives the last
+// history_frames output frames (history_frames <= T): a streaming layer's
+// next history without a copy.
 // Whether the kernel takes `channels` (<= 512: 16 per lane of a warp).
 bool rms_norm_silu_supported(int64_t channels);
 
 void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t batch, int64_t frames,
                           int64_t pixels, int64_t channels, int64_t out_frames, int64_t frame_offset,
-                          float scale, bool silu, bool is_bf16, cudaStream_t stream);
+                          float scale, bool silu, bool is_bf16, void* history, int64_t history_frames,
+                          cudaStream_t stream);
 
 }  // namespace flat::model::cuda
