@@ -104,13 +104,14 @@ double op_ms(const torch::Device& dev, Fn&& fn) {
 // The operations inside one residual block (its norm + SiLU, each conv, the
 // residual add on its own for scale) and inside the heads, on real inputs.
 void time_block_ops(const std::string& name, ResidualBlock& block, const at::Tensor& h, const torch::Device& dev) {
-  const at::Tensor p1 = rms_norm_silu_padded(h, block->norm1->gamma, 2);
+  const int64_t n1 = block->conv1->past_frames(), n2 = block->conv2->past_frames();
+  const at::Tensor p1 = rms_norm_silu_padded(h, block->norm1->gamma, n1);
   const at::Tensor y1 = block->conv1->forward_prepadded(p1);
-  const at::Tensor p2 = rms_norm_silu_padded(y1, block->norm2->gamma, 2);
+  const at::Tensor p2 = rms_norm_silu_padded(y1, block->norm2->gamma, n2);
   const at::Tensor skip = block->shortcut ? block->shortcut->forward(h) : h;
-  const double norm1 = op_ms(dev, [&] { (void)rms_norm_silu_padded(h, block->norm1->gamma, 2); });
+  const double norm1 = op_ms(dev, [&] { (void)rms_norm_silu_padded(h, block->norm1->gamma, n1); });
   const double conv1 = op_ms(dev, [&] { (void)block->conv1->forward_prepadded(p1); });
-  const double norm2 = op_ms(dev, [&] { (void)rms_norm_silu_padded(y1, block->norm2->gamma, 2); });
+  const double norm2 = op_ms(dev, [&] { (void)rms_norm_silu_padded(y1, block->norm2->gamma, n2); });
   const double conv2 = op_ms(dev, [&] { (void)block->conv2->forward_prepadded(p2, skip); });
   const double add = op_ms(dev, [&] { (void)(y1 + skip); });
   const double gib = double(h.numel() * h.element_size()) / double(1ull << 30);
@@ -121,8 +122,9 @@ void time_block_ops(const std::string& name, ResidualBlock& block, const at::Ten
 
 void time_head_ops(OutputHeads& heads, const at::Tensor& f, const torch::Device& dev) {
   for (size_t i = 0; i < heads->convs.size(); ++i) {
-    const at::Tensor p = rms_norm_silu_padded(f, heads->norms[i]->gamma, 2);
-    const double norm = op_ms(dev, [&] { (void)rms_norm_silu_padded(f, heads->norms[i]->gamma, 2); });
+    const int64_t n = heads->convs[i]->past_frames();
+    const at::Tensor p = rms_norm_silu_padded(f, heads->norms[i]->gamma, n);
+    const double norm = op_ms(dev, [&] { (void)rms_norm_silu_padded(f, heads->norms[i]->gamma, n); });
     const double conv = op_ms(dev, [&] { (void)heads->convs[i]->forward_prepadded(p); });
     spdlog::info("  head {} ({} outputs): norm {:6.2f} conv {:6.2f} ms", i, heads->convs[i]->out_channels(), norm, conv);
   }

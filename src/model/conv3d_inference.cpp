@@ -1,6 +1,7 @@
 #include "flat/model/conv3d_inference.h"
 
 #include <atomic>
+#include <cstdint>
 #include <functional>
 #include <limits>
 #include <map>
@@ -27,6 +28,7 @@ namespace flat::model {
 namespace {
 
 std::atomic<bool> g_enabled{true};
+thread_local std::string g_last_path = "cudnn";
 
 at::Tensor conv3d_aten(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
                        std::array<int64_t, 3> padding, const at::Tensor& residual) {
@@ -70,6 +72,15 @@ std::optional<cuda::Conv3dProblem> problem_for(const at::Tensor& x, const at::Te
                                      (residual.defined() && residual.requires_grad()))) {
     return std::nullopt;
   }
+  // Everything on x's GPU, bias of K values, nothing empty; TMA needs 16-byte
+  // aligned base pointers (views with odd offsets go to cuDNN).
+  const auto on_x = [&](const at::Tensor& t) { return !t.defined() || t.device() == x.device(); };
+  const auto aligned = [](const at::Tensor& t) {
+    return !t.defined() || reinterpret_cast<uintptr_t>(t.data_ptr()) % 16 == 0;
+  };
+  if (!on_x(weight) || !on_x(bias) || !on_x(residual) || x.numel() == 0 || weight.numel() == 0) return std::nullopt;
+  if (bias.defined() && (bias.dim() != 1 || bias.numel() != weight.size(0))) return std::nullopt;
+  if (!aligned(x) || !aligned(weight) || !aligned(bias) || !aligned(residual)) return std::nullopt;
   const auto cl = at::MemoryFormat::ChannelsLast3d;
   if (!x.is_contiguous(cl) || !weight.is_contiguous(cl) || (bias.defined() && !bias.is_contiguous())) {
     return std::nullopt;
@@ -88,11 +99,11 @@ std::optional<cuda::Conv3dProblem> problem_for(const at::Tensor& x, const at::Te
   return p;
 }
 
-std::string key_of(const cuda::Conv3dProblem& p, bool residual) {
+std::string key_of(const cuda::Conv3dProblem& p, bool bias, bool residual) {
   std::ostringstream s;
   s << "x(" << p.n << "," << p.c << "," << p.d << "," << p.h << "," << p.w << ") w(" << p.k << "," << p.c << ","
     << p.t << "," << p.r << "," << p.s << ") pad(" << p.pad_d << "," << p.pad_h << "," << p.pad_w << ")"
-    << (residual ? " +residual" : "");
+    << (bias ? "" : " no-bias") << (residual ? " +residual" : "");
   return s.str();
 }
 
@@ -106,7 +117,8 @@ void run_cutlass(int config, const cuda::Conv3dProblem& p, const at::Tensor& x, 
                                         bytes > 0 ? workspace.data_ptr() : nullptr,
                                         at::cuda::getCurrentCUDAStream());
   FLAT_CHECK(ok, std::string("conv3d: the CUTLASS kernel ") + cuda::conv3d_sm90_config_name(config) +
-                     " failed on " + key_of(p, residual.defined()) + ": " + cudaGetErrorString(cudaGetLastError()));
+                     " refused or failed on " + key_of(p, bias.defined(), residual.defined()) +
+                     " (CUDA: " + cudaGetErrorString(cudaGetLastError()) + ")");
 }
 
 // Times every candidate on this problem (one warm-up, then the mean of two
@@ -197,7 +209,7 @@ at::Tensor conv3d_inference(const at::Tensor& x, const at::Tensor& weight, const
         choice = config_by_name(g_forced);
         if (choice != kCudnn && !cuda::conv3d_sm90_can_run(choice, *p)) choice = kCudnn;
       } else {
-        const std::string key = key_of(*p, residual.defined()) + " dev" + std::to_string(x.get_device());
+        const std::string key = key_of(*p, bias.defined(), residual.defined()) + " dev" + std::to_string(x.get_device());
         auto it = g_timed.find(key);
         if (it == g_timed.end()) {
           it = g_timed.emplace(key, time_candidates(*p, x, weight, bias, padding, residual, out)).first;
@@ -210,11 +222,15 @@ at::Tensor conv3d_inference(const at::Tensor& x, const at::Tensor& weight, const
     }
     if (choice != kCudnn) {
       run_cutlass(choice, *p, x, weight, bias, residual, out);
+      g_last_path = cuda::conv3d_sm90_config_name(choice);
       return out;
     }
   }
 #endif
+  g_last_path = "cudnn";
   return conv3d_aten(x, weight, bias, padding, residual);
 }
+
+std::string conv3d_inference_last_path() { return g_last_path; }
 
 }  // namespace flat::model

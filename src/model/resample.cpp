@@ -2,6 +2,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <mutex>
 
 #include <torch/torch.h>
 
@@ -76,7 +77,9 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
     case ResampleMode::upsample3d: {
       if (g_subpixel) {
         const auto format = x.suggest_memory_format();
-        if (at::GradMode::is_enabled() && (conv_weight.requires_grad() || conv_bias.requires_grad())) {
+        // (Inference tensors have no version counter: no cache for them.)
+        if ((at::GradMode::is_enabled() && (conv_weight.requires_grad() || conv_bias.requires_grad())) ||
+            conv_weight.is_inference() || conv_bias.is_inference()) {
           const auto [weight, bias4] = subpixel_filters(conv_weight, conv_bias, format);
           return upsample_conv_subpixel(x, weight, bias4);
         }
@@ -85,11 +88,17 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
         // host-to-device copy; streaming would pay it every chunk).
         const auto key = std::make_tuple(conv_weight.data_ptr(), conv_weight._version(), conv_bias._version(),
                                          conv_weight.scalar_type(), format);
-        if (!subpixel_cache_.weight.defined() || subpixel_cache_.key != key) {
-          std::tie(subpixel_cache_.weight, subpixel_cache_.bias) = subpixel_filters(conv_weight, conv_bias, format);
-          subpixel_cache_.key = key;
+        at::Tensor weight, bias4;
+        {
+          const std::lock_guard<std::mutex> lock(subpixel_cache_.mutex);
+          if (!subpixel_cache_.weight.defined() || subpixel_cache_.key != key) {
+            std::tie(subpixel_cache_.weight, subpixel_cache_.bias) = subpixel_filters(conv_weight, conv_bias, format);
+            subpixel_cache_.key = key;
+          }
+          weight = subpixel_cache_.weight;
+          bias4 = subpixel_cache_.bias;
         }
-        return upsample_conv_subpixel(x, subpixel_cache_.weight, subpixel_cache_.bias);
+        return upsample_conv_subpixel(x, weight, bias4);
       }
       // Nearest x2 is exact in any dtype (the reference's fp32 detour changes nothing).
       const std::vector<int64_t> size{x.size(2), 2 * x.size(3), 2 * x.size(4)};

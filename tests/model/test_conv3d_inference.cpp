@@ -20,6 +20,14 @@ struct Case {
   std::array<int64_t, 3> pad;
 };
 
+// Restores the per-shape choice however a test case ends.
+struct ChoiceReset {
+  ~ChoiceReset() { set_cutlass_conv_choice(""); }
+};
+
+// The input channels a configuration takes per step: the last number of its name.
+int64_t tile_k(const std::string& name) { return std::stoll(name.substr(name.rfind('x') + 1)); }
+
 bool sm90() {
 #if FLAT_WITH_CUDA
   if (!flat::test::cuda_available()) return false;
@@ -59,6 +67,7 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
       {1, 64, 4, 6, 6, 16, 3, 3, 3, {0, 1, 1}},      // narrow output (one partial N tile)
   };
   set_cutlass_conv_enabled(true);
+  const ChoiceReset reset;
   for (const Case& k : cases) {
     auto x = torch::randn({k.n, k.c, k.d, k.h, k.w}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto w = (torch::randn({k.k, k.c, k.t, k.r, k.s}, torch::kCUDA) / std::sqrt(double(k.c * k.t * k.r * k.s)))
@@ -68,22 +77,36 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
     auto ref0 = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), b.to(torch::kFloat), {1, 1, 1}, k.pad);
     auto res = torch::randn(ref0.sizes(), torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto ref1 = ref0 + res.to(torch::kFloat);
-    int ran = 0;
-    for (const char* config : {"128x96x32", "256x96x32", "128x96x64", "256x96x64", "128x128x64", "128x192x64", ""}) {
+    int cutlass_runs = 0;
+    for (const std::string config : {"128x96x32", "256x96x32", "128x96x64", "256x96x64", "128x128x64", "128x192x64", ""}) {
       set_cutlass_conv_choice(config);
       for (bool with_res : {false, true}) {
         auto out = conv3d_inference(x, w, b, k.pad, with_res ? res : at::Tensor());
+        const std::string path = conv3d_inference_last_path();
         INFO("x " << flat::shape_str(x) << " w " << flat::shape_str(w) << " config '" << config << "' residual "
-                  << with_res);
+                  << with_res << " ran " << path);
+        // A forced configuration runs exactly where its K step divides the
+        // input channels (every output count here is a multiple of 8).
+        if (!config.empty()) CHECK(path == (k.c % tile_k(config) == 0 ? config : std::string("cudnn")));
+        cutlass_runs += path != "cudnn" ? 1 : 0;
         REQUIRE(out.sizes() == ref0.sizes());
         CHECK(out.is_contiguous(cl));
         // bf16 output: a few ulp of the output's scale; a wrong layout or
         // tap is O(1).
         CHECK(flat::test::rel_error(out.to(torch::kFloat), with_res ? ref1 : ref0) < 1e-2);
-        ++ran;
       }
     }
-    CHECK(ran == 14);
+    CHECK(cutlass_runs >= 4);  // at least the two 32-channel-step configurations, both forms
+  }
+  // Without a bias (the epilogue's bias pointer is null).
+  {
+    auto x = torch::randn({1, 96, 4, 6, 9}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
+    auto w = (torch::randn({96, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
+    set_cutlass_conv_choice("128x96x32");
+    auto out = conv3d_inference(x, w, at::Tensor(), {0, 1, 1});
+    CHECK(conv3d_inference_last_path() == "128x96x32");
+    auto ref = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), {}, {1, 1, 1}, {0, 1, 1});
+    CHECK(flat::test::rel_error(out.to(torch::kFloat), ref) < 1e-2);
   }
   set_cutlass_conv_choice("");
   // The per-shape timing recorded a choice for every auto-timed shape.
@@ -94,6 +117,8 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
 
 TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
+  if (!cutlass_conv_compiled()) FLAT_SKIP("built without CUTLASS");
+  const ChoiceReset reset;
   torch::manual_seed(6);
   torch::NoGradGuard no_grad;
   const auto cl = at::MemoryFormat::ChannelsLast3d;
@@ -104,6 +129,19 @@ TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") 
   set_cutlass_conv_choice("128x96x32");
   auto ref = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), b.to(torch::kFloat), {1, 1, 1}, {0, 1, 1});
   CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}).to(torch::kFloat), ref) < 1e-2);
+  CHECK(conv3d_inference_last_path() == "cudnn");
+  // A bias of the wrong length, or an input view off 16-byte alignment: cuDNN
+  // (which names the bad bias itself), never the CUTLASS kernel.
+  auto w16 = (torch::randn({16, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
+  CHECK_THROWS(conv3d_inference(x, w16, b, {0, 1, 1}));
+  CHECK(conv3d_inference_last_path() == "cudnn");
+  auto buffer = torch::zeros({x.numel() + 1}, x.options());
+  auto shifted = buffer.narrow(0, 1, x.numel()).view({1, 4, 6, 7, 96}).permute({0, 4, 1, 2, 3});
+  shifted.copy_(x);
+  REQUIRE(shifted.is_contiguous(cl));
+  auto ref16 = at::conv3d(x.to(torch::kFloat), w16.to(torch::kFloat), {}, {1, 1, 1}, {0, 1, 1});
+  CHECK(flat::test::rel_error(conv3d_inference(shifted, w16, {}, {0, 1, 1}).to(torch::kFloat), ref16) < 1e-2);
+  CHECK(conv3d_inference_last_path() == "cudnn");
   // Under autograd the differentiable cuDNN path runs: gradients reach x.
   auto xg = x.detach().clone().requires_grad_(true);
   {
@@ -111,5 +149,5 @@ TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") 
     conv3d_inference(xg, w, b, {0, 1, 1}).to(torch::kFloat).sum().backward();
   }
   CHECK(xg.grad().defined());
-  set_cutlass_conv_choice("");
+  CHECK(conv3d_inference_last_path() == "cudnn");
 }

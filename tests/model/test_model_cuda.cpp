@@ -11,8 +11,10 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::NoGradGuard no_grad;
   for (auto dtype : {torch::kFloat, torch::kBFloat16}) {
-    // 5, 12 (bf16) and 500 take the warp-per-pixel path, the rest 16-byte packs
-    // with 4 lanes per pixel; a block of pixels straddles the two batch entries.
+    // Channel counts that are not a multiple of 16 bytes (5; 12 in bf16) or
+    // too wide for the packed form (500) take the warp-per-pixel path; the
+    // rest use 16-byte packs with 4, 8 or 16 lanes per pixel. Blocks of pixels
+    // straddle the two batch entries.
     for (int64_t c : {5, 8, 12, 96, 384, 500}) {
       auto x = torch::randn({2, c, 3, 5, 7}, torch::kCUDA).to(dtype).contiguous(at::MemoryFormat::ChannelsLast3d);
       auto gamma = (torch::rand({c, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
@@ -37,14 +39,16 @@ TEST_CASE("CUDA streamed RMS_norm + SiLU hands on its last frames as history", "
   torch::NoGradGuard no_grad;
   for (auto dtype : {torch::kFloat, torch::kBFloat16}) {
     for (int64_t T : {1, 2, 5}) {  // T < 2: the history mixes old and new frames
-      auto x = torch::randn({2, 96, T, 5, 7}, torch::kCUDA).to(dtype).contiguous(at::MemoryFormat::ChannelsLast3d);
-      auto gamma = (torch::rand({96, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
-      at::Tensor history = torch::randn({2, 96, 2, 5, 7}, torch::kCUDA).to(dtype);
+     for (int64_t C : {96, 500}) {   // 16-byte packs, and the warp-per-pixel form
+      auto x = torch::randn({2, C, T, 5, 7}, torch::kCUDA).to(dtype).contiguous(at::MemoryFormat::ChannelsLast3d);
+      auto gamma = (torch::rand({C, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
+      at::Tensor history = torch::randn({2, C, 2, 5, 7}, torch::kCUDA).to(dtype);
       const at::Tensor before = history;
       auto padded = rms_norm_silu_streamed(x, gamma, 2, history);
-      INFO("T = " << T << " dtype " << dtype);
+      INFO("T = " << T << " C = " << C << " dtype " << dtype);
       CHECK(torch::equal(padded, rms_norm_silu_padded(x, gamma, 2, before)));
       CHECK(torch::equal(history, padded.narrow(2, T, 2)));
+     }
     }
   }
 }

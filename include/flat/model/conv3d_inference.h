@@ -30,5 +30,8 @@ void set_cutlass_conv_enabled(bool enabled);
 void set_cutlass_conv_choice(const std::string& name);
 // One line per problem shape timed so far: shape, each candidate's ms, choice.
 std::string cutlass_conv_report();
+// What ran the last conv3d_inference call of this thread: "cudnn" (also for
+// the CPU and autograd) or the CUTLASS configuration's name.
+std::string conv3d_inference_last_path();
 
 }  // namespace flat::model

@@ -9,6 +9,7 @@
 #pragma once
 #include <cstdint>
 #include <string>
+#include <mutex>
 #include <tuple>
 
 #include <ATen/ATen.h>
@@ -45,6 +46,7 @@ class ResampleImpl : public torch::nn::Module {
   struct SubpixelCache {
     std::tuple<void*, int64_t, int64_t, at::ScalarType, at::MemoryFormat> key;
     at::Tensor weight, bias;
+    std::mutex mutex;  // modules may be shared by threads
   };
   mutable SubpixelCache subpixel_cache_;
 };

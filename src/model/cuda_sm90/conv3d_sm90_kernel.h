@@ -9,8 +9,9 @@
 namespace flat::model::cuda {
 
 // out = conv3d(x, w) + bias[k] (+ residual), bf16 in and out, fp32 accumulation.
-// x: (n,d,h,w,c) channels-last, dense; w: (k,t,r,s,c) dense; bias: k values;
-// residual and out: (n,z,p,q,k) dense. Stride 1, dilation 1, zero padding
+// x: (n,d,h,w,c) channels-last contiguous; w: (k,t,r,s,c) contiguous; bias:
+// k values or null; residual and out: (n,z,p,q,k) contiguous; every pointer
+// 16-byte aligned (TMA). Stride 1, dilation 1, zero padding
 // pad_* on both sides of each spatial axis (the causal time padding is
 // written into x by the caller, so pad_d is 0 there).
 struct Conv3dProblem {
