@@ -73,11 +73,13 @@ struct Kernel {
     return args;
   }
 
+  // The K loop tiles each filter tap's channels: TileK must divide them; the
+  // outputs are stored 16 bytes at a time.
+  static bool shape_ok(const Conv3dProblem& p) { return p.c % TileK == 0 && p.k % kAlign == 0; }
+
   static bool can_run(const Conv3dProblem& p) {
-    // The K loop tiles each filter tap's channels: TileK must divide them.
-    if (p.c % TileK != 0 || p.k % kAlign != 0) return false;
-    const auto args = arguments(p, nullptr, nullptr, nullptr, nullptr, nullptr);
-    return Conv::can_implement(args) == cutlass::Status::kSuccess;
+    return shape_ok(p) &&
+           Conv::can_implement(arguments(p, nullptr, nullptr, nullptr, nullptr, nullptr)) == cutlass::Status::kSuccess;
   }
 
   static size_t workspace(const Conv3dProblem& p) {
@@ -86,6 +88,7 @@ struct Kernel {
 
   static bool run(const Conv3dProblem& p, const void* x, const void* w, const void* bias, const void* residual,
                   void* out, void* ws, cudaStream_t stream) {
+    if (!shape_ok(p)) return false;
     const auto args = arguments(p, x, w, bias, residual, out);
     Conv conv;
     if (conv.can_implement(args) != cutlass::Status::kSuccess) return false;
@@ -144,7 +147,8 @@ size_t conv3d_sm90_workspace_bytes(int config, const Conv3dProblem& p) { return 
 
 bool conv3d_sm90_run(int config, const Conv3dProblem& p, const void* x, const void* w, const void* bias,
                      const void* residual, void* out, void* workspace, cudaStream_t stream) {
-  if (!conv3d_sm90_can_run(config, p)) return false;
+  // run() checks what can_run() does, once (this is every conv call's path).
+  if (config < 0 || config >= kCount) return false;
   return kEntries[config].run(p, x, w, bias, residual, out, workspace, stream);
 }
 
