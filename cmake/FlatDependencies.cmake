@@ -26,25 +26,26 @@ if(FLAT_WITH_CUDA)
   endif()
 endif()
 
-# libtorch: PyTorch's own, from the torch wheel. Locate it through the Python
-# that holds the wheel unless Torch_DIR / CMAKE_PREFIX_PATH already does.
-if(NOT Torch_DIR)
-  set(FLAT_TORCH_PYTHON "" CACHE FILEPATH "python3 whose torch wheel provides libtorch")
-  set(_py "${FLAT_TORCH_PYTHON}")
-  # The venv that scripts/install_deps.sh makes, then any python3 on PATH.
-  if(NOT _py AND EXISTS "$ENV{HOME}/.cache/flat/venv/bin/python3")
-    set(_py "$ENV{HOME}/.cache/flat/venv/bin/python3")
-  endif()
-  if(NOT _py)
-    find_program(_py NAMES python3)
-  endif()
-  if(_py)
-    execute_process(COMMAND "${_py}" -c "import torch.utils; print(torch.utils.cmake_prefix_path)"
-                    OUTPUT_VARIABLE _torch_prefix OUTPUT_STRIP_TRAILING_WHITESPACE
-                    RESULT_VARIABLE _torch_rc ERROR_QUIET)
-    if(_torch_rc EQUAL 0 AND _torch_prefix)
-      list(APPEND CMAKE_PREFIX_PATH "${_torch_prefix}")
-    endif()
+# libtorch: PyTorch's own, from the torch wheel. The Python that holds the
+# wheel is looked up on every configure (not only the first): the CUTLASS
+# lookup below asks the same Python for the nvidia-cutlass wheel, and a second
+# configure of an existing build folder finds Torch_DIR already cached.
+set(FLAT_TORCH_PYTHON "" CACHE FILEPATH "python3 whose torch wheel provides libtorch")
+set(_py "${FLAT_TORCH_PYTHON}")
+# The venv that scripts/install_deps.sh makes, then any python3 on PATH.
+if(NOT _py AND EXISTS "$ENV{HOME}/.cache/flat/venv/bin/python3")
+  set(_py "$ENV{HOME}/.cache/flat/venv/bin/python3")
+endif()
+if(NOT _py)
+  find_program(FLAT_PYTHON3 NAMES python3)
+  set(_py "${FLAT_PYTHON3}")
+endif()
+if(NOT Torch_DIR AND _py)
+  execute_process(COMMAND "${_py}" -c "import torch.utils; print(torch.utils.cmake_prefix_path)"
+                  OUTPUT_VARIABLE _torch_prefix OUTPUT_STRIP_TRAILING_WHITESPACE
+                  RESULT_VARIABLE _torch_rc ERROR_QUIET)
+  if(_torch_rc EQUAL 0 AND _torch_prefix)
+    list(APPEND CMAKE_PREFIX_PATH "${_torch_prefix}")
   endif()
 endif()
 find_package(Torch REQUIRED)

@@ -31,7 +31,10 @@ def load_jsonl(path):
             if not isinstance(step, int) or isinstance(step, bool):
                 sys.exit(f"{path}:{number}: no integer \"step\"")
             for key, value in row.items():
-                if key != "step" and isinstance(value, (int, float)) and not isinstance(value, bool):
+                if key != "step" and value is None:
+                    # flat_train writes a non-finite value as null (JSON has no NaN).
+                    series.setdefault(key, []).append((step, math.nan))
+                elif key != "step" and isinstance(value, (int, float)) and not isinstance(value, bool):
                     series.setdefault(key, []).append((step, float(value)))
     return series
 

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Build + every test (CUDA included) + benchmarks on the GPU machine, in one go.
-# Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench]
+# Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench|train]
+#   bench: everything; train: skip the decoder/raster benches; nobench: build and tests only.
+#   GPU_TRAIN_STAGES="1 2 3" picks the stages flat_bench train times (default 1).
 # Logs go to $OUT (or ./gpu_out); a summary table is printed last.
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -33,16 +35,36 @@ if [ "$MODE" = "bench" ] && [ -x "$BUILD/flat_bench" ]; then
   "$BUILD/flat_bench" raster --size both >"$OUT/bench_raster.log" 2>&1; summary+=("bench raster rc=$?")
   tail -12 "$OUT/bench_raster.log"
 fi
-if [ -x "$BUILD/flat_smoke" ]; then
-  # The end-to-end smoke run on the GPU: synthetic scenes, random-weight
-  # latents, then flat_smoke with the CUDA rasterizer and decoder.
-  S="$OUT/smoke"; rm -rf "$S"
-  { "$BUILD/flat_synth" --out "$S/scenes" --scenes 2 --seed 7 --family room --frames 17 --size 48x80 --motion mixed &&
-    "$BUILD/flat_latents" --scenes "$S/scenes" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
-    "$BUILD/flat_smoke" --set run_dir="$S" --set "data.datasets=[{root: $S/scenes, weight: 1.0}]" --set device=cuda; } \
-    >"$OUT/smoke.log" 2>&1
-  summary+=("smoke (cuda) rc=$?: $(grep -oE 'loss [0-9.]+ -> [0-9.]+' "$OUT/smoke.log" | tail -1)")
-  rm -rf "$S/scenes"
+if [ "$MODE" != "nobench" ] && [ -x "$BUILD/flat_train" ]; then
+  # flat_train on the GPU: the tiny config on synthetic rooms with CUDA (loss
+  # and held-out PSNR), then flat_bench train at the paper's stage sizes on
+  # synthetic scenes with random-weight dim-96 latents (random LPIPS weights).
+  S="$OUT/train"; rm -rf "$S"
+  { "$BUILD/flat_synth" --out "$S/tiny/train" --scenes 4 --seed 7 --family room --frames 17 --size 48x80 --motion mixed &&
+    "$BUILD/flat_synth" --out "$S/tiny/val" --scenes 1 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed &&
+    "$BUILD/flat_latents" --scenes "$S/tiny/train" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
+    "$BUILD/flat_latents" --scenes "$S/tiny/val" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
+    "$BUILD/flat_train" --config configs/tiny/stage1.yaml --set run_dir="$S/tiny/run" --set device=cuda --set steps=60 \
+      --set "data.datasets=[{root: $S/tiny/train}]" --set "validation.datasets=[{root: $S/tiny/val}]" --set validation.every=60; } \
+    >"$OUT/train_tiny.log" 2>&1
+  summary+=("flat_train tiny (cuda) rc=$?: $(grep -oE 'held-out PSNR.*' "$OUT/train_tiny.log" | tail -1)")
+  for stage in ${GPU_TRAIN_STAGES:-1}; do
+    case $stage in
+      1) size=176x320; frames=17; win=17 ;;
+      2) size=176x320; frames=49; win=49 ;;
+      3) size=360x640; frames=49; win=49 ;;
+      4) size=432x768; frames=49; win=49 ;;
+    esac
+    D="$S/stage$stage"
+    { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames $frames --size $size --motion mixed &&
+      "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $win --device cuda --dtype bf16 &&
+      "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 3 --steps ${GPU_TRAIN_STEPS:-10} \
+        --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set data.workers=4; } \
+      >"$OUT/bench_train_stage$stage.log" 2>&1
+    summary+=("bench train stage $stage rc=$?: $(grep -E 'as trained' "$OUT/bench_train_stage$stage.log" | tail -1) $(grep -E 'peak memory' "$OUT/bench_train_stage$stage.log" | tail -1)")
+    tail -16 "$OUT/bench_train_stage$stage.log"
+    rm -rf "$D"
+  done
 fi
 echo "==== summary (commit ${FLAT_COMMIT:-$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)}, $(date -u +%F))"
 printf '%s\n' "${summary[@]}"

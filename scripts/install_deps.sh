@@ -7,7 +7,8 @@
 #     machine's version), in a virtual environment outside the checkout. The
 #     wheels are downloaded once into a cache folder and reused afterwards;
 #   - CUTLASS's headers (NVIDIA's `nvidia-cutlass` wheel, header-only for us:
-#     the Hopper convs of src/model/cuda_sm90), into the same environment.
+#     the Hopper convs of src/model/cuda_sm90), into the same environment;
+#   - the tensorboard package there, to check flat_train's event files.
 # Python is only the installer of libtorch; nothing in the product runs it.
 set -euo pipefail
 
@@ -54,4 +55,12 @@ else
   # --no-deps: only the headers are used (the wheel's Python tooling is not).
   echo "[install_deps] installing the CUTLASS $CUTLASS_VERSION headers (nvidia-cutlass wheel) into $VENV"
   "$VENV/bin/python3" -m pip install -q --no-deps "nvidia-cutlass==$CUTLASS_VERSION"
+fi
+# TensorBoard (Python): only to check, from scripts and tests, that the event
+# files flat_train writes are read by the real package. Not used by the product.
+if "$VENV/bin/python3" -c "import tensorboard" 2>/dev/null; then
+  echo "[install_deps] tensorboard (for the event-file check): present in $VENV"
+else
+  echo "[install_deps] installing tensorboard into $VENV (only for scripts/check_tensorboard.py)"
+  "$VENV/bin/python3" -m pip install -q tensorboard || echo "[install_deps] tensorboard could not be installed: the event-file check will be skipped"
 fi

@@ -419,4 +419,35 @@ void apply_overrides(YAML::Node& root, const std::vector<std::string>& overrides
 
 void save_text(const std::string& file, const std::string& yaml) { write_file_atomic(file, yaml); }
 
+std::string Describer::emit(const YAML::Node& node) {
+  YAML::Emitter out;
+  out << YAML::Flow << node;
+  std::string t = out.good() ? out.c_str() : "?";
+  return t.empty() ? "''" : t;
+}
+
+std::string Describer::markdown() const {
+  std::string md = "| key | default | meaning |\n|---|---|---|\n";
+  for (const auto& r : rows) md += "| `" + r.key + "` | `" + r.value + "` | " + r.help + " |\n";
+  return md;
+}
+
+void rethrow_checked(const Where& where, const std::string& message) {
+  fail(where.file + (where.path.empty() ? "" : ": '" + where.path + "'") + ": " + message);
+}
+
+YAML::Node merge(const YAML::Node& base, const YAML::Node& overlay) {
+  if (!overlay.IsDefined() || overlay.IsNull()) return YAML::Clone(base);
+  if (!base.IsMap() || !overlay.IsMap()) return YAML::Clone(overlay);
+  YAML::Node out = YAML::Clone(base);
+  for (const auto& kv : overlay) {
+    const std::string key = kv.first.Scalar();
+    const YAML::Node& view = out;  // const lookup never inserts
+    YAML::Node mine = view[key];
+    YAML::Node merged = mine ? merge(mine, kv.second) : YAML::Clone(kv.second);
+    replace_entry(out, key, merged);
+  }
+  return out;
+}
+
 }  // namespace flat::config

@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <limits>
 
 #include <spdlog/spdlog.h>
@@ -47,7 +48,11 @@ Progress::Progress(std::string label, int64_t total, double log_every_seconds)
 
 Progress::~Progress() {
   try {
-    finish();
+    if (std::uncaught_exceptions() > 0) {
+      abandon();  // the loop failed: never print "done" for it
+    } else {
+      finish();
+    }
   } catch (...) {
     // a destructor must not throw; losing the last progress line is harmless
   }
@@ -69,6 +74,20 @@ void Progress::finish() {
   if (finished_) return;
   finished_ = true;
   print(true);
+}
+
+void Progress::abandon() {
+  if (finished_) return;
+  finished_ = true;
+  std::string line = label_ + "  stopped at " + std::to_string(done_);
+  if (total_ > 0) line += "/" + std::to_string(total_);
+  line += " after " + format_duration(seconds_between(start_, Clock::now()));
+  if (tty_) {
+    std::fprintf(stdout, "\r%s\x1b[K\n", line.c_str());
+    std::fflush(stdout);
+  } else {
+    spdlog::info("{}", line);
+  }
 }
 
 double Progress::rate() const {

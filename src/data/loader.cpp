@@ -55,8 +55,13 @@ at::Tensor stack_or_undefined(const std::vector<at::Tensor>& ts) {
 
 }  // namespace
 
-Loader::Loader(LoaderConfig config) : config_(std::move(config)) {
+Loader::Loader(LoaderConfig config, int64_t start_batch, int64_t rank, int64_t world_size)
+    : config_(std::move(config)), rank_(rank), world_size_(world_size) {
   config_.check();
+  FLAT_CHECK(world_size >= 1 && rank >= 0 && rank < world_size,
+             "loader: rank " + std::to_string(rank) + " of world size " + std::to_string(world_size) + " is invalid");
+  FLAT_CHECK(start_batch >= 0, "loader: start batch " + std::to_string(start_batch) + " is negative");
+  next_claim_ = next_give_ = start_batch;
   int64_t unusable = 0;
   for (const auto& src : config_.datasets) {
     Dataset d;
@@ -233,7 +238,8 @@ Batch collate(const std::vector<Sample>& samples) {
 
 Batch Loader::batch(int64_t index) {
   std::vector<Sample> samples;
-  for (int64_t i = 0; i < config_.batch_size; ++i) samples.push_back(sample(index * config_.batch_size + i));
+  const int64_t first = (index * world_size_ + rank_) * config_.batch_size;
+  for (int64_t i = 0; i < config_.batch_size; ++i) samples.push_back(sample(first + i));
   return collate(samples);
 }
 

@@ -124,7 +124,7 @@ std::pair<at::Tensor, at::Tensor> ray_frame_and_footprint(const at::Tensor& d_ca
 
 TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams, int64_t image_height,
                              int64_t image_width, const TriangleParamConfig& cfg) {
-  cfg.validate();
+  cfg.check();
   const TriangleChannels ch = cfg.channels();
   check_shape(raw, {-1, ch.total, -1, -1, -1}, "build_triangles: raw head output",
               "(B," + std::to_string(ch.total) + ",T,H/2,W/2)");

@@ -26,7 +26,7 @@ TriangleChannels triangle_channels(const std::string& parameterisation, int64_t 
   return c;
 }
 
-void TriangleParamConfig::validate() const {
+void TriangleParamConfig::check() const {
   FLAT_CHECK(depth_far > depth_near, "triangle config: depth_far (" + std::to_string(depth_far) +
                                          ") must exceed depth_near (" + std::to_string(depth_near) + ")");
   FLAT_CHECK(depth_init > depth_near || depth_activation == "sigmoid",

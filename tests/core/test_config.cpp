@@ -340,3 +340,64 @@ TEST_CASE("config: writer output is readable YAML with flow lists", "[config]") 
 }
 
 }  // namespace
+
+namespace {
+// A section with a cross-field rule, checked by the reader itself.
+struct RangeCfg {
+  double near = 1, far = 10;
+  template <class V>
+  void visit(V& v) {
+    v.field("near", near, "near");
+    v.field("far", far, "far");
+  }
+  void check() const { FLAT_CHECK(far > near, "'far' (" + std::to_string(far) + ") must exceed 'near'"); }
+};
+struct LayeredCfg {
+  std::string name = "base";
+  int64_t steps = 5;
+  std::vector<int64_t> views = {1, 2};
+  RangeCfg depth;
+  template <class V>
+  void visit(V& v) {
+    v.field("name", name, "name");
+    v.field("steps", steps, "steps");
+    v.field("views", views, "views");
+    v.section("depth", depth);
+  }
+};
+}  // namespace
+
+TEST_CASE("config: check() runs inside the reader, naming the section, present or not", "[config]") {
+  const auto bad = error_of([] { config::parse<LayeredCfg>("depth: {near: 5, far: 2}\n", "t.yaml"); });
+  CHECK(bad.find("t.yaml: 'depth': 'far'") != std::string::npos);
+  // Defaults are checked too: an override alone can break them.
+  const auto over = error_of([] { config::parse<LayeredCfg>("name: x\n", "t.yaml", {"depth.far=0.5"}); });
+  CHECK(over.find("'depth'") != std::string::npos);
+  CHECK_NOTHROW(config::parse<LayeredCfg>("name: x\n", "t.yaml"));
+}
+
+TEST_CASE("config: files layer over defaults key by key, lists replace, --set comes last", "[config]") {
+  const auto dir = flat::test::scratch_dir("config_layered");
+  const std::string file = (dir / "over.yaml").string();
+  std::ofstream(file) << "views: [7]\ndepth: {far: 20}\n";
+  const std::string defaults = "name: tiny\nsteps: 3\nviews: [1, 2, 3]\ndepth: {near: 2, far: 4}\n";
+  auto cfg = config::load_layered<LayeredCfg>(defaults, "<defaults>", {file}, {"steps=9"});
+  CHECK(cfg.name == "tiny");              // from the defaults
+  CHECK(cfg.views == std::vector<int64_t>{7});  // the file's list replaces the default list
+  CHECK(cfg.depth.near == 2);             // a sibling key of the file's survives
+  CHECK(cfg.depth.far == 20);
+  CHECK(cfg.steps == 9);                  // --set last
+  std::ofstream(file) << "depth: {nearr: 1}\n";
+  const auto typo = error_of([&] { config::load_layered<LayeredCfg>(defaults, "<defaults>", {file}); });
+  CHECK(typo.find(file) != std::string::npos);
+  CHECK(typo.find("depth.nearr") != std::string::npos);
+}
+
+TEST_CASE("config: the describer lists every key with its default", "[config]") {
+  LayeredCfg c;
+  config::Describer d;
+  c.visit(d);
+  const std::string md = d.markdown();
+  CHECK(md.find("| `depth.far` | `10` | far |") != std::string::npos);
+  CHECK(md.find("| `views` | `[1, 2]` | views |") != std::string::npos);
+}

@@ -20,6 +20,8 @@
 #pragma once
 #include <functional>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include <yaml-cpp/yaml.h>
@@ -76,6 +78,31 @@ inline void apply_check(const Check& c, float value, const Where& w, const std::
   apply_check(c, double(value), w, key);
 }
 
+// A config struct may have `void check() const` for cross-field rules (e.g.
+// depth_far > depth_near). The reader runs it once for every struct it fills,
+// whether or not the YAML has that section (defaults are checked too), and
+// prefixes the message with the file and the section's key path. Apps never
+// call check() by hand.
+namespace detail {
+template <class S, class = void>
+struct has_check : std::false_type {};
+template <class S>
+struct has_check<S, std::void_t<decltype(std::declval<const S&>().check())>> : std::true_type {};
+}  // namespace detail
+
+[[noreturn]] void rethrow_checked(const Where& where, const std::string& message);
+
+template <class S>
+void run_check(const S& s, const Where& where) {
+  if constexpr (detail::has_check<S>::value) {
+    try {
+      s.check();
+    } catch (const Error& e) {
+      rethrow_checked(where, e.what());
+    }
+  }
+}
+
 // Walks a struct's visit() against a YAML map.
 class Reader {
  public:
@@ -103,10 +130,13 @@ class Reader {
   template <class S>
   void section(const char* key, S& sub) {
     YAML::Node n = lookup(key);
-    if (!n) return;
-    Reader r(n, Where{where_.file, where_.key(key)});
-    sub.visit(r);
-    r.finish();
+    const Where where{where_.file, where_.key(key)};
+    if (n) {
+      Reader r(n, where);
+      sub.visit(r);
+      r.finish();
+    }
+    run_check(sub, where);
   }
 
   template <class S>
@@ -120,6 +150,7 @@ class Reader {
       Reader r(n[i], Where{where_.file, where_.key(key) + "[" + std::to_string(i) + "]"});
       item.visit(r);
       r.finish();
+      run_check(item, Where{where_.file, where_.key(key) + "[" + std::to_string(i) + "]"});
       items.push_back(std::move(item));
     }
   }
@@ -193,6 +224,55 @@ class Writer {
   }
 };
 
+// Walks a struct's visit() to list every key with its default and help text
+// (--help-config, docs/config.md). Lists of sections show their item's keys
+// under "name[].".
+class Describer {
+ public:
+  struct Row {
+    std::string key, value, help;
+  };
+  std::vector<Row> rows;
+  explicit Describer(std::string prefix = "") : prefix_(std::move(prefix)) {}
+
+  template <class T>
+  void field(const char* key, const T& value, const Check& = {}, const char* help = "") { add(key, text(value), help); }
+  template <class T>
+  void field(const char* key, const T& value, const char* help) { add(key, text(value), help); }
+  template <class T>
+  void required(const char* key, const T&, const Check& = {}, const char* help = "") { add(key, "(required)", help); }
+  template <class T>
+  void required(const char* key, const T&, const char* help) { add(key, "(required)", help); }
+  template <class S>
+  void section(const char* key, S& sub) {
+    Describer d(prefix_ + key + ".");
+    sub.visit(d);
+    rows.insert(rows.end(), d.rows.begin(), d.rows.end());
+  }
+  template <class S>
+  void list(const char* key, std::vector<S>&) {
+    S item{};
+    Describer d(prefix_ + key + "[].");
+    item.visit(d);
+    rows.insert(rows.end(), d.rows.begin(), d.rows.end());
+  }
+  // "| key | default | meaning |" rows.
+  std::string markdown() const;
+
+ private:
+  std::string prefix_;
+  void add(const char* key, std::string value, const char* help) {
+    rows.push_back({prefix_ + key, std::move(value), help ? help : ""});
+  }
+  template <class T>
+  static std::string text(const T& value) {
+    Writer w;
+    w.field("v", value);
+    return emit(w.node["v"]);
+  }
+  static std::string emit(const YAML::Node& node);
+};
+
 // Parse a YAML file or text (throws flat::Error with file, line and column),
 // then apply "a.b.c=value" overrides (value parsed as YAML; an override whose
 // path does not lead through maps is an error naming the override).
@@ -207,7 +287,30 @@ S from_yaml(YAML::Node root, const std::string& label) {
   Reader r(root, Where{label, ""});
   s.visit(r);
   r.finish();
+  run_check(s, Where{label, ""});
   return s;
+}
+
+// Layers `overlay` over `base`: maps merge key by key (recursively), any other
+// value (a number, a text, a list) in the overlay replaces the base's.
+YAML::Node merge(const YAML::Node& base, const YAML::Node& overlay);
+
+// The effective config of a program with built-in defaults: `defaults` (YAML
+// text, labelled `defaults_label`), then each file in order layered over it,
+// then the --set overrides. Errors name the file a bad value came from where
+// one file gave it, else the chain of labels.
+template <class S>
+S load_layered(const std::string& defaults, const std::string& defaults_label, const std::vector<std::string>& files,
+               const std::vector<std::string>& overrides = {}) {
+  YAML::Node root = load_yaml_text(defaults, defaults_label);
+  std::string label = files.empty() ? defaults_label : "";
+  for (const auto& f : files) {
+    root = merge(root, load_yaml_file(f));
+    label += (label.empty() ? "" : " + ") + f;
+  }
+  if (files.size() == 1) label = files[0];
+  apply_overrides(root, overrides, label);
+  return from_yaml<S>(root, label);
 }
 
 template <class S>

@@ -12,10 +12,12 @@ namespace flat {
 class Progress {
  public:
   Progress(std::string label, int64_t total, double log_every_seconds = 10.0);
-  ~Progress();  // finishes the line
+  ~Progress();  // finishes the line ("done"), or abandons it while an exception unwinds
   // Advance by n and set the figures shown ("loss=0.0123 psnr=21.4").
   void step(int64_t n = 1, const std::vector<std::pair<std::string, double>>& figures = {});
   void finish();
+  // Ends the line without claiming success: "stopped at 12/100 after 1m05s".
+  void abandon();
   double rate() const;         // items per second so far
   double eta_seconds() const;  // remaining time estimate (infinity while unknown)
 

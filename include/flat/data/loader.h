@@ -119,22 +119,27 @@ struct Batch {
 
 Batch collate(const std::vector<Sample>& samples);
 
+// Data-parallel and resumable: rank r of world_size W reads, as its batch b,
+// the samples (b*W + r)*B .. (b*W + r)*B + B-1 of the stream, so the ranks
+// never share a sample and together they read what one process with batch
+// W*B would; next() starts at start_batch (the step a resumed run continues at).
 class Loader {
  public:
-  explicit Loader(LoaderConfig config);
+  explicit Loader(LoaderConfig config, int64_t start_batch = 0, int64_t rank = 0, int64_t world_size = 1);
   ~Loader();
   Loader(const Loader&) = delete;
   Loader& operator=(const Loader&) = delete;
 
   // The next batch (0, 1, 2, ...), from the prefetch threads when workers > 0.
   Batch next();
-  // Batch `index` computed in the calling thread (same content as next() gives for it).
+  // Batch `index` of this rank, computed in the calling thread (same content as next() gives for it).
   Batch batch(int64_t index);
   // Sample `index` of the stream (batch b holds samples b*B .. b*B+B-1).
   Sample sample(int64_t index);
 
   int64_t scene_count() const;
   int64_t skipped_scenes() const { return skipped_; }
+  int64_t next_batch_index() const { return next_give_; }
   const LoaderConfig& config() const { return config_; }
 
  private:
@@ -144,6 +149,7 @@ class Loader {
     std::vector<std::shared_ptr<const Scene>> scenes;
   };
   LoaderConfig config_;
+  int64_t rank_ = 0, world_size_ = 1;
   std::vector<Dataset> datasets_;
   std::vector<double> cumulative_;  // normalised cumulative weights
 

@@ -74,6 +74,8 @@ class Objective {
   explicit Objective(LossConfig cfg, const at::Device& device = at::kCPU);
   LossResult operator()(const LossInputs& in);
   const LossConfig& config() const { return cfg_; }
+  // The loaded LPIPS network (empty holder when lambda_perc is 0), for metrics.
+  Lpips lpips_network() const { return lpips_; }
 
  private:
   LossConfig cfg_;

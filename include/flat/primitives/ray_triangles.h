@@ -83,7 +83,7 @@ struct TriangleParamConfig {
 
   // Cross-field checks (depth_far > depth_near, sigma_init > sigma_min, ...);
   // throws flat::Error naming the fields.
-  void validate() const;
+  void check() const;
   // The raw channel layout this config expects.
   TriangleChannels channels() const;
 };

@@ -1,0 +1,95 @@
+// The one path from latents to rendered views (paper, Pipeline Overview):
+//
+//   video latents + camera latents + input cameras
+//     -> model::SceneDecoder (adapter, Wan decoder without the last x2, heads)
+//     -> primitives::build_triangles (ray-centred, one triangle per 2x2 block)
+//     -> prune (opacity below a threshold; paper: 0.4 at the high-resolution stage)
+//     -> render::rasterize into target cameras
+//     -> RenderedViews with depth and normals divided by alpha
+//
+// Training, validation, flat_infer, flat_eval and the mesh post-optimisation
+// all call this, so model and render never meet anywhere else and no caller
+// divides depth by alpha itself.
+#pragma once
+#include <cstdint>
+
+#include <ATen/ATen.h>
+
+#include "flat/camera/cameras.h"
+#include "flat/core/config.h"
+#include "flat/model/scene_decoder.h"
+#include "flat/primitives/ray_triangles.h"
+#include "flat/primitives/triangle_soup.h"
+#include "flat/render/rasterize.h"
+
+namespace flat::pipeline {
+
+struct PipelineConfig {
+  model::SceneDecoderConfig model;
+  primitives::TriangleParamConfig triangles;
+  render::RasterSettings raster;
+  // Triangles with opacity below this are removed before rendering (no
+  // gradient reaches them in that step). 0 keeps every triangle.
+  double prune_opacity = 0.0;
+
+  template <class V>
+  void visit(V& v) {
+    v.section("model", model);
+    v.section("triangles", triangles);
+    v.section("raster", raster);
+    v.field("prune_opacity", prune_opacity, config::range(0.0, 1.0),
+            "remove triangles below this opacity before rendering (paper: 0.4 at 768p)");
+  }
+};
+
+// A batch of scenes to decode: latents and the cameras of the T input frames.
+struct SceneInput {
+  at::Tensor video_latents;     // (B,16,T',h,w), normalised
+  at::Tensor camera_latents;    // (B,32,T',h,w) or undefined (no camera conditioning)
+  at::Tensor input_intrinsics;  // (B,T,4) normalised, T = 1 + 4(T'-1)
+  at::Tensor input_c2w;         // (B,T,4,4)
+};
+
+struct RenderedViews {
+  at::Tensor rgb;     // (V,3,H,W)
+  at::Tensor alpha;   // (V,1,H,W)
+  at::Tensor depth;   // (V,1,H,W) alpha-normalised (expected depth of what is hit); 0 where alpha <= min_alpha
+  at::Tensor normal;  // (V,3,H,W) alpha-normalised camera-space normal; 0 where alpha <= min_alpha
+  at::Tensor max_weight;  // (N,) largest blending weight per triangle (no gradient)
+  int64_t triangles = 0;  // triangles rendered (after pruning)
+};
+
+// Below this alpha a pixel has no depth or normal (division would amplify noise).
+inline constexpr double kMinAlphaForGeometry = 1e-4;
+
+// Depth and normal divided by alpha where alpha > kMinAlphaForGeometry.
+RenderedViews normalise_by_alpha(const render::RenderOutput& out);
+
+// The scene's triangles whose opacity is >= min_opacity (a copy through
+// index_select, differentiable for the kept ones). scene: one scene
+// (vertices (N,3,3)). min_opacity <= 0 returns the scene as is.
+primitives::TriangleSoup prune(const primitives::TriangleSoup& scene, double min_opacity);
+
+class ScenePipeline {
+ public:
+  // The decoder is shared (a module holder): the trainer owns and optimises it.
+  ScenePipeline(PipelineConfig config, model::SceneDecoder decoder);
+
+  // Decodes B scenes: (B, N = T*H/2*W/2) triangles; the image size of the
+  // input frames is 8x the latent's. streaming: bounded-memory decoding
+  // (model::SceneDecoder::forward), same result.
+  primitives::TriangleSoup decode(const SceneInput& input, bool streaming = false);
+  // Renders one scene (vertices (N,3,3)) into cams, after pruning by the
+  // config's prune_opacity.
+  RenderedViews render(const primitives::TriangleSoup& scene, const camera::Cameras& cams, int64_t height,
+                       int64_t width) const;
+
+  const PipelineConfig& config() const { return config_; }
+  model::SceneDecoder& decoder() { return decoder_; }
+
+ private:
+  PipelineConfig config_;
+  model::SceneDecoder decoder_;
+};
+
+}  // namespace flat::pipeline

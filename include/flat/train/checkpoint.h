@@ -1,0 +1,79 @@
+// Training checkpoints: one folder per checkpoint,
+//
+//   <run>/checkpoints/step_00001000/
+//     model.safetensors      the scene decoder's weights (Wan key names), with
+//                            the model's architecture in the metadata
+//     optimizer.safetensors  AdamW state (adamw.h)
+//     rng.safetensors        CPU and CUDA generator states
+//     trainer.json           step, stage, NaN-guard counters, effective config
+//
+// written into a hidden ".incomplete-..." folder first and renamed when every
+// file is on disk, so a crash (even SIGKILL) in the middle of a write leaves
+// the previous checkpoints as they were and no folder that looks complete.
+// The newest `keep` are kept. A truncated or altered file fails to load with
+// an error naming it.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <torch/nn/module.h>
+
+#include "flat/core/tensor_io.h"
+#include "flat/train/adamw.h"
+
+namespace flat::train {
+
+struct TrainerState {
+  int64_t step = 0;  // optimisation steps done (the next step has this index)
+  std::string stage;
+  int64_t skipped_steps = 0;      // non-finite steps skipped so far
+  int64_t consecutive_skips = 0;  // ... in a row, at the time of the checkpoint
+  std::string config_yaml;        // the run's effective config
+};
+
+// The architecture keys of a model config (YAML) that must agree between a
+// checkpoint and the model it is loaded into.
+struct ModelSignature {
+  std::string yaml;  // "pipeline.model.vae.dim: 96\n..." one key per line
+};
+
+// Writes step_<step> under checkpoints_dir and removes all but the newest
+// `keep`. Returns the folder written.
+std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
+                            const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
+                            int64_t keep);
+
+// The newest complete checkpoint folder under checkpoints_dir, "" if none.
+// Leftover ".incomplete-*" folders of a crashed write are removed (logged).
+std::string latest_checkpoint(const std::string& checkpoints_dir);
+// Complete checkpoint folders, oldest first.
+std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir);
+
+struct LoadedCheckpoint {
+  std::string dir;
+  TrainerState state;
+  TensorMap model, optimiser, rng;
+  ModelSignature signature;
+};
+// Reads and validates every file of a checkpoint folder (throws naming the file).
+LoadedCheckpoint read_checkpoint(const std::string& dir);
+
+// Loads the model weights of `dir`, checking first that its architecture
+// signature equals `expected` (the error lists the keys that differ).
+void load_model_weights(torch::nn::Module& model, const TensorMap& tensors, const ModelSignature& found,
+                        const ModelSignature& expected, const std::string& label);
+
+// Where init.from: checkpoint points: a run folder (its newest checkpoint), a
+// checkpoint folder, or a model .safetensors file -> the model file to read.
+std::string resolve_model_file(const std::string& path);
+
+// Generator states: "cpu", "cuda.<i>" for every visible CUDA device.
+TensorMap capture_rng();
+void restore_rng(const TensorMap& rng, const std::string& label);
+
+// Test hook: with FLAT_TEST_KILL_IN_CHECKPOINT=<step> in the environment the
+// process SIGKILLs itself halfway through writing that step's checkpoint.
+inline constexpr const char* kKillInCheckpointEnv = "FLAT_TEST_KILL_IN_CHECKPOINT";
+
+}  // namespace flat::train

@@ -1,0 +1,164 @@
+// Everything a training run reads from its YAML file (configs/stage*.yaml,
+// configs/tiny/*.yaml); `flat_train --help-config` prints every key with its
+// default and meaning (docs/config.md is generated from it). A --config file
+// layers over these defaults, and --set a.b=v over the file. The paper's
+// values (Model Training, Losses, appendix Training Details) are spelled out in
+// configs/stage1..4.yaml; the defaults below are those of stage 1.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "flat/core/config.h"
+#include "flat/data/loader.h"
+#include "flat/loss/objective.h"
+#include "flat/pipeline/scene_pipeline.h"
+
+namespace flat::train {
+
+// Where the weights of a stage come from.
+struct InitConfig {
+  // "scratch":    every weight from its initialiser (seeded);
+  // "wan_vae":    conv2 and the decoder trunk from a Wan 2.1 VAE safetensors file
+  //               (either key naming); the camera adapter starts at zero and the
+  //               heads from their initialiser (paper: Feedforward Scene Decoder);
+  // "checkpoint": the model weights of an earlier stage: a run folder (its
+  //               latest checkpoint), a checkpoint folder, or a model
+  //               .safetensors file. The optimiser and step start afresh.
+  std::string from = "scratch";
+  std::string path;
+
+  template <class V>
+  void visit(V& v) {
+    v.field("from", from, config::one_of({"scratch", "wan_vae", "checkpoint"}), "scratch | wan_vae | checkpoint");
+    v.field("path", path, "Wan VAE file, or earlier run / checkpoint folder / model file");
+  }
+  void check() const;
+};
+
+struct OptimConfig {
+  std::string name = "adamw";  // "adamw" (fp32 state)
+  double lr = 1e-4;            // paper
+  double beta1 = 0.9;
+  double beta2 = 0.999;
+  double eps = 1e-8;
+  double weight_decay = 0.01;
+  int64_t warmup_steps = 0;         // linear warm-up from 0
+  std::string schedule = "cosine";  // after warm-up: constant | cosine | linear (to min_lr_ratio * lr)
+  double min_lr_ratio = 0.1;
+  double grad_clip = 1.0;  // global L2 norm; 0 = off
+
+  template <class V>
+  void visit(V& v) {
+    v.field("name", name, config::one_of({"adamw"}), "optimiser");
+    v.field("lr", lr, config::positive(), "peak learning rate");
+    v.field("beta1", beta1, config::range(0.0, 0.999999), "Adam beta1");
+    v.field("beta2", beta2, config::range(0.0, 0.999999), "Adam beta2");
+    v.field("eps", eps, config::positive(), "Adam epsilon");
+    v.field("weight_decay", weight_decay, config::non_negative(), "decoupled weight decay");
+    v.field("warmup_steps", warmup_steps, config::non_negative(), "linear warm-up steps");
+    v.field("schedule", schedule, config::one_of({"constant", "cosine", "linear"}), "schedule after warm-up");
+    v.field("min_lr_ratio", min_lr_ratio, config::range(0.0, 1.0), "final lr / peak lr (cosine, linear)");
+    v.field("grad_clip", grad_clip, config::non_negative(), "clip the global gradient norm to this (0 = off)");
+  }
+};
+
+struct CheckpointConfig {
+  int64_t every = 1000;  // steps; also written on SIGINT/SIGTERM and at the end
+  int64_t keep = 3;      // newest checkpoints kept
+  template <class V>
+  void visit(V& v) {
+    v.field("every", every, config::positive(), "write a checkpoint every N steps");
+    v.field("keep", keep, config::positive(), "keep the newest K checkpoints");
+  }
+};
+
+struct ValidationConfig {
+  std::vector<data::DatasetSource> datasets;  // held-out scenes (empty: no validation)
+  int64_t every = 1000;                       // steps (and before the first and after the last)
+  int64_t scenes = 4;                         // held-out samples per validation
+  int64_t grid_views = 4;                     // views in the PNG grid (0 = none)
+  template <class V>
+  void visit(V& v) {
+    v.list("datasets", datasets);
+    v.field("every", every, config::positive(), "validate every N steps");
+    v.field("scenes", scenes, config::positive(), "held-out samples per validation");
+    v.field("grid_views", grid_views, config::non_negative(), "views in the validation image grid (0 = none)");
+  }
+};
+
+struct LogConfig {
+  std::string level = "info";
+  double progress_seconds = 10;  // a log line this often when stdout is not a terminal
+  bool tensorboard = true;       // <run>/tensorboard/events.out.tfevents.*
+  template <class V>
+  void visit(V& v) {
+    v.field("level", level, config::one_of({"trace", "debug", "info", "warn", "error"}), "log level");
+    v.field("progress_seconds", progress_seconds, config::positive(), "progress log interval off a terminal");
+    v.field("tensorboard", tensorboard, "also write the scalars as TensorBoard event files");
+  }
+};
+
+struct NanGuardConfig {
+  int64_t max_consecutive = 20;  // this many non-finite steps in a row stop the run
+  template <class V>
+  void visit(V& v) {
+    v.field("max_consecutive", max_consecutive, config::positive(),
+            "stop after this many consecutive steps with a non-finite loss or gradient");
+  }
+};
+
+// For tests of the failure paths; never set in a real run.
+struct DebugConfig {
+  std::vector<int64_t> nan_steps;  // steps whose input latents are replaced by NaN
+  template <class V>
+  void visit(V& v) { v.field("nan_steps", nan_steps, "(testing) steps fed NaN latents"); }
+};
+
+struct TrainConfig {
+  std::string run_dir = "runs/train";
+  std::string stage = "stage1";  // a name for logs and checkpoints
+  int64_t steps = 20000;         // paper, stage 1
+  std::string device = "cuda";
+  std::string precision = "bf16";  // bf16: autocast on CUDA, fp32 master weights; fp32
+  int64_t seed = 0;
+  int64_t threads = 0;  // CPU intra-op threads (0 = libtorch's default)
+  InitConfig init;
+  OptimConfig optim;
+  CheckpointConfig checkpoint;
+  ValidationConfig validation;
+  LogConfig log;
+  NanGuardConfig nan_guard;
+  data::LoaderConfig data;
+  pipeline::PipelineConfig pipeline;
+  loss::LossConfig loss;
+  DebugConfig debug;
+
+  template <class V>
+  void visit(V& v) {
+    v.field("run_dir", run_dir, "run folder (config, logs, metrics, checkpoints, renders)");
+    v.field("stage", stage, "stage name (logs, checkpoints)");
+    v.field("steps", steps, config::positive(), "optimisation steps of this stage");
+    v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
+    v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
+    v.field("seed", seed, "seed of the weights' initialisation and every random draw");
+    v.field("threads", threads, config::non_negative(), "CPU threads (0 = default)");
+    v.section("init", init);
+    v.section("optim", optim);
+    v.section("checkpoint", checkpoint);
+    v.section("validation", validation);
+    v.section("log", log);
+    v.section("nan_guard", nan_guard);
+    v.section("data", data);
+    v.section("pipeline", pipeline);
+    v.section("loss", loss);
+    v.section("debug", debug);
+  }
+  void check() const;
+};
+
+// Every key of TrainConfig with its default and help, as a Markdown table
+// (flat_train --help-config, docs/config.md).
+std::string describe_config();
+
+}  // namespace flat::train

@@ -1,0 +1,59 @@
+// One training step's forward and backward (paper, Model Training and Losses):
+//
+//   batch latents -> pipeline.decode -> per scene: pipeline.render into the
+//   target views -> loss::Objective (L2, LPIPS, disparity, normals, opacity)
+//   -> backward into the scene decoder's parameters.
+//
+// The backward runs in two phases, through the loss and rasterizer to the
+// triangles, then through the triangle builder and the decoder, so that a
+// timed step (flat_bench train) can say where the time goes without changing
+// what is computed. With bf16 on CUDA the forward runs under autocast; the
+// weights, the triangles and the rasterizer stay float32.
+#pragma once
+#include <cstdint>
+#include <map>
+#include <string>
+
+#include <ATen/ATen.h>
+
+#include "flat/data/loader.h"
+#include "flat/loss/objective.h"
+#include "flat/pipeline/scene_pipeline.h"
+
+namespace flat::train {
+
+// Seconds per phase of one step (filled only when timing: each phase ends
+// with a device synchronisation).
+struct StepTimes {
+  double decode_forward = 0, render_forward = 0, loss_forward = 0;
+  double render_loss_backward = 0, decoder_backward = 0;
+};
+
+struct StepResult {
+  bool finite = true;  // false: the loss was NaN/Inf and no backward ran
+  double loss = 0;
+  std::map<std::string, double> terms;  // unweighted, averaged over the batch's scenes
+  int64_t triangles = 0;                // rendered (after pruning), summed over scenes
+};
+
+// RAII: bf16 autocast on one device type while alive (no-op when off).
+class AutocastScope {
+ public:
+  AutocastScope(bool enabled, at::DeviceType device);
+  ~AutocastScope();
+  AutocastScope(const AutocastScope&) = delete;
+  AutocastScope& operator=(const AutocastScope&) = delete;
+
+ private:
+  bool enabled_;
+  at::DeviceType device_;
+  bool was_enabled_ = false;
+  at::ScalarType was_dtype_ = at::kFloat;
+};
+
+// Forward and backward of one batch; gradients accumulate into the decoder's
+// parameters (the caller zeroes them). times: optional per-phase timing.
+StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
+                            bool bf16, StepTimes* times = nullptr);
+
+}  // namespace flat::train

@@ -1,0 +1,50 @@
+// The staged trainer behind flat_train (paper, Model Training; appendix,
+// Training Details): one stage per run folder, driven by a TrainConfig.
+//
+//   run folder <run_dir>/
+//     config.yaml          the effective config (what --resume reads back)
+//     logs/train.log       everything printed, appended across sessions
+//     metrics/train.jsonl  one object per step: loss terms, lr, grad norm, it/s
+//     metrics/val.jsonl    one object per validation
+//     tensorboard/         the same scalars as TensorBoard event files
+//     checkpoints/step_*/  the newest checkpoint.keep checkpoints (checkpoint.h)
+//     renders/val_step_*.png  validation grids
+//     model.safetensors    the final weights (Wan key names), for flat_infer
+//
+// Checkpoints are written every checkpoint.every steps, at the end, and when
+// SIGINT or SIGTERM arrives (the run then stops with exit code 128 + signal).
+// A resumed run continues exactly: on the CPU its losses equal an
+// uninterrupted run's bit for bit. A step whose loss or gradient is not finite
+// is skipped and counted; nan_guard.max_consecutive in a row stop the run with
+// its last good checkpoint intact.
+#pragma once
+#include <string>
+#include <vector>
+
+#include "flat/train/train_config.h"
+
+namespace flat::train {
+
+enum class StartMode {
+  fresh,      // a new run folder; refuse one that already holds a run
+  resume,     // continue the run in run_dir from its newest checkpoint
+  overwrite,  // delete what run_dir holds, then start afresh
+};
+
+struct TrainSummary {
+  int exit_code = 0;  // 0 finished; 128 + signal when stopped by SIGINT/SIGTERM
+  int64_t first_step = 0, steps_done = 0;
+  int64_t skipped_steps = 0;
+  double first_val_psnr = NAN, last_val_psnr = NAN, mean_colour_psnr = NAN;
+  std::string run_dir, last_checkpoint, model_file;
+};
+
+// Runs (or resumes) the stage. `config_yaml` is the effective config saved in
+// the run folder. Throws flat::Error on bad input, naming the file or key.
+TrainSummary run_training(const TrainConfig& config, const std::string& config_yaml, StartMode mode);
+
+// The run folder's saved config (for --resume), with overrides applied.
+TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
+                            std::string* effective_yaml);
+
+}  // namespace flat::train

@@ -1,0 +1,53 @@
+// What one training process holds while it trains: the scene decoder (with
+// its initial weights: scratch, Wan VAE or an earlier stage), the pipeline,
+// the objective, the optimiser and the learning-rate schedule, and the one
+// optimisation step built from them. The trainer's loop and flat_bench train
+// both drive this, so the timed step is the trained step.
+#pragma once
+#include <memory>
+
+#include "flat/loss/objective.h"
+#include "flat/pipeline/scene_pipeline.h"
+#include "flat/train/adamw.h"
+#include "flat/train/checkpoint.h"
+#include "flat/train/lr_schedule.h"
+#include "flat/train/train_config.h"
+#include "flat/train/train_step.h"
+
+namespace flat::train {
+
+struct StepOutcome {
+  StepResult result;
+  double lr = 0;
+  double grad_norm = NAN;
+  bool applied = false;  // false: non-finite loss or gradient, the update was skipped
+  double optimiser_seconds = 0;  // grad norm, clipping and update (timed runs only)
+};
+
+class TrainingSession {
+ public:
+  // Builds the model on cfg.device and initialises it as cfg.init says.
+  explicit TrainingSession(const TrainConfig& cfg);
+
+  // zero grads -> forward/backward -> global grad norm -> skip if not finite,
+  // else clip and update with the schedule's lr at `step`. times: per-phase
+  // timing with device synchronisation (flat_bench train).
+  StepOutcome step(const data::Batch& batch, int64_t step, StepTimes* times = nullptr);
+
+  model::SceneDecoder decoder;
+  std::unique_ptr<pipeline::ScenePipeline> pipeline;
+  std::unique_ptr<loss::Objective> objective;
+  std::unique_ptr<AdamW> optimiser;
+  LrSchedule schedule;
+  ModelSignature signature;
+  at::Device device = at::kCPU;
+  bool bf16 = false;
+
+ private:
+  double grad_clip_ = 0;
+};
+
+// The keys of a pipeline config that decide the weights' shapes.
+ModelSignature model_signature(const pipeline::PipelineConfig& p);
+
+}  // namespace flat::train

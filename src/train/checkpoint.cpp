@@ -1,0 +1,231 @@
+#include "flat/train/checkpoint.h"
+
+#include <csignal>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+
+#include <ATen/Context.h>
+#include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
+
+#include "flat/core/atomic_file.h"
+#include "flat/core/error.h"
+#include "flat/model/weights.h"
+
+namespace flat::train {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kPrefix = "step_";
+constexpr const char* kIncomplete = ".incomplete-";
+
+std::string step_name(int64_t step) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%s%08lld", kPrefix, static_cast<long long>(step));
+  return buf;
+}
+
+// step_00001000 -> 1000; -1 for anything else.
+int64_t step_of(const std::string& name) {
+  if (name.rfind(kPrefix, 0) != 0 || name.size() <= std::string(kPrefix).size()) return -1;
+  int64_t v = 0;
+  for (char c : name.substr(std::string(kPrefix).size())) {
+    if (c < '0' || c > '9') return -1;
+    v = v * 10 + (c - '0');
+  }
+  return v;
+}
+
+void fsync_dir(const std::string& dir) {
+  // Best effort: makes the rename itself durable on filesystems that need it.
+  if (FILE* f = std::fopen(dir.c_str(), "r")) std::fclose(f);
+}
+
+void maybe_kill_for_test(int64_t step) {
+  const char* v = std::getenv(kKillInCheckpointEnv);
+  if (v && std::to_string(step) == v) std::raise(SIGKILL);
+}
+
+std::string read_text(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail(path + ": cannot open for reading");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// "key: value" lines -> map, for the signature comparison.
+std::map<std::string, std::string> signature_lines(const ModelSignature& s) {
+  std::map<std::string, std::string> out;
+  std::istringstream in(s.yaml);
+  for (std::string line; std::getline(in, line);) {
+    const auto colon = line.find(": ");
+    if (colon != std::string::npos) out[line.substr(0, colon)] = line.substr(colon + 2);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir) {
+  std::vector<std::pair<int64_t, std::string>> found;
+  std::error_code ec;
+  if (!fs::is_directory(checkpoints_dir, ec)) return {};
+  for (const auto& e : fs::directory_iterator(checkpoints_dir, ec)) {
+    const int64_t step = step_of(e.path().filename().string());
+    if (step >= 0 && e.is_directory() && fs::exists(e.path() / "trainer.json")) found.push_back({step, e.path().string()});
+  }
+  std::sort(found.begin(), found.end());
+  std::vector<std::string> dirs;
+  for (auto& f : found) dirs.push_back(f.second);
+  return dirs;
+}
+
+std::string latest_checkpoint(const std::string& checkpoints_dir) {
+  std::error_code ec;
+  if (fs::is_directory(checkpoints_dir, ec)) {
+    for (const auto& e : fs::directory_iterator(checkpoints_dir, ec)) {
+      const std::string name = e.path().filename().string();
+      if (name.rfind(kIncomplete, 0) == 0) {
+        spdlog::warn("checkpoints: removing '{}', left by a write that did not finish", e.path().string());
+        fs::remove_all(e.path(), ec);
+      }
+    }
+  }
+  auto all = list_checkpoints(checkpoints_dir);
+  return all.empty() ? std::string() : all.back();
+}
+
+std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
+                            const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
+                            int64_t keep) {
+  std::error_code ec;
+  fs::create_directories(checkpoints_dir, ec);
+  if (ec) fail(checkpoints_dir + ": cannot create the checkpoint folder (" + ec.message() + ")");
+  const std::string name = step_name(state.step);
+  const std::string final_dir = checkpoints_dir + "/" + name;
+  const std::string tmp = checkpoints_dir + "/" + kIncomplete + name + "." + std::to_string(::getpid());
+  fs::remove_all(tmp, ec);
+  fs::create_directories(tmp, ec);
+  if (ec) fail(tmp + ": cannot create (" + ec.message() + ")");
+
+  model::save_weights(model, tmp + "/model.safetensors", model::WeightNaming::wan,
+                      {{"producer", "flat_train"}, {"stage", state.stage}, {"step", std::to_string(state.step)},
+                       {"model_signature", signature.yaml}});
+  maybe_kill_for_test(state.step);
+  save_safetensors(tmp + "/optimizer.safetensors", optimiser.state(), {{"optimiser", "adamw"}});
+  save_safetensors(tmp + "/rng.safetensors", capture_rng());
+  nlohmann::json j = {{"format", "flat-checkpoint-1"},
+                      {"step", state.step},
+                      {"stage", state.stage},
+                      {"skipped_steps", state.skipped_steps},
+                      {"consecutive_skips", state.consecutive_skips},
+                      {"model_signature", signature.yaml},
+                      {"config", state.config_yaml}};
+  write_file_atomic(tmp + "/trainer.json", j.dump(2) + "\n");  // written last: marks the folder complete
+  fsync_dir(tmp);
+
+  if (fs::exists(final_dir, ec)) fs::remove_all(final_dir, ec);  // same step written again (a resumed run)
+  fs::rename(tmp, final_dir, ec);
+  if (ec) fail(final_dir + ": cannot move the finished checkpoint into place (" + ec.message() + ")");
+  fsync_dir(checkpoints_dir);
+
+  auto all = list_checkpoints(checkpoints_dir);
+  for (size_t i = 0; i + size_t(keep) < all.size(); ++i) fs::remove_all(all[i], ec);
+  return final_dir;
+}
+
+LoadedCheckpoint read_checkpoint(const std::string& dir) {
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) fail(dir + ": checkpoint folder not found");
+  LoadedCheckpoint c;
+  c.dir = dir;
+  const std::string meta = dir + "/trainer.json";
+  if (!fs::exists(meta, ec)) fail(meta + ": missing; '" + dir + "' is not a complete checkpoint");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_text(meta));
+    c.state.step = j.at("step").get<int64_t>();
+    c.state.stage = j.at("stage").get<std::string>();
+    c.state.skipped_steps = j.at("skipped_steps").get<int64_t>();
+    c.state.consecutive_skips = j.at("consecutive_skips").get<int64_t>();
+    c.state.config_yaml = j.at("config").get<std::string>();
+    c.signature.yaml = j.at("model_signature").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    fail(meta + ": not a valid checkpoint record (" + e.what() + ")");
+  }
+  FLAT_CHECK(c.state.step >= 0, meta + ": negative step");
+  c.model = load_safetensors(dir + "/model.safetensors");
+  c.optimiser = load_safetensors(dir + "/optimizer.safetensors");
+  c.rng = load_safetensors(dir + "/rng.safetensors");
+  return c;
+}
+
+void load_model_weights(torch::nn::Module& model, const TensorMap& tensors, const ModelSignature& found,
+                        const ModelSignature& expected, const std::string& label) {
+  if (!found.yaml.empty() && found.yaml != expected.yaml) {
+    auto a = signature_lines(found), b = signature_lines(expected);
+    std::string diff;
+    for (const auto& [k, v] : b) {
+      auto it = a.find(k);
+      const std::string theirs = it == a.end() ? "(absent)" : it->second;
+      if (theirs != v) diff += "\n  " + k + ": checkpoint " + theirs + ", this config " + v;
+    }
+    for (const auto& [k, v] : a)
+      if (!b.count(k)) diff += "\n  " + k + ": checkpoint " + v + ", this config (absent)";
+    fail(label + ": the checkpoint's model differs from this config's:" + diff);
+  }
+  model::load_state(model, tensors, {}, label);
+}
+
+std::string resolve_model_file(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) fail(path + ": not found (init.path: a run folder, a checkpoint folder or a model file)");
+  if (fs::is_regular_file(path, ec)) return path;
+  if (fs::exists(fs::path(path) / "model.safetensors", ec)) return path + "/model.safetensors";
+  const std::string latest = latest_checkpoint(path + "/checkpoints");
+  if (latest.empty()) fail(path + ": a folder without model.safetensors or any checkpoint under checkpoints/");
+  return latest + "/model.safetensors";
+}
+
+TensorMap capture_rng() {
+  TensorMap m;
+  {
+    at::Generator cpu_gen = at::detail::getDefaultCPUGenerator();
+    std::lock_guard<std::mutex> lock(cpu_gen.mutex());
+    m["cpu"] = cpu_gen.get_state();
+  }
+  if (at::hasCUDA()) {
+    for (int i = 0; i < int(at::getNumGPUs()); ++i) {
+      at::Generator gen = at::globalContext().defaultGenerator(at::Device(at::kCUDA, c10::DeviceIndex(i)));
+      std::lock_guard<std::mutex> lock(gen.mutex());
+      m["cuda." + std::to_string(i)] = gen.get_state();
+    }
+  }
+  return m;
+}
+
+void restore_rng(const TensorMap& rng, const std::string& label) {
+  auto cpu = rng.find("cpu");
+  FLAT_CHECK(cpu != rng.end(), label + ": no 'cpu' generator state");
+  at::Generator cpu_gen = at::detail::getDefaultCPUGenerator();  // a handle: shares the global state
+  {
+    std::lock_guard<std::mutex> lock(cpu_gen.mutex());
+    cpu_gen.set_state(cpu->second);
+  }
+  for (const auto& [name, state] : rng) {
+    if (name.rfind("cuda.", 0) != 0 || !at::hasCUDA()) continue;
+    const int i = std::stoi(name.substr(5));
+    if (i < int(at::getNumGPUs())) {
+      at::Generator gen = at::globalContext().defaultGenerator(at::Device(at::kCUDA, c10::DeviceIndex(i)));
+      std::lock_guard<std::mutex> lock(gen.mutex());
+      gen.set_state(state);
+    }
+  }
+}
+
+}  // namespace flat::train

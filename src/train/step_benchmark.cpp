@@ -1,0 +1,168 @@
+#include "flat/train/step_benchmark.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+
+#include <spdlog/spdlog.h>
+#include <torch/torch.h>
+#if FLAT_WITH_CUDA
+#include <c10/cuda/CUDACachingAllocator.h>
+#endif
+
+#include "flat/core/tensor_io.h"
+#include "flat/loss/lpips.h"
+#include "flat/model/weights.h"
+#include "flat/train/training_session.h"
+
+namespace flat::train {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+void sync(const at::Device& d) {
+  if (d.is_cuda()) torch::cuda::synchronize();
+}
+
+void reset_peak(const at::Device& d) {
+#if FLAT_WITH_CUDA
+  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
+#else
+  (void)d;
+#endif
+}
+
+double peak_gib(const at::Device& d) {
+#if FLAT_WITH_CUDA
+  if (d.is_cuda()) {
+    auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(d.index() < 0 ? 0 : d.index());
+    return double(stats.allocated_bytes[size_t(c10::CachingAllocator::StatType::AGGREGATE)].peak) / double(1ull << 30);
+  }
+#else
+  (void)d;
+#endif
+  return 0;
+}
+
+std::string row(const char* name, double ms, double step_ms) {
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), "| %s | %.1f | %.0f%% |\n", name, ms, step_ms > 0 ? 100 * ms / step_ms : 0.0);
+  return buf;
+}
+
+}  // namespace
+
+std::string StepBenchmark::table() const {
+  std::string t = "| part | ms (median) | share |\n|---|---|---|\n";
+  t += row("data (loader wait)", data_ms, step_ms);
+  t += row("decoder forward (incl. triangle builder)", decode_forward_ms, step_ms);
+  t += row("rasterizer forward", render_forward_ms, step_ms);
+  t += row("losses forward (incl. LPIPS)", loss_forward_ms, step_ms);
+  t += row("losses + rasterizer backward", render_loss_backward_ms, step_ms);
+  t += row("decoder backward", decoder_backward_ms, step_ms);
+  t += row("grad norm, clip, AdamW", optimiser_ms, step_ms);
+  t += row("whole step (phases synchronised)", step_ms, step_ms);
+  char buf[200];
+  std::snprintf(buf, sizeof(buf), "| whole step as trained (no phase syncs) | %.1f | %.2f it/s |\n", unsynced_step_ms,
+                unsynced_step_ms > 0 ? 1000.0 / unsynced_step_ms : 0.0);
+  t += buf;
+  std::snprintf(buf, sizeof(buf), "| of which LPIPS fwd+bwd alone (separate run) | %.1f | |\n", lpips_ms);
+  t += buf;
+  return t;
+}
+
+std::string write_random_lpips_weights(const std::string& path, uint64_t seed) {
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(seed);
+  TensorMap t;
+  for (const auto& spec : loss::lpips_tensor_specs()) {
+    auto x = at::randn(spec.shape, gen, at::kFloat);
+    const int64_t fan_in = spec.shape.size() > 1 ? x.numel() / spec.shape[0] : 1;
+    x = x * std::sqrt(2.0 / double(std::max<int64_t>(fan_in, 1)));
+    if (spec.name.rfind("lin", 0) == 0) x = x.abs();
+    t[spec.name] = x;
+  }
+  save_safetensors(path, t, {{"content", "random LPIPS weights for timing only"}});
+  return path;
+}
+
+StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps) {
+  torch::manual_seed(uint64_t(cfg.seed));
+  TrainingSession session(cfg);
+  data::Loader loader(cfg.data);
+  StepBenchmark r;
+  r.parameters_m = double(model::count_parameters(*session.decoder)) / 1e6;
+  std::vector<double> data, dec_f, ren_f, loss_f, rl_b, dec_b, opt, whole, unsynced;
+  reset_peak(session.device);
+  for (int64_t i = 0; i < warmup + steps; ++i) {
+    auto t0 = Clock::now();
+    data::Batch batch = loader.next();
+    const double data_ms = ms_since(t0);
+    StepTimes times;
+    auto out = session.step(batch, i, &times);
+    sync(session.device);
+    if (i < warmup) continue;
+    data.push_back(data_ms);
+    dec_f.push_back(times.decode_forward * 1e3);
+    ren_f.push_back(times.render_forward * 1e3);
+    loss_f.push_back(times.loss_forward * 1e3);
+    rl_b.push_back(times.render_loss_backward * 1e3);
+    dec_b.push_back(times.decoder_backward * 1e3);
+    opt.push_back(out.optimiser_seconds * 1e3);
+    whole.push_back(ms_since(t0));
+    r.triangles = out.result.triangles;
+  }
+  // The same steps without phase synchronisation: the speed training runs at.
+  for (int64_t i = 0; i < steps; ++i) {
+    auto t0 = Clock::now();
+    data::Batch batch = loader.next();
+    session.step(batch, warmup + steps + i);
+    sync(session.device);
+    unsynced.push_back(ms_since(t0));
+  }
+  r.peak_gib = peak_gib(session.device);
+  if (cfg.loss.lambda_perc > 0) {
+    // LPIPS alone on images of the step's size and view count.
+    const auto& d = cfg.data;
+    auto a = torch::rand({d.target_views, 3, d.height, d.width}, torch::TensorOptions().device(session.device))
+                 .requires_grad_(true);
+    auto b = torch::rand({d.target_views, 3, d.height, d.width}, torch::TensorOptions().device(session.device));
+    auto net = session.objective->lpips_network();
+    std::vector<double> lp;
+    for (int64_t i = 0; i < warmup + steps; ++i) {
+      sync(session.device);
+      auto t0 = Clock::now();
+      {
+        AutocastScope autocast(session.bf16, session.device.type());
+        auto l = loss::lpips_distance(net, a, b, cfg.loss.lpips_max_size, cfg.loss.lpips_chunk).mean();
+        l.backward();
+      }
+      sync(session.device);
+      if (i >= warmup) lp.push_back(ms_since(t0));
+    }
+    r.lpips_ms = median(lp);
+  }
+  r.steps = steps;
+  r.data_ms = median(data);
+  r.decode_forward_ms = median(dec_f);
+  r.render_forward_ms = median(ren_f);
+  r.loss_forward_ms = median(loss_f);
+  r.render_loss_backward_ms = median(rl_b);
+  r.decoder_backward_ms = median(dec_b);
+  r.optimiser_ms = median(opt);
+  r.step_ms = median(whole);
+  r.unsynced_step_ms = median(unsynced);
+  return r;
+}
+
+}  // namespace flat::train

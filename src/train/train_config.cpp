@@ -1,0 +1,31 @@
+#include "flat/train/train_config.h"
+
+#include "flat/core/error.h"
+
+namespace flat::train {
+
+void InitConfig::check() const {
+  if (from != "scratch" && path.empty()) fail("'path' is required with from: " + from);
+  if (from == "scratch" && !path.empty()) fail("'path' is set but from is scratch (set from: checkpoint or wan_vae)");
+}
+
+void TrainConfig::check() const {
+  if (run_dir.empty()) fail("'run_dir' is empty");
+  if (pipeline.model.vae.z_dim != 16)
+    fail("'pipeline.model.vae.z_dim' must be 16 (the Wan 2.1 latent the data tools store)");
+  if (loss.lambda_perc > 0 && loss.lpips_weights.empty())
+    fail("'loss.lambda_perc' > 0 needs 'loss.lpips_weights' (see docs/losses.md), or set lambda_perc: 0");
+  if (!data.latents) fail("'data.latents' must be true: the scene decoder trains on precomputed latents");
+  if (optim.warmup_steps > steps)
+    fail("'optim.warmup_steps' (" + std::to_string(optim.warmup_steps) + ") exceeds 'steps' (" +
+         std::to_string(steps) + ")");
+}
+
+std::string describe_config() {
+  TrainConfig defaults;
+  config::Describer d;
+  defaults.visit(d);
+  return d.markdown();
+}
+
+}  // namespace flat::train

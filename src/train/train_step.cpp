@@ -1,0 +1,116 @@
+#include "flat/train/train_step.h"
+
+#include <chrono>
+#include <cmath>
+
+#include <ATen/autocast_mode.h>
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+
+namespace flat::train {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Ends a phase: waits for the device when timing, adds the time.
+struct PhaseClock {
+  StepTimes* times;
+  at::Device device;
+  Clock::time_point start = Clock::now();
+  void lap(double StepTimes::*field) {
+    if (!times) return;
+    if (device.is_cuda()) torch::cuda::synchronize(device.index() < 0 ? 0 : device.index());
+    const auto now = Clock::now();
+    times->*field += std::chrono::duration<double>(now - start).count();
+    start = now;
+  }
+};
+
+}  // namespace
+
+AutocastScope::AutocastScope(bool enabled, at::DeviceType device) : enabled_(enabled), device_(device) {
+  if (!enabled_) return;
+  was_enabled_ = at::autocast::is_autocast_enabled(device_);
+  was_dtype_ = at::autocast::get_autocast_dtype(device_);
+  at::autocast::set_autocast_enabled(device_, true);
+  at::autocast::set_autocast_dtype(device_, at::kBFloat16);
+  at::autocast::increment_nesting();
+}
+
+AutocastScope::~AutocastScope() {
+  if (!enabled_) return;
+  if (at::autocast::decrement_nesting() == 0) at::autocast::clear_cache();
+  at::autocast::set_autocast_enabled(device_, was_enabled_);
+  at::autocast::set_autocast_dtype(device_, was_dtype_);
+}
+
+StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
+                            bool bf16, StepTimes* times) {
+  const auto device = pipeline.decoder()->conv2->weight.device();
+  FLAT_CHECK(batch.video_latents.defined(), "training step: the batch has no latents (data.latents: true)");
+  PhaseClock clock{times, device};
+  StepResult r;
+  AutocastScope autocast(bf16 && device.is_cuda(), device.type());
+
+  pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
+  auto soup = pipeline.decode(in);
+  clock.lap(&StepTimes::decode_forward);
+
+  // Phase split: the rasterizer and losses see leaf copies of the triangles.
+  std::vector<at::Tensor> decoded = {soup.vertices, soup.colors, soup.opacities, soup.sigmas};
+  std::vector<at::Tensor> leaves;
+  for (const auto& t : decoded) leaves.push_back(t.detach().requires_grad_(true));
+  primitives::TriangleSoup leaf_soup{leaves[0], leaves[1], leaves[2], leaves[3]};
+
+  const int64_t B = soup.batch();
+  std::vector<pipeline::RenderedViews> rendered;
+  for (int64_t b = 0; b < B; ++b) {
+    const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
+    rendered.push_back(pipeline.render(leaf_soup.scene(b), batch.target_cameras(b).to(device), H, W));
+    r.triangles += rendered.back().triangles;
+  }
+  clock.lap(&StepTimes::render_forward);
+
+  at::Tensor total;
+  for (int64_t b = 0; b < B; ++b) {
+    const auto& views = rendered[size_t(b)];
+    loss::LossInputs li;
+    li.rgb = views.rgb;
+    li.target_rgb = batch.target_images[b].to(device, at::kFloat);
+    li.alpha = views.alpha;
+    li.depth = views.depth;
+    li.normal = views.normal;
+    if (batch.target_depth.defined() && batch.depth_present[b].item<bool>())
+      li.target_depth = batch.target_depth[b].to(device, at::kFloat);
+    if (batch.target_normals.defined() && batch.normals_present[b].item<bool>())
+      li.target_normal = batch.target_normals[b].to(device, at::kFloat);
+    li.opacities = leaf_soup.opacities[b];
+    li.intrinsics = batch.target_intrinsics[b].to(device, at::kFloat);
+    auto result = objective(li);
+    total = total.defined() ? total + result.total / double(B) : result.total / double(B);
+    for (const auto& [name, value] : result.terms)
+      r.terms[name] += value.to(at::kDouble).cpu().item<double>() / double(B);
+  }
+  r.loss = r.terms["total"];
+  clock.lap(&StepTimes::loss_forward);
+  if (!std::isfinite(r.loss)) {
+    r.finite = false;
+    return r;
+  }
+
+  total.backward();
+  clock.lap(&StepTimes::render_loss_backward);
+  std::vector<at::Tensor> outputs, grads;
+  for (size_t i = 0; i < decoded.size(); ++i) {
+    if (!leaves[i].grad().defined() || !decoded[i].requires_grad()) continue;
+    outputs.push_back(decoded[i]);
+    grads.push_back(leaves[i].grad());
+  }
+  if (!outputs.empty()) torch::autograd::backward(outputs, grads);
+  clock.lap(&StepTimes::decoder_backward);
+  return r;
+}
+
+}  // namespace flat::train

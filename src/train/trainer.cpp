@@ -1,0 +1,274 @@
+#include "flat/train/trainer.h"
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <filesystem>
+
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/log.h"
+#include "flat/core/progress.h"
+#include "flat/core/run_dir.h"
+#include "flat/model/weights.h"
+#include "flat/train/adamw.h"
+#include "flat/train/checkpoint.h"
+#include "flat/train/lr_schedule.h"
+#include "flat/train/metrics_log.h"
+#include "flat/train/train_step.h"
+#include "flat/train/training_session.h"
+#include "flat/train/validation.h"
+
+namespace flat::train {
+namespace fs = std::filesystem;
+
+namespace {
+
+// ---- stop signals ------------------------------------------------------------
+// The first SIGINT/SIGTERM asks the loop to stop after the current step and
+// write a checkpoint; a second one ends the process at once (default action).
+std::atomic<int> g_stop_signal{0};
+
+extern "C" void on_stop_signal(int sig) {
+  g_stop_signal.store(sig);
+  std::signal(sig, SIG_DFL);
+}
+
+struct StopSignals {
+  using Handler = void (*)(int);
+  Handler old_int, old_term;
+  StopSignals() {
+    g_stop_signal.store(0);
+    old_int = std::signal(SIGINT, on_stop_signal);
+    old_term = std::signal(SIGTERM, on_stop_signal);
+  }
+  ~StopSignals() {
+    std::signal(SIGINT, old_int);
+    std::signal(SIGTERM, old_term);
+  }
+};
+
+// ---- helpers -------------------------------------------------------------------
+
+bool holds_a_run(const std::string& dir) {
+  std::error_code ec;
+  for (const char* entry : {"config.yaml", "checkpoints", "metrics", "model.safetensors"})
+    if (fs::exists(fs::path(dir) / entry, ec)) return true;
+  return false;
+}
+
+void prepare_run_folder(const std::string& dir, StartMode mode) {
+  std::error_code ec;
+  if (mode == StartMode::fresh && holds_a_run(dir)) {
+    const auto n = list_checkpoints(dir + "/checkpoints").size();
+    fail("run folder '" + dir + "' already holds a run (" + std::to_string(n) +
+         " checkpoint(s)): continue it with --resume " + dir + ", start it over with --overwrite, or choose another "
+         "run_dir");
+  }
+  if (mode == StartMode::overwrite && fs::exists(dir, ec)) {
+    FLAT_CHECK(fs::is_directory(dir, ec), "run folder '" + dir + "' exists and is not a folder");
+    fs::remove_all(dir, ec);
+    if (ec) fail("run folder '" + dir + "': cannot remove it for --overwrite (" + ec.message() + ")");
+  }
+}
+
+}  // namespace
+
+TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
+                            std::string* effective_yaml) {
+  const std::string file = run_dir + "/config.yaml";
+  std::error_code ec;
+  if (!fs::exists(file, ec))
+    fail(run_dir + ": no config.yaml; is this a run folder of flat_train? (--resume takes the run folder)");
+  std::vector<std::string> all = {"run_dir=" + run_dir};  // the folder may have moved since
+  all.insert(all.end(), overrides.begin(), overrides.end());
+  auto cfg = config::load<TrainConfig>(file, all);
+  if (effective_yaml) *effective_yaml = config::to_yaml(cfg);
+  return cfg;
+}
+
+TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode) {
+  prepare_run_folder(cfg.run_dir, mode);
+  auto run = RunDir::create(cfg.run_dir);
+  setup_logging(cfg.log.level, run.logs() + "/train.log");
+  config::save_text(run.config_file(), config_yaml);
+  TrainSummary summary;
+  summary.run_dir = run.root;
+
+  if (cfg.threads > 0) at::set_num_threads(int(cfg.threads));
+  torch::manual_seed(uint64_t(cfg.seed));
+
+  // ---- model, objective, optimiser ------------------------------------------------
+  TrainingSession session(cfg);
+  auto& decoder = session.decoder;
+  auto& optimiser = *session.optimiser;
+  auto& pipe = *session.pipeline;
+  auto& objective = *session.objective;
+  const ModelSignature& signature = session.signature;
+  const bool bf16 = session.bf16;
+
+  // ---- resume ------------------------------------------------------------------
+  TrainerState state;
+  state.stage = cfg.stage;
+  state.config_yaml = config_yaml;
+  if (mode == StartMode::resume) {
+    const std::string latest = latest_checkpoint(run.checkpoints());
+    if (latest.empty()) {
+      spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run.root);
+    } else {
+      auto ckpt = read_checkpoint(latest);
+      load_model_weights(*decoder, ckpt.model, ckpt.signature, signature, latest + "/model.safetensors");
+      optimiser.load_state(ckpt.optimiser, latest + "/optimizer.safetensors");
+      restore_rng(ckpt.rng, latest + "/rng.safetensors");
+      state.step = ckpt.state.step;
+      state.skipped_steps = ckpt.state.skipped_steps;
+      state.consecutive_skips = ckpt.state.consecutive_skips;
+      summary.last_checkpoint = latest;
+      spdlog::info("resume: {} at step {} of {}", latest, state.step, cfg.steps);
+    }
+  }
+  summary.first_step = state.step;
+
+  const int64_t params = model::count_parameters(*decoder);
+  spdlog::info("flat_train: stage '{}', {} steps, run folder {}", cfg.stage, cfg.steps, run.root);
+  spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
+               cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
+
+  // ---- data --------------------------------------------------------------------
+  data::Loader loader(cfg.data, state.step);
+  std::unique_ptr<data::Loader> val_loader;
+  if (!cfg.validation.datasets.empty()) {
+    data::LoaderConfig v = cfg.data;
+    v.datasets = cfg.validation.datasets;
+    v.batch_size = 1;
+    v.workers = 0;
+    v.seed = 1000003;  // fixed: the same held-out views at every validation
+    v.skip_bad_scenes = false;
+    val_loader = std::make_unique<data::Loader>(v);
+  } else {
+    spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
+  }
+  MetricsLog metrics(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
+
+  auto run_validation = [&](int64_t step) {
+    if (!val_loader) return;
+    const auto t0 = std::chrono::steady_clock::now();
+    auto r = validate(pipe, *val_loader, cfg.validation.scenes, objective.lpips_network(), cfg.validation.grid_views);
+    metrics.write("val", step, r.scalars());
+    std::string grid;
+    if (r.grid.defined()) {
+      char name[64];
+      std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
+      grid = write_validation_grid(r.grid, run.renders() + name);
+    }
+    if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
+    summary.last_val_psnr = r.psnr;
+    summary.mean_colour_psnr = r.mean_colour_psnr;
+    spdlog::info("validation @ step {}: PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, LPIPS {}, normal "
+                 "cosine {:.3f} over {} views of {} held-out samples ({:.1f} s){}",
+                 step, r.psnr, r.mean_colour_psnr, r.ssim, std::isnan(r.lpips) ? "n/a" : std::to_string(r.lpips),
+                 r.normal_cosine, r.views, r.samples,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                 grid.empty() ? "" : "; grid " + grid);
+  };
+  auto write_checkpoint = [&] {
+    summary.last_checkpoint =
+        save_checkpoint(run.checkpoints(), state, *decoder, signature, optimiser, cfg.checkpoint.keep);
+    spdlog::info("checkpoint: {}", summary.last_checkpoint);
+  };
+
+  if (state.step >= cfg.steps) {
+    spdlog::info("flat_train: the run already finished its {} steps; nothing to do", cfg.steps);
+    summary.steps_done = state.step;
+    return summary;
+  }
+  if (state.step == 0) run_validation(0);
+
+  // ---- the loop ------------------------------------------------------------------
+  StopSignals signals;
+  Progress progress(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
+  int64_t last_checkpoint_step = mode == StartMode::resume ? state.step : -1;
+  while (state.step < cfg.steps) {
+    const int64_t step = state.step;
+    const auto t0 = std::chrono::steady_clock::now();
+    data::Batch batch = loader.next();
+    const auto& nan_steps = cfg.debug.nan_steps;
+    if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
+      batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
+
+    StepOutcome out = session.step(batch, step);
+    const StepResult& res = out.result;
+    const double lr = out.lr, grad_norm = out.grad_norm;
+    const bool ok = out.applied;
+    if (ok) {
+      state.consecutive_skips = 0;
+    } else {
+      ++state.skipped_steps;
+      ++state.consecutive_skips;
+      spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
+                   res.finite ? "gradient norm" : "loss", res.finite ? grad_norm : res.loss, state.consecutive_skips,
+                   state.skipped_steps);
+      if (state.consecutive_skips >= cfg.nan_guard.max_consecutive) {
+        progress.abandon();
+        fail("stopping: " + std::to_string(state.consecutive_skips) +
+             " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
+             "). Check the data and the learning rate; the last good checkpoint is " +
+             (summary.last_checkpoint.empty() ? std::string("none yet") : summary.last_checkpoint) +
+             " (resume with --resume " + run.root + ")");
+      }
+    }
+    state.step = step + 1;
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+
+    Scalars row = {{"loss", res.loss}};
+    for (const auto& [name, value] : res.terms)
+      if (name != "total") row.push_back({name, value});
+    row.push_back({"lr", lr});
+    row.push_back({"grad_norm", grad_norm});
+    row.push_back({"skipped", ok ? 0.0 : 1.0});
+    row.push_back({"triangles", double(res.triangles)});
+    row.push_back({"step_seconds", seconds});
+    metrics.write("train", step, row);
+    progress.step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
+
+    const bool last = state.step == cfg.steps;
+    const int stop = g_stop_signal.load();
+    if (state.step % cfg.checkpoint.every == 0 || last || stop) {
+      write_checkpoint();
+      last_checkpoint_step = state.step;
+    }
+    if (stop) {
+      progress.abandon();
+      spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
+                   state.step, run.root);
+      summary.exit_code = 128 + stop;
+      summary.steps_done = state.step;
+      summary.skipped_steps = state.skipped_steps;
+      return summary;
+    }
+    if (state.step % cfg.validation.every == 0 || last) run_validation(state.step);
+  }
+  (void)last_checkpoint_step;
+  progress.finish();
+
+  // ---- the end -------------------------------------------------------------------
+  summary.model_file = run.root + "/model.safetensors";
+  model::save_weights(*decoder, summary.model_file, model::WeightNaming::wan,
+                      {{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)},
+                       {"model_signature", signature.yaml}});
+  summary.steps_done = state.step;
+  summary.skipped_steps = state.skipped_steps;
+  spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg.stage, state.step,
+               state.skipped_steps);
+  if (!std::isnan(summary.last_val_psnr))
+    spdlog::info("held-out PSNR: {:.2f} dB -> {:.2f} dB (mean-colour baseline {:.2f} dB)", summary.first_val_psnr,
+                 summary.last_val_psnr, summary.mean_colour_psnr);
+  spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
+               "model.safetensors)",
+               run.root);
+  return summary;
+}
+
+}  // namespace flat::train

@@ -1,0 +1,86 @@
+#include "flat/train/training_session.h"
+
+#include <chrono>
+#include <cmath>
+
+#include <spdlog/spdlog.h>
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/model/weights.h"
+
+namespace flat::train {
+
+namespace {
+
+double total_norm(const std::vector<at::Tensor>& grads) {
+  if (grads.empty()) return 0;
+  auto norms = at::_foreach_norm(grads, 2);
+  return at::stack(norms).to(at::kDouble).norm().item<double>();
+}
+
+}  // namespace
+
+ModelSignature model_signature(const pipeline::PipelineConfig& p) {
+  config::Describer d("pipeline.model.");
+  auto model = p.model;
+  model.visit(d);
+  std::string yaml;
+  for (const auto& row : d.rows)
+    if (row.key != "pipeline.model.stream_trunk_frames") yaml += row.key + ": " + row.value + "\n";
+  yaml += "pipeline.triangles.channels: " + std::to_string(p.triangles.channels().total) + "\n";
+  return {yaml};
+}
+
+TrainingSession::TrainingSession(const TrainConfig& cfg)
+    : decoder(cfg.pipeline.model, cfg.pipeline.triangles.channels()), grad_clip_(cfg.optim.grad_clip) {
+  device = at::Device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
+  if (device.is_cuda() && !torch::cuda::is_available())
+    fail("device: cuda requested but no CUDA device is available (set device: cpu)");
+  bf16 = cfg.precision == "bf16" && device.is_cuda();
+  signature = model_signature(cfg.pipeline);
+  if (cfg.init.from == "wan_vae") {
+    auto report = decoder->load_pretrained_vae(cfg.init.path);
+    spdlog::info("init: {}", report.summary());
+  } else if (cfg.init.from == "checkpoint") {
+    const std::string file = resolve_model_file(cfg.init.path);
+    Metadata meta;
+    auto tensors = load_safetensors(file, &meta);
+    load_model_weights(*decoder, tensors, {meta.count("model_signature") ? meta["model_signature"] : ""}, signature,
+                       file);
+    spdlog::info("init: model weights of the earlier stage from {}", file);
+  }
+  decoder->to(device);
+  pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
+  objective = std::make_unique<loss::Objective>(cfg.loss, device);
+  optimiser = std::make_unique<AdamW>(decoder->named_parameters().pairs(),
+                                      AdamWOptions{cfg.optim.beta1, cfg.optim.beta2, cfg.optim.eps,
+                                                   cfg.optim.weight_decay});
+  schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
+}
+
+StepOutcome TrainingSession::step(const data::Batch& batch, int64_t step, StepTimes* times) {
+  StepOutcome out;
+  optimiser->zero_grad();
+  out.result = forward_backward(*pipeline, *objective, batch, bf16, times);
+  const auto t0 = std::chrono::steady_clock::now();
+  out.lr = schedule.at(step);
+  bool ok = out.result.finite;
+  if (ok) {
+    auto grads = optimiser->grads();
+    out.grad_norm = total_norm(grads);
+    ok = std::isfinite(out.grad_norm);
+    if (ok && grad_clip_ > 0 && out.grad_norm > grad_clip_) at::_foreach_mul_(grads, grad_clip_ / (out.grad_norm + 1e-6));
+  }
+  if (ok) {
+    optimiser->step(out.lr);
+  } else {
+    optimiser->zero_grad();
+  }
+  out.applied = ok;
+  if (times && device.is_cuda()) torch::cuda::synchronize();
+  out.optimiser_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
+}  // namespace flat::train

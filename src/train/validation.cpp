@@ -1,0 +1,127 @@
+#include "flat/train/validation.h"
+
+#include <cmath>
+
+#include <torch/torch.h>
+
+#include "flat/core/image_io.h"
+#include "flat/core/tensor_io.h"
+#include "flat/eval/image_metrics.h"
+#include "flat/eval/normal_metrics.h"
+
+namespace flat::train {
+
+namespace {
+
+// (V,1,H,W) depth -> (V,3,H,W) grey in [0,1]: near bright, far dark, over
+// [lo, hi]; no depth (0) is black.
+at::Tensor depth_image(const at::Tensor& depth, double lo, double hi) {
+  auto d = ((hi - depth) / std::max(hi - lo, 1e-6)).clamp(0, 1);
+  d = at::where(depth > 0, d, at::zeros_like(d));
+  return d.expand({-1, 3, -1, -1});
+}
+
+at::Tensor normal_image(const at::Tensor& n) { return (n * 0.5 + 0.5).clamp(0, 1); }
+
+}  // namespace
+
+Scalars ValidationResult::scalars() const {
+  return {{"val_psnr", psnr},
+          {"val_ssim", ssim},
+          {"val_lpips", lpips},
+          {"val_normal_cosine", normal_cosine},
+          {"val_mean_colour_psnr", mean_colour_psnr}};
+}
+
+at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Batch& batch, int64_t b,
+                           int64_t max_views) {
+  const int64_t V = std::min<int64_t>(max_views, views.rgb.size(0));
+  auto gt = batch.target_images[b].slice(0, 0, V).to(at::kFloat);
+  auto rgb = views.rgb.detach().slice(0, 0, V).cpu().clamp(0, 1);
+  const auto H = gt.size(2), W = gt.size(3);
+  auto ref_depth = batch.target_depth.defined() ? batch.target_depth[b].slice(0, 0, V).to(at::kFloat)
+                                                : at::zeros({V, 1, H, W});
+  auto valid = ref_depth.gt(0);
+  double lo = 0, hi = 1;
+  if (valid.any().item<bool>()) {
+    lo = ref_depth.masked_select(valid).min().item<double>();
+    hi = ref_depth.masked_select(valid).max().item<double>();
+  } else {
+    auto rd = views.depth.detach().cpu();
+    if (rd.gt(0).any().item<bool>()) lo = rd.masked_select(rd.gt(0)).min().item<double>(), hi = rd.max().item<double>();
+  }
+  auto ref_normals = batch.target_normals.defined() ? batch.target_normals[b].slice(0, 0, V).to(at::kFloat)
+                                                    : at::zeros({V, 3, H, W});
+  auto cols = {gt,
+               rgb,
+               depth_image(views.depth.detach().slice(0, 0, V).cpu(), lo, hi),
+               depth_image(ref_depth, lo, hi),
+               normal_image(views.normal.detach().slice(0, 0, V).cpu()),
+               at::where(ref_normals.norm(2, 1, true) > 0.5, normal_image(ref_normals), at::zeros_like(ref_normals))};
+  // A 2-pixel white gap between tiles.
+  std::vector<at::Tensor> rows;
+  for (int64_t v = 0; v < V; ++v) {
+    std::vector<at::Tensor> tiles;
+    for (const auto& c : cols) {
+      tiles.push_back(at::constant_pad_nd(c[v], {0, 2, 0, 2}, 1.0));
+    }
+    rows.push_back(at::cat(tiles, 2));
+  }
+  return at::cat(rows, 1).contiguous();
+}
+
+ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
+                          loss::Lpips lpips, int64_t grid_views) {
+  torch::NoGradGuard no_grad;
+  ValidationResult r;
+  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0;
+  int64_t normal_pixels = 0;
+  const auto device = pipeline.decoder()->conv2->weight.device();
+  for (int64_t i = 0; i < samples; ++i) {
+    data::Batch batch = loader.batch(i);
+    pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
+    auto soup = pipeline.decode(in);
+    for (int64_t b = 0; b < soup.batch(); ++b) {
+      const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
+      auto views = pipeline.render(soup.scene(b), batch.target_cameras(b).to(device), H, W);
+      auto target = batch.target_images[b].to(device, at::kFloat);
+      auto rgb = views.rgb.clamp(0, 1);
+      psnr += eval::psnr(rgb, target).sum().item<double>();
+      ssim += eval::ssim(rgb, target).sum().item<double>();
+      if (!lpips.is_empty()) lp += eval::lpips(lpips, rgb, target, 512, 4).sum().item<double>();
+      auto mean_colour = target.mean({2, 3}, true).expand_as(target);
+      base += eval::psnr(mean_colour, target).sum().item<double>();
+      if (batch.target_normals.defined() && batch.normals_present[b].item<bool>()) {
+        auto acc = eval::normal_accuracy(views.normal, batch.target_normals[b].to(device, at::kFloat),
+                                         views.alpha > 0.5);
+        if (acc.valid_pixels > 0) {
+          cosine += acc.mean_cosine * double(acc.valid_pixels);
+          normal_pixels += acc.valid_pixels;
+        }
+      }
+      r.views += target.size(0);
+      if (i == 0 && b == 0 && grid_views > 0) r.grid = validation_grid(views, batch, b, grid_views);
+    }
+    r.samples += soup.batch();
+  }
+  const double v = double(std::max<int64_t>(r.views, 1));
+  r.psnr = psnr / v;
+  r.ssim = ssim / v;
+  r.lpips = lpips.is_empty() ? NAN : lp / v;
+  r.mean_colour_psnr = base / v;
+  r.normal_cosine = normal_pixels > 0 ? cosine / double(normal_pixels) : NAN;
+  return r;
+}
+
+std::string write_validation_grid(const at::Tensor& grid, const std::string& path_without_extension) {
+  if (image_io_available()) {
+    const std::string path = path_without_extension + ".png";
+    write_image(path, grid);
+    return path;
+  }
+  const std::string path = path_without_extension + ".safetensors";
+  save_safetensors(path, {{"grid", grid}}, {{"layout", "(3,H,W) in [0,1]"}});
+  return path;
+}
+
+}  // namespace flat::train

@@ -1,0 +1,91 @@
+// Running the project's own binaries from a test: flat_train must survive a
+// real SIGKILL and say things on stderr, which only a separate process shows.
+#pragma once
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <fstream>
+#include <functional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+extern char** environ;
+
+namespace flat::test {
+
+inline std::string binary(const std::string& name) { return std::string(FLAT_BINARY_DIR) + "/" + name; }
+
+struct Child {
+  pid_t pid = -1;
+  std::string log;
+};
+
+// Starts argv[0] with argv, extra "NAME=value" environment entries, stdout and
+// stderr into `log`.
+inline Child spawn(const std::vector<std::string>& argv, const std::string& log,
+                   const std::vector<std::string>& extra_env = {}) {
+  std::vector<std::string> env_store;
+  for (char** e = environ; *e; ++e) env_store.emplace_back(*e);
+  for (const auto& e : extra_env) env_store.push_back(e);
+  std::vector<char*> args, envp;
+  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  for (const auto& e : env_store) envp.push_back(const_cast<char*>(e.c_str()));
+  envp.push_back(nullptr);
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_adddup2(&fa, 1, 2);
+  Child c;
+  c.log = log;
+  const int rc = posix_spawn(&c.pid, args[0], &fa, nullptr, args.data(), envp.data());
+  posix_spawn_file_actions_destroy(&fa);
+  if (rc != 0) c.pid = -1;
+  return c;
+}
+
+// Waits; returns the exit code, or 128 + signal for a killed child.
+inline int wait_for(const Child& c) {
+  int status = 0;
+  if (c.pid <= 0 || waitpid(c.pid, &status, 0) < 0) return -1;
+  if (WIFEXITED(status)) return WEXITSTATUS(status);
+  if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
+  return -1;
+}
+
+inline int run(const std::vector<std::string>& argv, const std::string& log,
+               const std::vector<std::string>& extra_env = {}) {
+  return wait_for(spawn(argv, log, extra_env));
+}
+
+inline std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+inline int64_t count_lines(const std::string& path) {
+  std::ifstream in(path);
+  int64_t n = 0;
+  for (std::string line; std::getline(in, line);) n += line.empty() ? 0 : 1;
+  return n;
+}
+
+// Polls `ready` every 20 ms for up to `seconds`; true when it held.
+inline bool wait_until(const std::function<bool()>& ready, double seconds) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+  while (std::chrono::steady_clock::now() < end) {
+    if (ready()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return ready();
+}
+
+}  // namespace flat::test
