@@ -57,6 +57,15 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
   auto soup = pipeline.decode(in);
   clock.lap(&StepTimes::decode_forward);
+  // Non-finite triangles (NaN latents, a diverged model): the rasterizer
+  // refuses them, and the step is skipped like a non-finite loss.
+  auto finite = at::isfinite(soup.vertices).all() & at::isfinite(soup.colors).all() &
+                at::isfinite(soup.opacities).all() & at::isfinite(soup.sigmas).all();
+  if (!finite.item<bool>()) {
+    r.finite = false;
+    r.loss = NAN;
+    return r;
+  }
 
   // Phase split: the rasterizer and losses see leaf copies of the triangles.
   std::vector<at::Tensor> decoded = {soup.vertices, soup.colors, soup.opacities, soup.sigmas};

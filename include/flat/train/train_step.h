@@ -30,7 +30,7 @@ struct StepTimes {
 };
 
 struct StepResult {
-  bool finite = true;  // false: the loss was NaN/Inf and no backward ran
+  bool finite = true;  // false: the triangles or the loss were NaN/Inf and no backward ran
   double loss = 0;
   std::map<std::string, double> terms;  // unweighted, averaged over the batch's scenes
   int64_t triangles = 0;                // rendered (after pruning), summed over scenes
