@@ -28,6 +28,14 @@ struct PhaseClock {
   }
 };
 
+// " name" for each tensor holding a NaN or Inf.
+std::string nonfinite_names(const std::vector<std::pair<const char*, at::Tensor>>& tensors) {
+  std::string out;
+  for (const auto& [name, t] : tensors)
+    if (!at::isfinite(t.detach()).all().item<bool>()) out += std::string(" ") + name;
+  return out;
+}
+
 }  // namespace
 
 AutocastScope::AutocastScope(bool enabled, at::DeviceType device) : enabled_(enabled), device_(device) {
@@ -64,6 +72,8 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   if (!finite.item<bool>()) {
     r.finite = false;
     r.loss = NAN;
+    r.nonfinite = "decoded triangles:" + nonfinite_names({{"vertices", soup.vertices}, {"colors", soup.colors},
+                                                          {"opacities", soup.opacities}, {"sigmas", soup.sigmas}});
     return r;
   }
 
@@ -106,6 +116,13 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   clock.lap(&StepTimes::loss_forward);
   if (!std::isfinite(r.loss)) {
     r.finite = false;
+    std::string terms, views;
+    for (const auto& [name, value] : r.terms)
+      if (name != "total" && !std::isfinite(value)) terms += " " + name;
+    for (const auto& v : rendered)
+      views += nonfinite_names({{"rgb", v.rgb}, {"alpha", v.alpha}, {"depth", v.depth}, {"normal", v.normal}});
+    r.nonfinite = "loss terms:" + (terms.empty() ? std::string(" (none)") : terms) +
+                  "; rendered:" + (views.empty() ? std::string(" all finite") : views);
     return r;
   }
 

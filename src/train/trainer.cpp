@@ -208,8 +208,8 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       ++state.skipped_steps;
       ++state.consecutive_skips;
       spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
-                   res.finite ? "gradient norm" : "loss", res.finite ? grad_norm : res.loss, state.consecutive_skips,
-                   state.skipped_steps);
+                   res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(grad_norm) : res.nonfinite,
+                   state.consecutive_skips, state.skipped_steps);
       if (state.consecutive_skips >= cfg.nan_guard.max_consecutive) {
         progress.abandon();
         fail("stopping: " + std::to_string(state.consecutive_skips) +

@@ -46,15 +46,21 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
   if (valid.any().item<bool>()) {
     lo = ref_depth.masked_select(valid).min().item<double>();
     hi = ref_depth.masked_select(valid).max().item<double>();
-  } else {
-    auto rd = views.depth.detach().cpu();
-    if (rd.gt(0).any().item<bool>()) lo = rd.masked_select(rd.gt(0)).min().item<double>(), hi = rd.max().item<double>();
   }
   auto ref_normals = batch.target_normals.defined() ? batch.target_normals[b].slice(0, 0, V).to(at::kFloat)
                                                     : at::zeros({V, 3, H, W});
+  // The disparity loss is scale- and shift-invariant, so a render's depth is
+  // shown over its own range (pixels with alpha > 0.5), not the reference's.
+  auto rd = views.depth.detach().slice(0, 0, V).cpu();
+  auto covered = views.alpha.detach().slice(0, 0, V).cpu().gt(0.5) & rd.gt(0);
+  double rlo = lo, rhi = hi;
+  if (covered.any().item<bool>()) {
+    rlo = rd.masked_select(covered).min().item<double>();
+    rhi = rd.masked_select(covered).max().item<double>();
+  }
   auto cols = {gt,
                rgb,
-               depth_image(views.depth.detach().slice(0, 0, V).cpu(), lo, hi),
+               depth_image(rd, rlo, rhi),
                depth_image(ref_depth, lo, hi),
                normal_image(views.normal.detach().slice(0, 0, V).cpu()),
                at::where(ref_normals.norm(2, 1, true) > 0.5, normal_image(ref_normals), at::zeros_like(ref_normals))};

@@ -34,6 +34,7 @@ struct StepResult {
   double loss = 0;
   std::map<std::string, double> terms;  // unweighted, averaged over the batch's scenes
   int64_t triangles = 0;                // rendered (after pruning), summed over scenes
+  std::string nonfinite;                // when !finite: what was NaN/Inf (for the log)
 };
 
 // RAII: bf16 autocast on one device type while alive (no-op when off).
