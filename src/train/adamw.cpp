@@ -40,7 +40,12 @@ void AdamW::step(double lr) {
     const auto& g = s.param.grad();
     if (!g.defined()) continue;
     ensure_state(s);
-    if (s.param.is_cuda() && s.param.scalar_type() == at::kFloat) {
+    // The fused kernel walks params, grads and moments as flat arrays: only
+    // when they share one dense layout.
+    const bool fusable = o.fused && s.param.is_cuda() && s.param.scalar_type() == at::kFloat &&
+                         g.scalar_type() == at::kFloat && s.param.is_non_overlapping_and_dense() &&
+                         g.strides() == s.param.strides() && s.exp_avg.strides() == s.param.strides();
+    if (fusable) {
       ps.push_back(s.param), gs.push_back(g), ms.push_back(s.exp_avg), vs.push_back(s.exp_avg_sq);
       ts.push_back(s.step);
       continue;

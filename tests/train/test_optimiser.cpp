@@ -111,3 +111,36 @@ TEST_CASE("learning-rate schedule: warm-up, then constant, cosine or linear deca
   CHECK(c.at(9) == Approx(3.0));
   REQUIRE_THROWS(c.at(-1));
 }
+
+TEST_CASE("AdamW on CUDA (fused and op by op) equals the CPU update", "[train][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(21);
+  // A conv weight (5-D), the same laid out channels-last, a bias, a scalar.
+  std::vector<at::Tensor> init = {at::randn({8, 4, 3, 3, 3}, gen), at::randn({8, 4, 3, 3, 3}, gen), at::randn({8}, gen),
+                                  at::randn({}, gen)};
+  for (bool fused : {true, false}) {
+    std::vector<std::pair<std::string, at::Tensor>> cpu, gpu;
+    for (size_t i = 0; i < init.size(); ++i) {
+      cpu.push_back({"p" + std::to_string(i), init[i].clone().requires_grad_(true)});
+      auto g = init[i].cuda();
+      if (i == 1) g = g.contiguous(at::MemoryFormat::ChannelsLast3d);
+      gpu.push_back({"p" + std::to_string(i), g.detach().requires_grad_(true)});
+    }
+    const AdamWOptions o{0.9, 0.999, 1e-8, 0.01, fused};
+    AdamW a(cpu, o), b(gpu, o);
+    for (int t = 0; t < 3; ++t) {
+      for (size_t i = 0; i < init.size(); ++i) {
+        auto grad = at::randn(init[i].sizes(), gen);
+        cpu[i].second.mutable_grad() = grad.clone();
+        gpu[i].second.mutable_grad() = i == 1 ? grad.cuda().contiguous(at::MemoryFormat::ChannelsLast3d) : grad.cuda();
+      }
+      a.step(1e-2);
+      b.step(1e-2);
+    }
+    for (size_t i = 0; i < init.size(); ++i) {
+      INFO("fused " << fused << ", parameter " << i);
+      CHECK(at::isfinite(gpu[i].second).all().item<bool>());
+      CHECK(flat::test::rel_error(gpu[i].second, cpu[i].second) < 1e-5);
+    }
+  }
+}

@@ -23,6 +23,7 @@ namespace flat::train {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
+  bool fused = true;  // CUDA: ATen's fused kernel; false: the op-by-op update everywhere
 };
 
 class AdamW {

@@ -47,6 +47,7 @@ struct OptimConfig {
   std::string schedule = "cosine";  // after warm-up: constant | cosine | linear (to min_lr_ratio * lr)
   double min_lr_ratio = 0.1;
   double grad_clip = 1.0;  // global L2 norm; 0 = off
+  bool fused = true;       // CUDA: ATen's fused AdamW kernel
 
   template <class V>
   void visit(V& v) {
@@ -60,6 +61,7 @@ struct OptimConfig {
     v.field("schedule", schedule, config::one_of({"constant", "cosine", "linear"}), "schedule after warm-up");
     v.field("min_lr_ratio", min_lr_ratio, config::range(0.0, 1.0), "final lr / peak lr (cosine, linear)");
     v.field("grad_clip", grad_clip, config::non_negative(), "clip the global gradient norm to this (0 = off)");
+    v.field("fused", fused, "CUDA: one fused AdamW kernel for all parameters (false: op by op)");
   }
 };
 
