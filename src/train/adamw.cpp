@@ -61,7 +61,9 @@ void AdamW::step(double lr) {
     s.param.addcdiv_(s.exp_avg, denom, -lr / bias1);
   }
   if (!ps.empty()) {
-    // The fused kernel increments the step tensors itself.
+    // The kernel reads the step counts as they are (PyTorch's fused AdamW
+    // increments them first, as here); a count of 0 would divide by 1 - b^0 = 0.
+    at::_foreach_add_(ts, 1);
     at::_fused_adamw_(ps, gs, ms, vs, /*max_exp_avg_sqs=*/{}, ts, lr, o.beta1, o.beta2, o.weight_decay, o.eps,
                       /*amsgrad=*/false, /*maximize=*/false);
   }
