@@ -66,13 +66,15 @@ if [ "$MODE" != "nobench" ] && [ -x "$BUILD/flat_train" ]; then
       >"$OUT/bench_train_stage$stage.log" 2>&1
     summary+=("bench train stage $stage rc=$?: $(grep -E 'as trained' "$OUT/bench_train_stage$stage.log" | tail -1) $(grep -E 'peak memory' "$OUT/bench_train_stage$stage.log" | tail -1)")
     tail -16 "$OUT/bench_train_stage$stage.log"
-    if [ -n "${GPU_TRAIN_RUN_STEPS:-}" ]; then
-      # A real flat_train run of the stage config (scratch weights, the bench's random LPIPS file).
-      "$BUILD/flat_train" --config configs/stage$stage.yaml --set run_dir="$D-run" --set steps=$GPU_TRAIN_RUN_STEPS \
+    # GPU_TRAIN_RUN_STEPS="200 200 60": a real flat_train run of stage i's config
+    # for the i-th count of steps (scratch weights, the bench's random LPIPS file).
+    run_steps=$(echo "${GPU_TRAIN_RUN_STEPS:-}" | awk -v i=$stage '{print $i}')
+    if [ -n "$run_steps" ]; then
+      "$BUILD/flat_train" --config configs/stage$stage.yaml --set run_dir="$D-run" --set steps=$run_steps \
         --set init.from=scratch --set "init.path=''" --set loss.lpips_weights=/tmp/flat_bench_random_lpips.safetensors \
-        --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set checkpoint.every=$GPU_TRAIN_RUN_STEPS \
-        --set log.progress_seconds=20 >"$OUT/train_stage$stage.log" 2>&1
-      summary+=("flat_train stage $stage, $GPU_TRAIN_RUN_STEPS steps rc=$?: $(grep -E 'done in' "$OUT/train_stage$stage.log" | tail -1 | sed 's/.*info\] //')")
+        --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set checkpoint.every=$run_steps \
+        --set optim.warmup_steps=0 --set log.progress_seconds=20 >"$OUT/train_stage$stage.log" 2>&1
+      summary+=("flat_train stage $stage, $run_steps steps rc=$?: $(grep -E 'done in' "$OUT/train_stage$stage.log" | tail -1 | sed 's/.*info\] //')")
       rm -rf "$D-run"
     fi
     rm -rf "$D"
