@@ -428,7 +428,11 @@ std::string Describer::emit(const YAML::Node& node) {
 
 std::string Describer::markdown() const {
   std::string md = "| key | default | meaning |\n|---|---|---|\n";
-  for (const auto& r : rows) md += "| `" + r.key + "` | `" + r.value + "` | " + r.help + " |\n";
+  auto cell = [](std::string t) {  // a '|' would end the table cell
+    for (size_t i = t.find('|'); i != std::string::npos; i = t.find('|', i + 2)) t.replace(i, 1, "\\|");
+    return t;
+  };
+  for (const auto& r : rows) md += "| `" + r.key + "` | `" + cell(r.value) + "` | " + cell(r.help) + " |\n";
   return md;
 }
 
