@@ -17,6 +17,7 @@
 
 #include "bench_registry.h"
 #include "flat/camera/cameras.h"
+#include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/model/camera_latents.h"
 #include "flat/model/conv3d_inference.h"
@@ -24,10 +25,6 @@
 #include "flat/model/scene_decoder.h"
 #include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
-
-#if FLAT_WITH_CUDA
-#include <c10/cuda/CUDACachingAllocator.h>
-#endif
 
 namespace flat::bench {
 namespace {
@@ -62,25 +59,9 @@ double now_ms() {
   return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
 }
 
-void reset_peak(const torch::Device& d) {
-#if FLAT_WITH_CUDA
-  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
-#else
-  (void)d;
-#endif
-}
+void reset_peak(const torch::Device& d) { reset_peak_memory(d); }
 
-double peak_gib(const torch::Device& d) {
-#if FLAT_WITH_CUDA
-  if (d.is_cuda()) {
-    auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(d.index() < 0 ? 0 : d.index());
-    return double(stats.allocated_bytes[size_t(c10::CachingAllocator::StatType::AGGREGATE)].peak) / double(1ull << 30);
-  }
-#else
-  (void)d;
-#endif
-  return 0.0;
-}
+double peak_gib(const torch::Device& d) { return peak_memory_gib(d); }
 
 camera::Cameras orbit(int64_t n) {
   camera::Cameras cams;

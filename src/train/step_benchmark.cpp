@@ -6,10 +6,8 @@
 
 #include <spdlog/spdlog.h>
 #include <torch/torch.h>
-#if FLAT_WITH_CUDA
-#include <c10/cuda/CUDACachingAllocator.h>
-#endif
 
+#include "flat/core/device_memory.h"
 #include "flat/core/tensor_io.h"
 #include "flat/loss/lpips.h"
 #include "flat/model/weights.h"
@@ -33,26 +31,6 @@ double median(std::vector<double> v) {
 
 void sync(const at::Device& d) {
   if (d.is_cuda()) torch::cuda::synchronize();
-}
-
-void reset_peak(const at::Device& d) {
-#if FLAT_WITH_CUDA
-  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
-#else
-  (void)d;
-#endif
-}
-
-double peak_gib(const at::Device& d) {
-#if FLAT_WITH_CUDA
-  if (d.is_cuda()) {
-    auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(d.index() < 0 ? 0 : d.index());
-    return double(stats.allocated_bytes[size_t(c10::CachingAllocator::StatType::AGGREGATE)].peak) / double(1ull << 30);
-  }
-#else
-  (void)d;
-#endif
-  return 0;
 }
 
 std::string row(const char* name, double ms, double step_ms) {
@@ -103,7 +81,7 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
   StepBenchmark r;
   r.parameters_m = double(model::count_parameters(*session.decoder)) / 1e6;
   std::vector<double> data, dec_f, ren_f, loss_f, rl_b, dec_b, opt, whole, unsynced;
-  reset_peak(session.device);
+  reset_peak_memory(session.device);
   for (int64_t i = 0; i < warmup + steps; ++i) {
     auto t0 = Clock::now();
     data::Batch batch = loader.next();
@@ -130,7 +108,7 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
     sync(session.device);
     unsynced.push_back(ms_since(t0));
   }
-  r.peak_gib = peak_gib(session.device);
+  r.peak_gib = peak_memory_gib(session.device);
   if (cfg.loss.lambda_perc > 0) {
     // LPIPS alone on images of the step's size and view count.
     const auto& d = cfg.data;
