@@ -254,3 +254,31 @@ TEST_CASE("loader reads packed scenes and precomputed latents", "[data][loader]"
   c.width = 16;
   REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("no usable scenes"));
 }
+
+TEST_CASE("loader: a start batch resumes the stream; ranks split it without overlap", "[data][loader]") {
+  auto root = make_dataset("loader_ranks", 3);
+  auto c = tiny_config(root);
+  c.batch_size = 1;
+  // One process with batch 2 reads samples 2b, 2b+1 as its batch b ...
+  auto combined = c;
+  combined.batch_size = 2;
+  combined.workers = 0;
+  data::Loader whole(combined);
+  // ... rank r of 2 with batch 1 reads sample 2b + r.
+  data::Loader rank0(c, 0, 0, 2), rank1(c, 0, 1, 2);
+  for (int64_t b = 0; b < 3; ++b) {
+    auto w = whole.next(), r0 = rank0.next(), r1 = rank1.next();
+    CHECK(w.scenes[0] == r0.scenes[0]);
+    CHECK(w.scenes[1] == r1.scenes[0]);
+    CHECK(torch::equal(w.target_frames[0], r0.target_frames[0]));
+    CHECK(torch::equal(w.target_frames[1], r1.target_frames[0]));
+    CHECK(torch::equal(w.target_images[1], r1.target_images[0]));
+  }
+  // Starting at batch 2 gives what the third next() gave, with or without threads.
+  data::Loader from_start(c), resumed(c, 2);
+  from_start.next();
+  from_start.next();
+  CHECK(same(from_start.next(), resumed.next()));
+  CHECK(resumed.next_batch_index() == 3);
+  REQUIRE_THROWS_WITH(data::Loader(c, 0, 2, 2), FLAT_CONTAINS("rank 2 of world size 2"));
+}
