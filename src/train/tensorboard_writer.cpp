@@ -7,6 +7,8 @@
 #include <array>
 #include <cerrno>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 
@@ -110,12 +112,27 @@ std::string encode_scalar_event(double wall_time, int64_t step,
   return event;
 }
 
+std::string encode_session_start_event(double wall_time, int64_t step) {
+  std::string session_log;
+  put_key(session_log, 1, kVarint);  // SessionLog.status
+  put_varint(session_log, 1);        // START
+  std::string event = event_head(wall_time, step);
+  put_bytes(event, 7, session_log);  // Event.session_log (6 is the deprecated log_message)
+  return event;
+}
+
 TensorBoardWriter::TensorBoardWriter(const std::string& folder) {
   std::error_code ec;
   fs::create_directories(folder, ec);
   if (ec) fail("tensorboard: cannot create folder " + folder + ": " + ec.message());
-  const auto seconds = static_cast<long long>(now_seconds());
-  path_ = (fs::path(folder) / ("events.out.tfevents." + std::to_string(seconds) + "." + hostname() + "." +
+  // TensorBoard reads a folder's files in name order: seconds and microseconds,
+  // zero-padded, so that a resumed session's file comes after the earlier one
+  // even within the same second (its SessionLog START must be read last).
+  const double now = now_seconds();
+  char stamp[48];
+  std::snprintf(stamp, sizeof(stamp), "%010lld.%06lld", static_cast<long long>(now),
+                static_cast<long long>((now - std::floor(now)) * 1e6));
+  path_ = (fs::path(folder) / ("events.out.tfevents." + std::string(stamp) + "." + hostname() + "." +
                                std::to_string(::getpid())))
               .string();
   out_.open(path_, std::ios::binary | std::ios::app);
@@ -140,6 +157,10 @@ void TensorBoardWriter::add_scalars(const std::vector<std::pair<std::string, dou
   for (const auto& item : tagged) FLAT_CHECK(!item.first.empty(), "tensorboard: empty tag for " + path_);
   const double wall_time = wall_time_seconds < 0 ? now_seconds() : wall_time_seconds;
   write_record(encode_scalar_event(wall_time, step, tagged));
+}
+
+void TensorBoardWriter::add_session_start(int64_t step, double wall_time_seconds) {
+  write_record(encode_session_start_event(wall_time_seconds < 0 ? now_seconds() : wall_time_seconds, step));
 }
 
 void TensorBoardWriter::flush() {

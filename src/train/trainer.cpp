@@ -189,7 +189,6 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // ---- the loop ------------------------------------------------------------------
   StopSignals signals;
   Progress progress(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
-  int64_t last_checkpoint_step = mode == StartMode::resume ? state.step : -1;
   while (state.step < cfg.steps) {
     const int64_t step = state.step;
     const auto t0 = std::chrono::steady_clock::now();
@@ -235,10 +234,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
 
     const bool last = state.step == cfg.steps;
     const int stop = g_stop_signal.load();
-    if (state.step % cfg.checkpoint.every == 0 || last || stop) {
-      write_checkpoint();
-      last_checkpoint_step = state.step;
-    }
+    if (state.step % cfg.checkpoint.every == 0 || last || stop) write_checkpoint();
     if (stop) {
       progress.abandon();
       spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
@@ -250,7 +246,6 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     }
     if (state.step % cfg.validation.every == 0 || last) run_validation(state.step);
   }
-  (void)last_checkpoint_step;
   progress.finish();
 
   // ---- the end -------------------------------------------------------------------

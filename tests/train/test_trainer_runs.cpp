@@ -77,6 +77,33 @@ int train(const std::vector<std::string>& args, const std::string& log, const st
   return run(argv, log, env);
 }
 
+// A python3 with the tensorboard package ($FLAT_PYTHON, else the venv that
+// scripts/install_deps.sh makes), or "" when there is none.
+std::string tensorboard_python() {
+  static std::string py = [] {
+    const char* env = std::getenv("FLAT_PYTHON");
+    const char* home = std::getenv("HOME");
+    const std::string candidate = env ? env : std::string(home ? home : "") + "/.cache/flat/venv/bin/python3";
+    if (!fs::exists(candidate)) return std::string();
+    const std::string log = fresh_dir("tb_probe").string() + "/probe.txt";
+    return run({candidate, "-c", "import tensorboard"}, log) == 0 ? candidate : std::string();
+  }();
+  return py;
+}
+
+// scripts/check_tensorboard.py on a run folder: 0 when the event files equal
+// metrics/train.jsonl; skips (returns 0 with a warning) without tensorboard.
+int check_tensorboard(const std::string& run_dir, const std::string& log) {
+  const std::string py = tensorboard_python();
+  if (py.empty()) {
+    WARN("the tensorboard Python package is not installed: event files not checked");
+    return 0;
+  }
+  return run({py, std::string(FLAT_SOURCE_DIR) + "/scripts/check_tensorboard.py", run_dir + "/tensorboard",
+              run_dir + "/metrics/train.jsonl"},
+             log);
+}
+
 // The uninterrupted 8-step run every resume is compared with.
 const std::string& reference_run() {
   static std::string run_dir = [] {
@@ -110,6 +137,7 @@ TEST_CASE("flat_train: a tiny run lowers its loss and writes a complete run fold
   for (const auto& e : fs::directory_iterator(d + "/run/tensorboard"))
     tensorboard = tensorboard || e.path().filename().string().rfind("events.out.tfevents.", 0) == 0;
   CHECK(tensorboard);
+  CHECK(check_tensorboard(d + "/run", d + "/tb_check.txt") == 0);
   const std::string log = read_file(d + "/log.txt");
   CHECK(log.find("held-out PSNR") != std::string::npos);
   CHECK(log.find("ETA") != std::string::npos);
@@ -154,6 +182,10 @@ TEST_CASE("flat_train: killed with SIGKILL anywhere, --resume continues bit for 
       INFO(read_file(d + "/log2.txt"));
       REQUIRE(rc == 0);
       CHECK(losses(d + "/run") == reference);
+      // TensorBoard shows one run too: the earlier session's lost steps are dropped.
+      const int tb = check_tensorboard(d + "/run", d + "/tb_check.txt");
+      INFO(read_file(d + "/tb_check.txt"));
+      CHECK(tb == 0);
       for (const auto& e : fs::directory_iterator(d + "/run/checkpoints"))
         CHECK(e.path().filename().string().rfind(".incomplete-", 0) != 0);
     }

@@ -37,6 +37,10 @@ class TensorBoardWriter {
   // One Event holding several values (one step of a run's metrics); an empty list writes nothing.
   void add_scalars(const std::vector<std::pair<std::string, double>>& tagged, int64_t step,
                    double wall_time_seconds = -1);
+  // A SessionLog START event at `step`: TensorBoard then drops every value of
+  // this run folder at or after `step` that an earlier session wrote (a
+  // resumed run after a crash rewrites those steps).
+  void add_session_start(int64_t step, double wall_time_seconds = -1);
   void flush();
   const std::string& path() const { return path_; }
 
@@ -50,6 +54,8 @@ class TensorBoardWriter {
 // Exposed for tests.
 uint32_t crc32c(const uint8_t* data, size_t n);         // Castagnoli, reflected, init/xorout 0xFFFFFFFF
 uint32_t masked_crc32c(const uint8_t* data, size_t n);  // ((crc >> 15) | (crc << 17)) + 0xa282ead8
+// The serialized Event protobuf of a SessionLog START (field 7, status 1).
+std::string encode_session_start_event(double wall_time, int64_t step);
 // The serialized Event protobuf (no TFRecord frame) of one step's scalars.
 std::string encode_scalar_event(double wall_time, int64_t step,
                                 const std::vector<std::pair<std::string, double>>& values);
