@@ -91,11 +91,10 @@ TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::s
 
 TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode) {
   prepare_run_folder(cfg.run_dir, mode);
-  auto run = RunDir::create(cfg.run_dir);
-  setup_logging(cfg.log.level, run.logs() + "/train.log");
-  config::save_text(run.config_file(), config_yaml);
+  setup_logging(cfg.log.level);
   TrainSummary summary;
-  summary.run_dir = run.root;
+  summary.run_dir = cfg.run_dir;
+  const RunDir run{cfg.run_dir};  // paths only: created once everything below has loaded
 
   if (cfg.threads > 0) at::set_num_threads(int(cfg.threads));
   torch::manual_seed(uint64_t(cfg.seed));
@@ -131,10 +130,6 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   }
   summary.first_step = state.step;
 
-  const int64_t params = model::count_parameters(*decoder);
-  spdlog::info("flat_train: stage '{}', {} steps, run folder {}", cfg.stage, cfg.steps, run.root);
-  spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
-               cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
 
   // ---- data --------------------------------------------------------------------
   data::Loader loader(cfg.data, state.step);
@@ -150,6 +145,16 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   } else {
     spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
   }
+  // Everything that reads user files has succeeded: only now does a new run
+  // folder appear (a run that fails to start leaves nothing behind).
+  RunDir::create(run.root);
+  setup_logging(cfg.log.level, run.logs() + "/train.log");
+  config::save_text(run.config_file(), config_yaml);
+  const int64_t params = model::count_parameters(*decoder);
+  spdlog::info("flat_train: stage '{}', steps {} to {}, run folder {}{}", cfg.stage, state.step, cfg.steps, run.root,
+               summary.last_checkpoint.empty() ? "" : " (resumed from " + summary.last_checkpoint + ")");
+  spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
+               cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
   MetricsLog metrics(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
 
   auto run_validation = [&](int64_t step) {

@@ -279,6 +279,7 @@ TEST_CASE("flat_train: bad inputs end with a clear error and exit 1, nothing los
       CHECK(rc == 1);
       for (const auto& word : c.expect) CHECK(log.find(word) != std::string::npos);
       CHECK(log.find("Segmentation") == std::string::npos);
+      CHECK_FALSE(fs::exists(dir + "/run"));  // a run that cannot start leaves no run folder behind
     }
   }
   SECTION("a truncated checkpoint") {
