@@ -1,5 +1,8 @@
 #include "flat/train/checkpoint.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
@@ -40,9 +43,13 @@ int64_t step_of(const std::string& name) {
   return v;
 }
 
+// Makes the folder's entries (the files in it, a rename into it) durable;
+// best effort: a filesystem that cannot sync a folder is not an error.
 void fsync_dir(const std::string& dir) {
-  // Best effort: makes the rename itself durable on filesystems that need it.
-  if (FILE* f = std::fopen(dir.c_str(), "r")) std::fclose(f);
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
+  if (fd < 0) return;
+  ::fsync(fd);
+  ::close(fd);
 }
 
 void maybe_kill_for_test(int64_t step) {
