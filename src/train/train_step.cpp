@@ -109,8 +109,16 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
     li.intrinsics = batch.target_intrinsics[b].to(device, at::kFloat);
     auto result = objective(li);
     total = total.defined() ? total + result.total / double(B) : result.total / double(B);
-    for (const auto& [name, value] : result.terms)
-      r.terms[name] += value.to(at::kDouble).cpu().item<double>() / double(B);
+    // Every term of this scene in one device-to-host copy (one sync, not one per term).
+    std::vector<std::string> names;
+    std::vector<at::Tensor> values;
+    for (const auto& [name, value] : result.terms) {
+      names.push_back(name);
+      values.push_back(value.reshape({}).to(at::kDouble));
+    }
+    const auto host = at::stack(values).cpu();
+    const double* h = host.data_ptr<double>();
+    for (size_t i = 0; i < names.size(); ++i) r.terms[names[i]] += h[i] / double(B);
   }
   r.loss = r.terms["total"];
   clock.lap(&StepTimes::loss_forward);
