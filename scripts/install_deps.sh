@@ -20,7 +20,7 @@ WHEELS="$CACHE/wheels-torch-$TORCH_VERSION"
 
 APT_PACKAGES=(cmake ninja-build g++ clang libclang-rt-14-dev
   libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev libglm-dev catch2
-  libopenimageio-dev openimageio-tools libopencv-core-dev)
+  libopenimageio-dev openimageio-tools libopencv-core-dev python3-venv python3-pip)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
