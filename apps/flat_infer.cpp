@@ -1,0 +1,77 @@
+// flat_infer: decode precomputed latents into a triangle scene with a trained
+// decoder, then export and render it (src/infer/inference.h lists the outputs).
+//
+//   flat_infer --model runs/stage1 --scene data/val/room_000001 --out out/room1
+//   flat_infer --model model.safetensors --latents z.safetensors --cameras traj.json --out out/gen
+//
+// Exit codes: 0 done, 1 runtime error (message names the file, key or shape),
+// 2 usage error.
+#include <iostream>
+
+#include <CLI/CLI.hpp>
+
+#include "flat/core/error.h"
+#include "flat/core/log.h"
+#include "flat/core/shape.h"
+#include "flat/infer/inference.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"flat_infer: latents -> triangle scene (PLY, GLB), renders, videos and a browser viewer"};
+  app.get_formatter()->column_width(36);
+  flat::infer::InferOptions o;
+  std::string size, novel = "orbit";
+  bool full_sequence = false, no_ply = false, no_glb = false, no_renders = false, no_video = false, no_viewer = false;
+  app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors")->required();
+  app.add_option("--scene", o.input.scene_dir, "scene folder with precomputed latents (flat_latents)");
+  app.add_option("--window", o.input.window, "which latent window of --scene")->capture_default_str();
+  app.add_option("--latents", o.input.latents_file, "latent file: 'video' (16,T',h,w) [+ 'camera' (32,T',h,w)]");
+  app.add_option("--cameras", o.input.cameras_file, "the latents' trajectory: cameras JSON with 1+4(T'-1) cameras");
+  app.add_option("--vae", o.input.vae_weights, "Wan VAE weights, to encode camera latents the latent file lacks");
+  app.add_option("--out", o.out_dir, "output folder (must not exist unless --overwrite)")->required();
+  app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
+  app.add_option("--config", o.config, "pipeline config YAML instead of the one the model carries");
+  app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
+  app.add_option("--device", o.device, "auto | cpu | cuda")->capture_default_str();
+  app.add_option("--precision", o.precision, "auto (bf16 on cuda) | fp32 | bf16")->capture_default_str();
+  app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
+  app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
+  app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON")->capture_default_str();
+  app.add_option("--novel-frames", o.novel.frames, "views of an orbit/dolly preset")->capture_default_str();
+  app.add_option("--orbit-degrees", o.novel.degrees, "orbit: half the sweep")->capture_default_str();
+  app.add_option("--dolly-fraction", o.novel.fraction, "dolly: share of the look-at distance")->capture_default_str();
+  app.add_option("--size", size, "render size HxW (default: the input frames')");
+  app.add_option("--render-chunk", o.render_chunk, "views per rasterizer call")->capture_default_str();
+  app.add_option("--fps", o.fps, "video frame rate")->capture_default_str();
+  app.add_option("--three-js", o.three_js_dir, "three.js folder for the viewer (default: Debian's libjs-three)");
+  app.add_flag("--no-ply", no_ply, "skip scene.ply");
+  app.add_flag("--no-glb", no_glb, "skip scene.glb (and the viewer)");
+  app.add_flag("--no-renders", no_renders, "skip the per-view image files");
+  app.add_flag("--no-video", no_video, "skip the MP4 videos");
+  app.add_flag("--no-viewer", no_viewer, "skip the browser viewer");
+  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")->capture_default_str();
+  app.set_version_flag("--version", "flat_infer 0.1.0");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  try {
+    flat::setup_logging(o.log_level);
+    o.streaming = !full_sequence;
+    o.novel.preset = novel;
+    o.ply = !no_ply;
+    o.glb = !no_glb;
+    o.renders = !no_renders;
+    o.video = !no_video;
+    o.viewer = !no_viewer && !no_glb;
+    if (!size.empty() && !flat::parse_size(size, o.height, o.width)) {
+      std::cerr << "flat_infer: --size must be HxW (e.g. 176x320), got '" << size << "'\n";
+      return 2;
+    }
+    auto summary = flat::infer::run_inference(o);
+    std::cout << flat::infer::format_summary(summary);
+    return 0;
+  } catch (...) {
+    return flat::report_current_error();
+  }
+}

@@ -1,0 +1,50 @@
+// Tables of flat_eval's results: per-scene rows and per-dataset means as CSV,
+// JSON and a Markdown table laid out like the paper's Table 1 (Method | per
+// dataset PSNR, SSIM, LPIPS | geometry L1, cosine over all datasets). Every
+// table says how many scenes its means cover and how its metrics are defined.
+#pragma once
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "flat/eval/scene_evaluation.h"
+
+namespace flat::eval {
+
+struct EvalResults {
+  std::string name;      // the method's label in tables
+  std::string model;     // model file and step
+  std::string settings;  // EvalSettings::fingerprint()
+  std::string ssim = "skimage";
+  std::vector<SceneScore> scores;  // in evaluation order, failures included
+};
+
+struct Means {
+  std::string dataset;  // "" = all datasets
+  int64_t scenes = 0, failed = 0, normal_scenes = 0;
+  double psnr = NAN, ssim = NAN, lpips = NAN, normal_l1 = NAN, normal_cosine = NAN;
+};
+
+// Means over the scenes that were scored (failures counted, not averaged):
+// one per dataset in order of first appearance, then the overall one.
+std::vector<Means> dataset_means(const std::vector<SceneScore>& scores);
+
+// One scene's row as JSON and back (null = NaN); throws nlohmann's exceptions.
+nlohmann::json score_to_json(const SceneScore& score);
+SceneScore score_from_json(const nlohmann::json& row);
+
+std::string results_csv(const EvalResults& results);
+nlohmann::json results_json(const EvalResults& results);
+// Reads results.json back (for --compare); throws naming the file.
+EvalResults read_results_json(const std::string& path);
+
+// One row per run; datasets are the union over runs. Definitions follow the table.
+std::string table1_markdown(const std::vector<EvalResults>& runs);
+
+// The metric definitions printed under every table.
+std::string metric_definitions(const std::string& ssim_convention);
+
+}  // namespace flat::eval

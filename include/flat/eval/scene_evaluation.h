@@ -1,0 +1,58 @@
+// Scoring one scene as the paper's Table 1 does (Evaluation; "Novel View
+// Synthesis and Geometry Quality"): decode the scene's latent window, render
+// the evaluation views, and compare with the scene's frames:
+//   PSNR, SSIM, LPIPS per view (averaged over the scene's views);
+//   normal L1 and cosine against the scene's reference normals, only where
+//   the render's alpha > 0.5 and a reference normal exists, averaged over
+//   those pixels of all views.
+// Views: "scene" = every frame of the scene (seen and unseen by the window),
+// "window" = the window's own frames, "unseen" = the frames outside it; more
+// than max_views are subsampled evenly (the same frames every time).
+#pragma once
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <ATen/ATen.h>
+
+#include "flat/data/scene.h"
+#include "flat/eval/image_metrics.h"
+#include "flat/loss/lpips.h"
+#include "flat/pipeline/scene_pipeline.h"
+
+namespace flat::eval {
+
+struct EvalSettings {
+  std::string views = "scene";  // scene | window | unseen
+  int64_t max_views = 0;        // 0 = all
+  int64_t window = 0;           // which latent window decodes the scene
+  int64_t height = 0, width = 0;  // 0 = the latents' frame size
+  SsimConvention ssim = SsimConvention::skimage;
+  double normal_alpha = 0.5;    // normals scored where alpha > this
+  bool streaming = true;
+  bool bf16 = false;            // CUDA autocast while decoding and rendering
+  int64_t render_chunk = 8;
+  std::string fingerprint() const;  // what makes two runs' scores comparable
+};
+
+struct SceneScore {
+  std::string dataset, scene, dir;
+  bool ok = false;
+  std::string error;  // why it failed (ok = false)
+  int64_t views = 0, unseen_views = 0, triangles = 0;
+  double psnr = NAN, ssim = NAN, lpips = NAN;
+  double normal_l1 = NAN, normal_cosine = NAN;
+  int64_t normal_pixels = 0;
+  double seconds = 0;
+};
+
+// Frame indices of the evaluation views (throws when there are none).
+std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettings& settings);
+
+// lpips: an empty holder leaves LPIPS NaN. Throws flat::Error on a bad scene
+// (the caller records it as a failure).
+SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& settings,
+                          loss::Lpips lpips);
+
+}  // namespace flat::eval

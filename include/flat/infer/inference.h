@@ -1,0 +1,61 @@
+// flat_infer's job (paper: Pipeline Overview; appendix, Pipeline Flexibility):
+// a trained decoder turns one window of latents into a triangle scene, which
+// is pruned, exported and rendered:
+//
+//   <out>/scene.ply            triangle soup, our lossless layout (docs/formats.md)
+//   <out>/scene.glb            glTF 2.0 with vertex colours and alpha (when built with tinygltf)
+//   <out>/cameras/{input,novel}.json
+//   <out>/renders/{input,novel}/   RGB, depth, normals, alpha per view (trajectory_renders.h)
+//   <out>/videos/{input,novel}.mp4 rgb | depth | normals (when ffmpeg is on the PATH)
+//   <out>/viewer/index.html    offline three.js viewer of scene.glb (export/viewer.h)
+//   <out>/summary.json, <out>/infer.log
+//
+// The folder appears whole or not at all (core/staged_dir.h): a failure at
+// any point leaves an earlier output as it was. Missing optional tools
+// (ffmpeg, three.js, tinygltf) give a note in the log and summary, not an error.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "flat/camera/trajectory.h"
+#include "flat/infer/infer_input.h"
+
+namespace flat::infer {
+
+struct InferOptions {
+  std::string model;                   // run folder | checkpoint folder | model file
+  std::string config;                  // pipeline config YAML instead of the model's own ("" = the model's)
+  std::vector<std::string> overrides;  // pipeline keys: "raster.window=ts"
+  InputSpec input;
+  std::string out_dir;
+  bool overwrite = false;
+  std::string device = "auto";     // auto (cuda when present) | cpu | cuda
+  std::string precision = "auto";  // auto (bf16 on cuda, fp32 on cpu) | fp32 | bf16
+  bool streaming = true;           // bounded-memory decoding, one latent frame at a time
+  double prune_opacity = 0.05;     // triangles below this opacity are dropped before export and rendering
+  camera::TrajectorySpec novel;    // preset "none" = no novel renders; a file name = cameras JSON
+  int64_t height = 0, width = 0;   // render size (0 = the input frames')
+  int64_t render_chunk = 8;        // views per rasterizer call
+  bool ply = true, glb = true, renders = true, video = true, viewer = true;
+  double fps = 24;
+  std::string three_js_dir;        // "" = Debian's libjs-three
+  std::string log_level = "info";
+};
+
+struct InferSummary {
+  std::string out_dir;
+  int64_t triangles_decoded = 0, triangles_kept = 0;
+  int64_t input_views = 0, novel_views = 0;
+  double decode_seconds = 0, export_seconds = 0, render_seconds = 0, total_seconds = 0;
+  double decode_peak_gib = 0, render_peak_gib = 0;  // CUDA peak memory (0 on the CPU)
+  std::vector<std::string> outputs;                // what was written, relative to out_dir
+  std::vector<std::string> notes;                  // what was skipped and why
+};
+
+InferSummary run_inference(const InferOptions& options);
+
+// The one-screen summary printed at the end.
+std::string format_summary(const InferSummary& s);
+
+}  // namespace flat::infer

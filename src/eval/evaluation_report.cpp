@@ -1,0 +1,210 @@
+#include "flat/eval/evaluation_report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "flat/core/error.h"
+
+namespace flat::eval {
+
+namespace {
+
+double mean_of(const std::vector<double>& x) {
+  double s = 0;
+  for (double v : x) s += v;
+  return x.empty() ? NAN : s / double(x.size());
+}
+
+void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
+  std::vector<double> psnr, ssim, lpips, l1, cosine;
+  for (const auto* s : scores) {
+    if (!s->ok) {
+      ++m.failed;
+      continue;
+    }
+    ++m.scenes;
+    psnr.push_back(s->psnr);
+    ssim.push_back(s->ssim);
+    if (std::isfinite(s->lpips)) lpips.push_back(s->lpips);
+    if (s->normal_pixels > 0) {
+      l1.push_back(s->normal_l1);
+      cosine.push_back(s->normal_cosine);
+    }
+  }
+  m.psnr = mean_of(psnr);
+  m.ssim = mean_of(ssim);
+  m.lpips = mean_of(lpips);
+  m.normal_l1 = mean_of(l1);
+  m.normal_cosine = mean_of(cosine);
+  m.normal_scenes = int64_t(l1.size());
+}
+
+nlohmann::json number(double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr); }
+double number(const nlohmann::json& j) { return j.is_number() ? j.get<double>() : NAN; }
+
+std::string cell(double x, int decimals) { return std::isfinite(x) ? fmt::format("{:.{}f}", x, decimals) : "–"; }
+
+std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string q = "\"";
+  for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return q + "\"";
+}
+
+}  // namespace
+
+std::vector<Means> dataset_means(const std::vector<SceneScore>& scores) {
+  std::vector<std::string> order;
+  std::map<std::string, std::vector<const SceneScore*>> by;
+  std::vector<const SceneScore*> all;
+  for (const auto& s : scores) {
+    if (!by.count(s.dataset)) order.push_back(s.dataset);
+    by[s.dataset].push_back(&s);
+    all.push_back(&s);
+  }
+  std::vector<Means> out;
+  for (const auto& d : order) {
+    Means m;
+    m.dataset = d;
+    accumulate(m, by[d]);
+    out.push_back(m);
+  }
+  Means overall;
+  accumulate(overall, all);
+  out.push_back(overall);
+  return out;
+}
+
+std::string results_csv(const EvalResults& r) {
+  std::ostringstream os;
+  os << "dataset,scene,status,views,unseen_views,triangles,psnr,ssim,lpips,normal_l1,normal_cosine,normal_pixels,"
+        "seconds,error\n";
+  for (const auto& s : r.scores) {
+    auto num = [](double x) { return std::isfinite(x) ? fmt::format("{:.6g}", x) : std::string(); };
+    os << csv_field(s.dataset) << ',' << csv_field(s.scene) << ',' << (s.ok ? "ok" : "failed") << ',' << s.views
+       << ',' << s.unseen_views << ',' << s.triangles << ',' << num(s.psnr) << ',' << num(s.ssim) << ','
+       << num(s.lpips) << ',' << num(s.normal_l1) << ',' << num(s.normal_cosine) << ',' << s.normal_pixels << ','
+       << fmt::format("{:.3f}", s.seconds) << ',' << csv_field(s.error) << '\n';
+  }
+  return os.str();
+}
+
+nlohmann::json score_to_json(const SceneScore& s) {
+  return {{"dataset", s.dataset}, {"scene", s.scene}, {"dir", s.dir}, {"ok", s.ok}, {"error", s.error},
+          {"views", s.views}, {"unseen_views", s.unseen_views}, {"triangles", s.triangles},
+          {"psnr", number(s.psnr)}, {"ssim", number(s.ssim)}, {"lpips", number(s.lpips)},
+          {"normal_l1", number(s.normal_l1)}, {"normal_cosine", number(s.normal_cosine)},
+          {"normal_pixels", s.normal_pixels}, {"seconds", s.seconds}};
+}
+
+SceneScore score_from_json(const nlohmann::json& s) {
+  SceneScore x;
+  x.dataset = s.at("dataset").get<std::string>();
+  x.scene = s.at("scene").get<std::string>();
+  x.dir = s.value("dir", "");
+  x.ok = s.at("ok").get<bool>();
+  x.error = s.value("error", "");
+  x.views = s.at("views").get<int64_t>();
+  x.unseen_views = s.value("unseen_views", int64_t(0));
+  x.triangles = s.value("triangles", int64_t(0));
+  x.psnr = number(s.at("psnr"));
+  x.ssim = number(s.at("ssim"));
+  x.lpips = number(s.at("lpips"));
+  x.normal_l1 = number(s.at("normal_l1"));
+  x.normal_cosine = number(s.at("normal_cosine"));
+  x.normal_pixels = s.value("normal_pixels", int64_t(0));
+  x.seconds = s.value("seconds", 0.0);
+  return x;
+}
+
+nlohmann::json results_json(const EvalResults& r) {
+  nlohmann::json scenes = nlohmann::json::array();
+  for (const auto& s : r.scores) scenes.push_back(score_to_json(s));
+  nlohmann::json means = nlohmann::json::array();
+  for (const auto& m : dataset_means(r.scores)) {
+    means.push_back({{"dataset", m.dataset.empty() ? nlohmann::json(nullptr) : nlohmann::json(m.dataset)},
+                     {"scenes", m.scenes}, {"failed", m.failed}, {"normal_scenes", m.normal_scenes},
+                     {"psnr", number(m.psnr)}, {"ssim", number(m.ssim)}, {"lpips", number(m.lpips)},
+                     {"normal_l1", number(m.normal_l1)}, {"normal_cosine", number(m.normal_cosine)}});
+  }
+  return {{"format", "flat-eval-1"}, {"name", r.name},     {"model", r.model}, {"settings", r.settings},
+          {"ssim", r.ssim},          {"scenes", scenes},   {"means", means},
+          {"definitions", metric_definitions(r.ssim)}};
+}
+
+EvalResults read_results_json(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) fail(path + ": cannot open (expected a flat_eval output folder's results.json)");
+  EvalResults r;
+  try {
+    auto j = nlohmann::json::parse(in);
+    FLAT_CHECK(j.value("format", "") == "flat-eval-1", path + ": not a flat_eval results file");
+    r.name = j.at("name").get<std::string>();
+    r.model = j.at("model").get<std::string>();
+    r.settings = j.at("settings").get<std::string>();
+    r.ssim = j.at("ssim").get<std::string>();
+    for (const auto& s : j.at("scenes")) r.scores.push_back(score_from_json(s));
+  } catch (const nlohmann::json::exception& e) {
+    fail(path + ": malformed results file (" + e.what() + ")");
+  }
+  return r;
+}
+
+std::string metric_definitions(const std::string& ssim_convention) {
+  std::string ssim = ssim_convention == "3dgs"
+                         ? "SSIM: the 3DGS repositories' ssim(): Gaussian 11x11, sigma 1.5, zero padding of 5 "
+                           "pixels, mean over every pixel (not scikit-image's values)."
+                         : "SSIM: scikit-image structural_similarity with Wang et al.'s settings: Gaussian 11x11, "
+                           "sigma 1.5, population covariance, statistics where the window fits (valid), mean.";
+  return "PSNR: 10 log10(1/MSE) per view over RGB in [0,1], mean over a scene's views, then over scenes.\n" + ssim +
+         "\nLPIPS: VGG, v0.1 (Zhang et al. 2018), per view; '–' without LPIPS weights.\n"
+         "Normals: rendered (alpha-normalised) vs reference camera-space normals where alpha > 0.5 and a "
+         "reference exists; L1 = mean |n - n_ref| over the 3 components, cosine = mean n . n_ref (unit vectors); "
+         "per scene over its pixels, then the mean over the scenes of all datasets that have normals.\n";
+}
+
+std::string table1_markdown(const std::vector<EvalResults>& runs) {
+  std::vector<std::string> datasets;
+  for (const auto& r : runs)
+    for (const auto& s : r.scores)
+      if (std::find(datasets.begin(), datasets.end(), s.dataset) == datasets.end()) datasets.push_back(s.dataset);
+  std::ostringstream os;
+  os << "| Method |";
+  for (const auto& d : datasets) os << ' ' << d << " PSNR ↑ | " << d << " SSIM ↑ | " << d << " LPIPS ↓ |";
+  os << " Geometry L1 ↓ | Geometry Cosine ↑ | Scenes |\n|---|";
+  for (size_t i = 0; i < datasets.size(); ++i) os << "---:|---:|---:|";
+  os << "---:|---:|---:|\n";
+  std::vector<std::string> conventions;
+  for (const auto& r : runs) {
+    auto means = dataset_means(r.scores);
+    os << "| " << r.name << " |";
+    for (const auto& d : datasets) {
+      const Means* m = nullptr;
+      for (const auto& x : means)
+        if (x.dataset == d && !(&x == &means.back())) m = &x;
+      if (!m) {
+        os << " | | |";
+        continue;
+      }
+      os << ' ' << cell(m->psnr, 2) << " | " << cell(m->ssim, 3) << " | " << cell(m->lpips, 3)
+         << " |";
+    }
+    const auto& all = means.back();
+    os << ' ' << cell(all.normal_l1, 3) << " | " << cell(all.normal_cosine, 3) << " | " << all.scenes
+       << '/' << (all.scenes + all.failed) << " |\n";
+    if (std::find(conventions.begin(), conventions.end(), r.ssim) == conventions.end()) conventions.push_back(r.ssim);
+  }
+  os << "\nScenes: scored / attempted; means cover the scored scenes only (failures are listed in each run's "
+        "results).\n";
+  if (conventions.size() > 1) os << "\n**Warning: these runs use different SSIM conventions; their SSIM columns do not compare.**\n";
+  for (const auto& c : conventions) os << "\n" << metric_definitions(c);
+  return os.str();
+}
+
+}  // namespace flat::eval

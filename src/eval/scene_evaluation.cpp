@@ -1,0 +1,133 @@
+#include "flat/eval/scene_evaluation.h"
+
+#include <chrono>
+
+#include <torch/torch.h>
+
+#include "flat/core/autocast_scope.h"
+#include "flat/core/error.h"
+#include "flat/data/frame_resize.h"
+#include "flat/data/scene_frames.h"
+#include "flat/data/scene_latents.h"
+#include "flat/eval/normal_metrics.h"
+
+namespace flat::eval {
+
+std::string EvalSettings::fingerprint() const {
+  return "views=" + views + " max_views=" + std::to_string(max_views) + " window=" + std::to_string(window) +
+         " size=" + std::to_string(height) + "x" + std::to_string(width) + " ssim=" + ssim_convention_name(ssim) +
+         " normal_alpha=" + std::to_string(normal_alpha);
+}
+
+std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettings& s) {
+  FLAT_CHECK(s.views == "scene" || s.views == "window" || s.views == "unseen",
+             "views: expected scene, window or unseen, got '" + s.views + "'");
+  FLAT_CHECK(scene.latents.present(), scene.json_path() + ": the scene has no precomputed latents (run flat_latents)");
+  FLAT_CHECK(s.window >= 0 && s.window < int64_t(scene.latents.windows.size()),
+             scene.json_path() + ": latent window " + std::to_string(s.window) + " does not exist (the scene has " +
+                 std::to_string(scene.latents.windows.size()) + ")");
+  const auto& w = scene.latents.windows[size_t(s.window)];
+  std::vector<int64_t> frames;
+  for (int64_t f = 0; f < scene.size(); ++f) {
+    const bool inside = f >= w.start && f < w.start + w.count;
+    if (s.views == "scene" || (s.views == "window" && inside) || (s.views == "unseen" && !inside)) frames.push_back(f);
+  }
+  FLAT_CHECK(!frames.empty(), scene.json_path() + ": no '" + s.views + "' views to evaluate (" +
+                                  std::to_string(scene.size()) + " frames, window " + std::to_string(w.start) + "+" +
+                                  std::to_string(w.count) + ")");
+  if (s.max_views > 0 && int64_t(frames.size()) > s.max_views) {
+    std::vector<int64_t> picked;
+    const double step = double(frames.size() - 1) / double(std::max<int64_t>(1, s.max_views - 1));
+    for (int64_t i = 0; i < s.max_views; ++i) picked.push_back(frames[size_t(std::llround(i * step))]);
+    frames = picked;
+  }
+  return frames;
+}
+
+SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& s,
+                          loss::Lpips lpips) {
+  const auto t0 = std::chrono::steady_clock::now();
+  torch::NoGradGuard no_grad;
+  SceneScore r;
+  r.scene = scene.name;
+  r.dir = scene.dir;
+  const auto frames = evaluation_views(scene, s);
+  const auto& win = scene.latents.windows[size_t(s.window)];
+  const int64_t H = s.height > 0 ? s.height : scene.latents.height, W = s.width > 0 ? s.width : scene.latents.width;
+  const auto device = pipeline.decoder()->conv2->weight.device();
+
+  // Decode the window.
+  auto latents = data::read_window_latents(scene, size_t(s.window));
+  std::vector<int64_t> window_frames;
+  for (int64_t i = 0; i < win.count; ++i) window_frames.push_back(win.start + i);
+  const auto input_cams = scene.cameras(window_frames);
+  pipeline::SceneInput in;
+  in.video_latents = latents.video.unsqueeze(0).to(at::kFloat);
+  if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
+  in.input_intrinsics = input_cams.intrinsics.unsqueeze(0);
+  in.input_c2w = input_cams.c2w.unsqueeze(0);
+  primitives::TriangleSoup tri;
+  {
+    AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
+    auto t = pipeline.decode(in, s.streaming).scene(0);
+    tri = {t.vertices.to(at::kFloat), t.colors.to(at::kFloat), t.opacities.to(at::kFloat), t.sigmas.to(at::kFloat)};
+  }
+  FLAT_CHECK(at::isfinite(tri.vertices).all().item<bool>(),
+             scene.json_path() + ": the decoded triangles hold NaN or infinite vertices");
+  r.triangles = pipeline::prune(tri, pipeline.config().prune_opacity).vertices.size(0);
+
+  // Render and score the views, a chunk at a time.
+  std::vector<double> psnr, ssim, lp;
+  double l1_sum = 0, cos_sum = 0;
+  for (size_t c0 = 0; c0 < frames.size(); c0 += size_t(s.render_chunk)) {
+    const std::vector<int64_t> part(frames.begin() + long(c0),
+                                    frames.begin() + long(std::min(frames.size(), c0 + size_t(s.render_chunk))));
+    auto gt = data::load_frames(scene, part, false, scene.has_normals);
+    auto intr = data::fit_frames(gt, scene.cameras(part).intrinsics, H, W);
+    camera::Cameras cams{intr.to(device), scene.cameras(part).c2w.to(device)};
+    pipeline::RenderedViews v;
+    {
+      AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
+      v = pipeline.render(tri, cams, H, W);
+    }
+    auto rgb = v.rgb.to(at::kCPU, at::kFloat).clamp(0, 1);
+    auto target = gt.images.to(at::kFloat);
+    auto p = eval::psnr(rgb, target), q = eval::ssim(rgb, target, s.ssim);
+    for (int64_t k = 0; k < rgb.size(0); ++k) {
+      psnr.push_back(p[k].item<double>());
+      ssim.push_back(q[k].item<double>());
+    }
+    if (!lpips.is_empty()) {
+      auto d = eval::lpips(lpips, v.rgb.to(at::kFloat).clamp(0, 1), target.to(device));
+      for (int64_t k = 0; k < d.size(0); ++k) lp.push_back(d[k].item<double>());
+    }
+    if (gt.normals.defined()) {
+      auto mask = v.alpha.to(at::kCPU, at::kFloat) > s.normal_alpha;
+      auto acc = normal_accuracy(v.normal.to(at::kCPU, at::kFloat), gt.normals, mask);
+      if (acc.valid_pixels > 0) {
+        l1_sum += acc.mean_l1 * double(acc.valid_pixels);
+        cos_sum += acc.mean_cosine * double(acc.valid_pixels);
+        r.normal_pixels += acc.valid_pixels;
+      }
+    }
+  }
+  auto mean = [](const std::vector<double>& x) {
+    double m = 0;
+    for (double v : x) m += v;
+    return x.empty() ? NAN : m / double(x.size());
+  };
+  r.views = int64_t(frames.size());
+  for (auto f : frames) r.unseen_views += (f < win.start || f >= win.start + win.count) ? 1 : 0;
+  r.psnr = mean(psnr);
+  r.ssim = mean(ssim);
+  r.lpips = mean(lp);
+  if (r.normal_pixels > 0) {
+    r.normal_l1 = l1_sum / double(r.normal_pixels);
+    r.normal_cosine = cos_sum / double(r.normal_pixels);
+  }
+  r.ok = true;
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+}  // namespace flat::eval

@@ -1,0 +1,85 @@
+#include "flat/infer/trajectory_renders.h"
+
+#include <chrono>
+
+#include <torch/torch.h>
+
+#include "flat/core/error.h"
+#include "flat/core/image_io.h"
+#include "flat/core/progress.h"
+#include "flat/core/tensor_io.h"
+#include "flat/data/scene.h"
+
+namespace flat::infer {
+
+std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& camera) {
+  if (!scene.vertices.defined() || scene.vertices.size(0) == 0) return {0.1, 10.0};
+  auto centroids = scene.vertices.detach().mean(1).to(at::kCPU, at::kFloat);  // (N,3)
+  auto w2c = camera::world_to_camera(camera.c2w[0].unsqueeze(0).to(at::kFloat))[0];
+  auto z = centroids.matmul(w2c.slice(0, 2, 3).slice(1, 0, 3).t()).squeeze(1) + w2c[2][3];
+  z = z.masked_select(z > 1e-3);
+  if (z.numel() < 2) return {0.1, 10.0};
+  auto q = at::quantile(z, at::tensor({0.02f, 0.98f}));
+  const double lo = q[0].item<double>(), hi = q[1].item<double>();
+  return hi > lo ? std::make_pair(lo, hi) : std::make_pair(lo, lo + 1.0);
+}
+
+namespace {
+
+at::Tensor depth_grey(const at::Tensor& depth, double lo, double hi) {  // (K,1,H,W) -> (K,3,H,W)
+  auto d = ((hi - depth) / (hi - lo)).clamp(0.05, 1.0);
+  d = at::where(depth > 0, d, at::zeros_like(d));
+  return d.expand({-1, 3, -1, -1});
+}
+
+}  // namespace
+
+TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const primitives::TriangleSoup& scene,
+                                    const camera::Cameras& cams, int64_t height, int64_t width,
+                                    const std::string& folder, int64_t chunk, bool keep_video_frames,
+                                    std::pair<double, double> depth_range, const std::string& progress_label) {
+  FLAT_CHECK(chunk > 0, "render: chunk must be positive");
+  torch::NoGradGuard no_grad;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto device = scene.vertices.device();
+  TrajectoryRenders out;
+  out.views = cams.size();
+  std::vector<at::Tensor> frames;
+  double alpha_sum = 0;
+  Progress progress(progress_label, out.views);
+  for (int64_t v0 = 0; v0 < out.views; v0 += chunk) {
+    const int64_t v1 = std::min(out.views, v0 + chunk);
+    camera::Cameras part{cams.intrinsics.slice(0, v0, v1).to(device), cams.c2w.slice(0, v0, v1).to(device)};
+    auto r = pipeline.render(scene, part, height, width);
+    auto rgb = r.rgb.to(at::kCPU, at::kFloat).clamp(0, 1);
+    auto alpha = r.alpha.to(at::kCPU, at::kFloat);
+    auto depth = r.depth.to(at::kCPU, at::kFloat);
+    auto normal = r.normal.to(at::kCPU, at::kFloat);
+    alpha_sum += alpha.sum().item<double>();
+    auto grey = depth_grey(depth, depth_range.first, depth_range.second);
+    auto nvis = at::where(normal.norm(2, 1, true) > 0.5, (normal * 0.5 + 0.5).clamp(0, 1), at::zeros_like(normal));
+    for (int64_t k = 0; k < v1 - v0 && !folder.empty(); ++k) {
+      const std::string stem = data::frame_stem(v0 + k);
+      if (image_io_available()) {
+        write_image(folder + "/rgb/" + stem + ".png", rgb[k]);
+        write_image(folder + "/depth/" + stem + ".png", grey[k], /*png16=*/true);
+        write_image(folder + "/normal/" + stem + ".png", nvis[k]);
+        write_image(folder + "/alpha/" + stem + ".png", alpha[k]);
+      } else {
+        save_safetensors(folder + "/" + stem + ".safetensors",
+                         {{"rgb", rgb[k]}, {"alpha", alpha[k]}, {"depth", depth[k]}, {"normal", normal[k]}},
+                         {{"layout", "(C,H,W) float32; depth metric, alpha-normalised; normal camera space"}});
+      }
+    }
+    if (keep_video_frames)
+      frames.push_back(at::cat({rgb, grey, nvis}, 3).mul(255).round().to(at::kByte));
+    progress.step(v1 - v0);
+  }
+  progress.finish();
+  out.mean_alpha = alpha_sum / double(std::max<int64_t>(1, out.views * height * width));
+  if (keep_video_frames && !frames.empty()) out.video_frames = at::cat(frames, 0);
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
+}  // namespace flat::infer

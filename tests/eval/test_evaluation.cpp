@@ -1,0 +1,199 @@
+// flat_eval: the 3DGS SSIM convention, view selection, means and tables, and
+// a whole resumable run over synthetic scenes with a failing one.
+#include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "flat/eval/evaluation_report.h"
+#include "flat/eval/evaluation_run.h"
+#include "flat/eval/image_metrics.h"
+#include "model_fixtures.h"
+#include "test_support.h"
+
+namespace fs = std::filesystem;
+using namespace flat;
+
+namespace {
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+eval::SceneScore score(const std::string& dataset, const std::string& scene, double psnr, double cosine,
+                       bool ok = true) {
+  eval::SceneScore s;
+  s.dataset = dataset;
+  s.scene = scene;
+  s.ok = ok;
+  s.views = 4;
+  if (!ok) {
+    s.error = "broken";
+    return s;
+  }
+  s.psnr = psnr;
+  s.ssim = 0.5;
+  if (std::isfinite(cosine)) {
+    s.normal_cosine = cosine;
+    s.normal_l1 = 1 - cosine;
+    s.normal_pixels = 10;
+  }
+  return s;
+}
+
+}  // namespace
+
+// Reference: the 3DGS repositories' formula re-computed in float64 with
+// PyTorch (2D Gaussian window 11, sigma 1.5, conv2d padding 5, groups = C,
+// C1 = 0.01^2, C2 = 0.03^2, mean over C,H,W) on the patterns of test_metrics.cpp.
+TEST_CASE("SSIM, 3DGS convention: zero padding and whole-image mean", "[eval]") {
+  const int64_t V = 2, C = 3, H = 24, W = 32;
+  auto x = at::arange(W, at::kDouble).view({1, 1, 1, W});
+  auto y = at::arange(H, at::kDouble).view({1, 1, H, 1});
+  auto c = at::arange(C, at::kDouble).view({1, C, 1, 1});
+  auto v = at::arange(V, at::kDouble).view({V, 1, 1, 1});
+  auto a = (0.5 + 0.4 * at::sin(0.37 * x + 0.23 * y + 1.1 * c + 0.5 * v)).expand({V, C, H, W}).contiguous();
+  auto b = (0.5 + 0.3 * at::cos(0.21 * x - 0.29 * y + 0.7 * c) + 0.15 * at::sin(0.05 * x * y + c + v))
+               .expand({V, C, H, W}).contiguous();
+  auto b2 = (a + 0.1 * at::sin(1.7 * x) * at::cos(2.3 * y)).contiguous();
+  auto s = eval::ssim(a, b, eval::SsimConvention::gaussian_zero_pad);
+  CHECK(s[0].item<double>() == Approx(0.20100655385009436).epsilon(1e-9));
+  CHECK(s[1].item<double>() == Approx(0.22151802930850387).epsilon(1e-9));
+  auto s2 = eval::ssim(a, b2, eval::SsimConvention::gaussian_zero_pad);
+  CHECK(s2[0].item<double>() == Approx(0.9563204876750093).epsilon(1e-10));
+  CHECK(s2[1].item<double>() == Approx(0.9560512101501669).epsilon(1e-10));
+  // The conventions differ on the same images (why tables must say which).
+  CHECK(std::abs(eval::ssim(a, b, eval::SsimConvention::skimage)[0].item<double>() - s[0].item<double>()) > 0.05);
+  CHECK(eval::parse_ssim_convention("3dgs") == eval::SsimConvention::gaussian_zero_pad);
+  REQUIRE_THROWS_WITH(eval::parse_ssim_convention("ms-ssim"), FLAT_CONTAINS("ms-ssim"));
+}
+
+TEST_CASE("evaluation views: scene, window and unseen frames, evenly subsampled", "[eval]") {
+  data::Scene scene;
+  scene.dir = "/x/room";
+  scene.frames.resize(20);
+  scene.latents.file = "latents.safetensors";
+  scene.latents.windows = {{4, 9}};
+  eval::EvalSettings s;
+  CHECK(eval::evaluation_views(scene, s).size() == 20);
+  s.views = "window";
+  auto w = eval::evaluation_views(scene, s);
+  CHECK(w == std::vector<int64_t>{4, 5, 6, 7, 8, 9, 10, 11, 12});
+  s.views = "unseen";
+  auto u = eval::evaluation_views(scene, s);
+  CHECK(u.size() == 11);
+  CHECK(u.front() == 0);
+  CHECK(u.back() == 19);
+  s.views = "scene";
+  s.max_views = 5;
+  CHECK(eval::evaluation_views(scene, s) == std::vector<int64_t>{0, 5, 10, 14, 19});
+  s.window = 3;
+  REQUIRE_THROWS_WITH(eval::evaluation_views(scene, s), FLAT_CONTAINS("window 3"));
+}
+
+TEST_CASE("means per dataset skip failures and scenes without normals; the table says how many", "[eval]") {
+  eval::EvalResults r;
+  r.name = "ours";
+  r.scores = {score("RE10K", "a", 20, 0.8), score("RE10K", "b", 22, NAN), score("RE10K", "c", 0, 0, false),
+              score("DL3DV", "d", 18, 0.6)};
+  auto m = eval::dataset_means(r.scores);
+  REQUIRE(m.size() == 3);
+  CHECK(m[0].dataset == "RE10K");
+  CHECK(m[0].scenes == 2);
+  CHECK(m[0].failed == 1);
+  CHECK(m[0].psnr == Approx(21.0));
+  CHECK(m[0].normal_cosine == Approx(0.8));  // only scene a has normals
+  CHECK(m[1].psnr == Approx(18.0));
+  CHECK(m[2].dataset.empty());
+  CHECK(m[2].normal_cosine == Approx(0.7));  // a and d
+  CHECK(std::isnan(m[2].lpips));
+  auto table = eval::table1_markdown({r});
+  CHECK(table.find("RE10K PSNR") < table.find("DL3DV PSNR"));
+  CHECK(table.find("| ours | 21.00 | 0.500 | – | 18.00 | 0.500 | – | 0.300 | 0.700 | 3/4 |") != std::string::npos);
+  CHECK(table.find("scikit-image") != std::string::npos);
+  auto csv = eval::results_csv(r);
+  CHECK(std::count(csv.begin(), csv.end(), '\n') == 5);
+  CHECK(csv.find("RE10K,c,failed") != std::string::npos);
+  // JSON round trip keeps NaN as null -> NaN.
+  auto back = eval::score_from_json(eval::score_to_json(r.scores[1]));
+  CHECK(std::isnan(back.normal_cosine));
+  CHECK(back.psnr == 22);
+}
+
+TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings guarded, --compare", "[eval]") {
+  const auto dir = test::scratch_dir("eval_run");
+  const std::string model = (dir / "model.safetensors").string();
+  test::write_tiny_model(model);
+  test::write_scene_with_latents((dir / "setA/room_a").string(), 1);
+  test::write_scene_with_latents((dir / "setA/room_b").string(), 2);
+  test::write_scene_with_latents((dir / "setB/room_c").string(), 3);
+  // A broken scene: its latents file is gone.
+  test::write_scene_with_latents((dir / "setB/room_broken").string(), 4);
+  fs::remove(dir / "setB/room_broken/latents.safetensors");
+
+  eval::EvalRunOptions o;
+  o.model = model;
+  o.datasets = {"A=" + (dir / "setA").string(), "B=" + (dir / "setB").string()};
+  o.out_dir = (dir / "out").string();
+  o.device = "cpu";
+  o.name = "tiny";
+  o.settings.max_views = 4;
+  o.log_level = "warn";
+  auto s = eval::run_evaluation(o);
+  CHECK(s.scenes == 4);
+  CHECK(s.scored == 3);
+  CHECK(s.failed == 1);
+  CHECK(s.reused == 0);
+  auto results = eval::read_results_json(o.out_dir + "/results.json");
+  REQUIRE(results.scores.size() == 4);
+  for (const auto& sc : results.scores) {
+    if (sc.scene == "room_broken") {
+      CHECK(!sc.ok);
+      CHECK(sc.error.find("latents.safetensors") != std::string::npos);
+    } else {
+      CHECK(sc.ok);
+      CHECK(sc.views == 4);
+      CHECK(std::isfinite(sc.psnr));
+      CHECK(sc.normal_pixels >= 0);
+    }
+  }
+  CHECK(s.table.find("3/4") != std::string::npos);
+  CHECK(fs::exists(fs::path(o.out_dir) / "scenes.csv"));
+  CHECK(fs::exists(fs::path(o.out_dir) / "table.md"));
+
+  // Resume: the scored scenes are reused (their files untouched), the failed one is tried again.
+  const std::string a_score = read_text(fs::path(o.out_dir) / "scores/A/room_a.json");
+  auto again = eval::run_evaluation(o);
+  CHECK(again.reused == 3);
+  CHECK(again.failed == 1);
+  CHECK(read_text(fs::path(o.out_dir) / "scores/A/room_a.json") == a_score);
+
+  // Other settings into the same folder: refused unless --redo.
+  auto other = o;
+  other.settings.max_views = 2;
+  REQUIRE_THROWS_WITH(eval::run_evaluation(other), FLAT_CONTAINS("--redo"));
+  other.redo = true;
+  other.out_dir = o.out_dir;
+  auto redone = eval::run_evaluation(other);
+  CHECK(redone.reused == 0);
+  CHECK(redone.scored == 3);
+
+  // --compare two runs side by side.
+  auto second = o;
+  second.out_dir = (dir / "out2").string();
+  second.name = "tiny-3dgs-ssim";
+  second.settings.ssim = eval::SsimConvention::gaussian_zero_pad;
+  eval::run_evaluation(second);
+  auto table = eval::compare_runs({o.out_dir, second.out_dir});
+  CHECK(table.find("| tiny |") != std::string::npos);
+  CHECK(table.find("| tiny-3dgs-ssim |") != std::string::npos);
+  CHECK(table.find("different SSIM conventions") != std::string::npos);
+
+  // A dataset path that does not exist fails before anything is written.
+  auto bad = o;
+  bad.datasets = {"C=" + (dir / "nowhere").string()};
+  bad.out_dir = (dir / "out_bad").string();
+  REQUIRE_THROWS_WITH(eval::run_evaluation(bad), FLAT_CONTAINS("nowhere"));
+  CHECK(!fs::exists(bad.out_dir));
+}

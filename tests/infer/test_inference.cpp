@@ -1,0 +1,242 @@
+// flat_infer's job end to end on a tiny random-weight decoder and a synthetic
+// scene: what it writes, that streaming and full decoding agree, and that bad
+// inputs fail clearly without leaving anything half-written.
+#include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "flat/camera/camera_json.h"
+#include "flat/core/image_io.h"
+#include "flat/core/tensor_io.h"
+#include "flat/export/triangle_ply.h"
+#include "flat/infer/inference.h"
+#include "model_fixtures.h"
+#include "test_support.h"
+
+namespace fs = std::filesystem;
+using namespace flat;
+
+namespace {
+
+struct Setup {
+  fs::path dir;
+  std::string model, scene;
+};
+
+Setup setup(const std::string& name) {
+  Setup s;
+  s.dir = test::scratch_dir(name);
+  s.model = (s.dir / "model.safetensors").string();
+  test::write_tiny_model(s.model);
+  s.scene = (s.dir / "room").string();
+  test::write_scene_with_latents(s.scene, 3);
+  return s;
+}
+
+infer::InferOptions options(const Setup& s, const std::string& out) {
+  infer::InferOptions o;
+  o.model = s.model;
+  o.input.scene_dir = s.scene;
+  o.out_dir = (s.dir / out).string();
+  o.device = "cpu";
+  o.prune_opacity = 0.0;
+  o.novel.frames = 6;
+  o.video = false;   // tested in the export module; keeps this test independent of ffmpeg
+  o.viewer = false;
+  o.log_level = "warn";
+  return o;
+}
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+bool no_staging_left(const fs::path& dir) {
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.path().filename().string().find(".incomplete-") != std::string::npos) return false;
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("flat_infer decodes a scene window and writes PLY, cameras, renders and a summary", "[infer]") {
+  auto s = setup("infer_basic");
+  auto o = options(s, "out");
+  o.glb = false;
+  auto summary = infer::run_inference(o);
+  const fs::path out = o.out_dir;
+  // 9 frames of 48x80 -> one triangle per 2x2 block of every frame.
+  CHECK(summary.triangles_decoded == 9 * 24 * 40);
+  CHECK(summary.triangles_kept == summary.triangles_decoded);  // prune 0 keeps all
+  auto ply = exporter::read_triangle_ply((out / "scene.ply").string());
+  CHECK(ply.vertices.size(0) == summary.triangles_kept);
+  auto input = camera::read_cameras_json((out / "cameras/input.json").string());
+  CHECK(input.cameras.size() == 9);
+  CHECK(input.width == 80);
+  auto novel = camera::read_cameras_json((out / "cameras/novel.json").string());
+  CHECK(novel.cameras.size() == 6);
+  CHECK(summary.input_views == 9);
+  CHECK(summary.novel_views == 6);
+  if (image_io_available()) {
+    CHECK(fs::exists(out / "renders/input/rgb/000008.png"));
+    CHECK(fs::exists(out / "renders/novel/normal/000005.png"));
+    auto img = read_image((out / "renders/input/rgb/000000.png").string());
+    CHECK(img.size(1) == 48);
+    CHECK(img.size(2) == 80);
+  } else {
+    CHECK(fs::exists(out / "renders/input/000008.safetensors"));
+  }
+  auto j = nlohmann::json::parse(read_text(out / "summary.json"));
+  CHECK(j.at("triangles_kept").get<int64_t>() == summary.triangles_kept);
+  CHECK(fs::exists(out / "infer.log"));
+  CHECK(no_staging_left(s.dir));
+}
+
+TEST_CASE("flat_infer: pruning keeps exactly the triangles at or above the threshold", "[infer]") {
+  auto s = setup("infer_prune");
+  auto o = options(s, "all");
+  o.renders = false;
+  o.novel.preset = "none";
+  o.glb = false;
+  infer::run_inference(o);
+  auto all = exporter::read_triangle_ply(o.out_dir + "/scene.ply");
+  const double threshold = all.opacities.median().item<double>();
+  auto o2 = options(s, "pruned");
+  o2.renders = false;
+  o2.novel.preset = "none";
+  o2.glb = false;
+  o2.prune_opacity = threshold;
+  auto summary = infer::run_inference(o2);
+  auto kept = exporter::read_triangle_ply(o2.out_dir + "/scene.ply");
+  CHECK(kept.vertices.size(0) == (all.opacities >= float(threshold)).sum().item<int64_t>());
+  CHECK(summary.triangles_kept < summary.triangles_decoded);
+  CHECK(kept.opacities.min().item<double>() >= float(threshold));
+}
+
+TEST_CASE("flat_infer: streaming and full-sequence decoding export the same triangles", "[infer]") {
+  auto s = setup("infer_streaming");
+  auto a = options(s, "streaming");
+  a.renders = false;
+  a.glb = false;
+  a.novel.preset = "none";
+  auto b = a;
+  b.out_dir = (s.dir / "full").string();
+  b.streaming = false;
+  infer::run_inference(a);
+  infer::run_inference(b);
+  auto ta = exporter::read_triangle_ply(a.out_dir + "/scene.ply");
+  auto tb = exporter::read_triangle_ply(b.out_dir + "/scene.ply");
+  REQUIRE(ta.vertices.sizes() == tb.vertices.sizes());
+  CHECK(test::rel_error(ta.vertices, tb.vertices) < 1e-5);
+  CHECK(test::rel_error(ta.colors, tb.colors) < 1e-5);
+}
+
+TEST_CASE("flat_infer: a latent file with a trajectory, and latents that do not match it", "[infer]") {
+  auto s = setup("infer_files");
+  // 3 latent frames -> 9 frames; the scene's 9 first cameras are the trajectory.
+  auto scene = data::read_scene(s.scene);
+  auto w = data::read_window_latents(scene, 0);
+  const std::string latents = (s.dir / "z.safetensors").string();
+  save_safetensors(latents, {{"video", w.video}, {"camera", w.camera}});
+  std::vector<int64_t> first9{0, 1, 2, 3, 4, 5, 6, 7, 8};
+  const std::string cams = (s.dir / "traj.json").string();
+  camera::write_cameras_json(cams, {scene.cameras(first9), 80, 48});
+  auto o = options(s, "from_files");
+  o.input = {};
+  o.input.latents_file = latents;
+  o.input.cameras_file = cams;
+  o.renders = false;
+  o.glb = false;
+  auto summary = infer::run_inference(o);
+  CHECK(summary.triangles_decoded == 9 * 24 * 40);
+
+  // 8 cameras for 9 frames: refused, naming both files and the counts.
+  std::vector<int64_t> first8{0, 1, 2, 3, 4, 5, 6, 7};
+  const std::string cams8 = (s.dir / "traj8.json").string();
+  camera::write_cameras_json(cams8, {scene.cameras(first8), 80, 48});
+  auto bad = o;
+  bad.out_dir = (s.dir / "bad").string();
+  bad.input.cameras_file = cams8;
+  REQUIRE_THROWS_WITH(infer::run_inference(bad), FLAT_CONTAINS("8 cameras") && FLAT_CONTAINS("z.safetensors"));
+  CHECK(!fs::exists(bad.out_dir));
+  // Camera latents missing and no VAE to encode them.
+  save_safetensors(latents, {{"video", w.video}});
+  bad.input.cameras_file = cams;
+  REQUIRE_THROWS_WITH(infer::run_inference(bad), FLAT_CONTAINS("--vae"));
+  // A wrongly shaped latent.
+  save_safetensors(latents, {{"video", w.video.slice(0, 0, 8)}});
+  REQUIRE_THROWS_WITH(infer::run_inference(bad), FLAT_CONTAINS("'video'") && FLAT_CONTAINS("(8,"));
+  CHECK(!fs::exists(bad.out_dir));
+  CHECK(no_staging_left(s.dir));
+}
+
+TEST_CASE("flat_infer: bad model, output folder and input fail before anything is written", "[infer]") {
+  auto s = setup("infer_bad");
+  auto good = options(s, "out");
+  good.renders = false;
+  good.glb = false;
+  good.novel.preset = "none";
+  infer::run_inference(good);
+  const std::string before = read_text(fs::path(good.out_dir) / "scene.ply");
+
+  SECTION("an existing output folder is refused without --overwrite, and kept") {
+    REQUIRE_THROWS_WITH(infer::run_inference(good), FLAT_CONTAINS("already exists") && FLAT_CONTAINS("--overwrite"));
+    CHECK(read_text(fs::path(good.out_dir) / "scene.ply") == before);
+  }
+  SECTION("a run that fails midway with --overwrite leaves the old output as it was") {
+    auto o = good;
+    o.overwrite = true;
+    o.input.window = 5;  // the scene has one window
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--window 5") && FLAT_CONTAINS("scene.json"));
+    CHECK(read_text(fs::path(good.out_dir) / "scene.ply") == before);
+    CHECK(no_staging_left(s.dir));
+  }
+  SECTION("an unwritable output folder") {
+    std::ofstream(s.dir / "a_file") << "x";
+    auto o = good;
+    o.out_dir = (s.dir / "a_file" / "out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("a_file"));
+  }
+  SECTION("a checkpoint of another width than the config given") {
+    const std::string wide = (s.dir / "wide.safetensors").string();
+    test::write_tiny_model(wide, 16);
+    const std::string cfg = (s.dir / "dim8.yaml").string();
+    std::ofstream(cfg) << "pipeline:\n  model:\n    vae: {dim: 8}\n  triangles: {depth_far: 12.0}\n";
+    auto o = good;
+    o.model = wide;
+    o.config = cfg;
+    o.out_dir = (s.dir / "wide_out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o),
+                        FLAT_CONTAINS("wide.safetensors") && FLAT_CONTAINS("vae.dim: checkpoint 16, this config 8"));
+    CHECK(!fs::exists(o.out_dir));
+  }
+  SECTION("a truncated model file") {
+    const std::string cut = (s.dir / "cut.safetensors").string();
+    const std::string bytes = read_text(s.model);
+    std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+    auto o = good;
+    o.model = cut;
+    o.out_dir = (s.dir / "cut_out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("cut.safetensors"));
+    CHECK(!fs::exists(o.out_dir));
+  }
+  SECTION("NaN latents") {
+    auto scene = data::read_scene(s.scene);
+    auto w = data::read_window_latents(scene, 0);
+    w.video[0][0][0][0] = NAN;
+    const std::string z = (s.dir / "nan.safetensors").string();
+    save_safetensors(z, {{"video", w.video}, {"camera", w.camera}});
+    std::vector<int64_t> first9{0, 1, 2, 3, 4, 5, 6, 7, 8};
+    const std::string cams = (s.dir / "traj.json").string();
+    camera::write_cameras_json(cams, {scene.cameras(first9), 80, 48});
+    auto o = good;
+    o.input = {};
+    o.input.latents_file = z;
+    o.input.cameras_file = cams;
+    o.out_dir = (s.dir / "nan_out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("nan.safetensors") && FLAT_CONTAINS("NaN"));
+    CHECK(!fs::exists(o.out_dir));
+  }
+}
