@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Build + every test (CUDA included) + benchmarks on the GPU machine, in one go.
-# Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench|train]
-#   bench: everything; train: skip the decoder/raster benches; nobench: build and tests only.
+# Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench|train|infer]
+#   bench: everything; train: skip the decoder/raster benches; nobench: build and tests only;
+#   infer: flat_infer's streaming decode of 49- and 197-frame trajectories (peak memory per length).
 #   GPU_TRAIN_STAGES="1 2 3" picks the stages flat_bench train times (default 1);
 #   GPU_SKIP_TESTS=1 skips ctest; GPU_TARGETS limits the build.
 # Logs go to $OUT (or ./gpu_out); a summary table is printed last.
@@ -79,6 +80,35 @@ if [ "$MODE" != "nobench" ] && [ -x "$BUILD/flat_train" ]; then
     fi
     rm -rf "$D"
   done
+fi
+if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
+  # flat_infer on long trajectories: a dim-96 stage-1 decoder (2 steps from
+  # scratch: random weights in effect), then one 49-frame and one 197-frame
+  # window (13 and 50 latent frames, 176x320) decoded on CUDA in bf16, streaming
+  # and full-sequence; summary.json holds the peak memory of decoding and rendering.
+  I="$OUT/infer"; rm -rf "$I"
+  { "$BUILD/flat_synth" --out "$I/train" --scenes 1 --seed 3 --family room --frames 17 --size 176x320 --motion pan &&
+    "$BUILD/flat_latents" --scenes "$I/train" --random-weights --seed 0 --dim 96 --window 17 --device cuda --dtype bf16 &&
+    "$BUILD/flat_train" --config configs/stage1.yaml --set run_dir="$I/run" --set steps=2 --set init.from=scratch \
+      --set "init.path=''" --set loss.lambda_perc=0 --set "data.datasets=[{root: $I/train}]" --set validation.datasets=[] \
+      --set optim.warmup_steps=0; } >"$OUT/infer_model.log" 2>&1
+  summary+=("infer: model rc=$?")
+  for T in 49 197; do
+    { "$BUILD/flat_synth" --out "$I/long$T" --scenes 1 --seed 5 --family room --frames $T --size 176x320 --motion orbit &&
+      "$BUILD/flat_latents" --scenes "$I/long$T" --random-weights --seed 0 --dim 96 --window $T --device cuda --dtype bf16; } \
+      >"$OUT/infer_data_$T.log" 2>&1
+    for mode in streaming full; do
+      flag=""; [ $mode = full ] && flag="--full-sequence"
+      "$BUILD/flat_infer" --model "$I/run" --scene "$I/long$T/room_000000" --out "$I/out_${T}_$mode" --device cuda \
+        --no-video --novel-frames 24 $flag >"$OUT/infer_${T}_$mode.log" 2>&1
+      rc=$?
+      peaks=$(python3 -c "import json,sys; j=json.load(open(sys.argv[1])); print('triangles', j['triangles_decoded'], 'decode', round(j['seconds']['decode'],2), 's, peak GiB decode', round(j['peak_memory_gib']['decode'],2), 'render', round(j['peak_memory_gib']['render'],2))" "$I/out_${T}_$mode/summary.json" 2>/dev/null)
+      summary+=("flat_infer $T frames $mode rc=$rc: $peaks")
+      tail -9 "$OUT/infer_${T}_$mode.log"
+      cp "$I/out_${T}_$mode/summary.json" "$OUT/infer_summary_${T}_$mode.json" 2>/dev/null
+    done
+  done
+  rm -rf "$I"
 fi
 echo "==== summary (commit ${FLAT_COMMIT:-$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)}, $(date -u +%F))"
 printf '%s\n' "${summary[@]}"

@@ -29,4 +29,15 @@ void check_finite(const at::Tensor& t, const std::string& what) {
   }
 }
 
+bool parse_size(const std::string& text, int64_t& height, int64_t& width) {
+  const auto x = text.find('x');
+  if (x == std::string::npos || x == 0 || x + 1 >= text.size()) return false;
+  for (size_t i = 0; i < text.size(); ++i)
+    if (i != x && (text[i] < '0' || text[i] > '9')) return false;
+  if (x > 7 || text.size() - x - 1 > 7) return false;  // no overflow, and no absurd sizes
+  height = std::stoll(text.substr(0, x));
+  width = std::stoll(text.substr(x + 1));
+  return height > 0 && width > 0;
+}
+
 }  // namespace flat

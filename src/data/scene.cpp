@@ -1,5 +1,6 @@
 #include "flat/data/scene.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -226,6 +227,19 @@ void write_scene_json(const Scene& scene) {
   if (scene.latents.present()) doc["latents"] = latents_json(scene.latents);
   fs::create_directories(scene.dir);
   write_file_atomic(scene.json_path(), doc.dump(1) + "\n");
+}
+
+std::vector<std::string> scene_dirs_under(const std::string& root) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::exists(fs::path(root) / kSceneFile, ec)) return {root};
+  if (!fs::is_directory(root, ec)) fail(root + ": not a folder (expected a scene folder or a folder of scenes)");
+  std::vector<std::string> dirs;
+  for (const auto& e : fs::directory_iterator(root, ec))
+    if (fs::exists(e.path() / kSceneFile, ec)) dirs.push_back(e.path().string());
+  std::sort(dirs.begin(), dirs.end());
+  if (dirs.empty()) fail(root + ": no scene folders (with scene.json) inside");
+  return dirs;
 }
 
 }  // namespace flat::data

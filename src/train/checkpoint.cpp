@@ -65,17 +65,6 @@ std::string read_text(const std::string& path) {
   return ss.str();
 }
 
-// "key: value" lines -> map, for the signature comparison.
-std::map<std::string, std::string> signature_lines(const ModelSignature& s) {
-  std::map<std::string, std::string> out;
-  std::istringstream in(s.yaml);
-  for (std::string line; std::getline(in, line);) {
-    const auto colon = line.find(": ");
-    if (colon != std::string::npos) out[line.substr(0, colon)] = line.substr(colon + 2);
-  }
-  return out;
-}
-
 }  // namespace
 
 std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir) {
@@ -120,9 +109,9 @@ std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerSta
   fs::create_directories(tmp, ec);
   if (ec) fail(tmp + ": cannot create (" + ec.message() + ")");
 
-  model::save_weights(model, tmp + "/model.safetensors", model::WeightNaming::wan,
-                      {{"producer", "flat_train"}, {"stage", state.stage}, {"step", std::to_string(state.step)},
-                       {"model_signature", signature.yaml}});
+  auto meta = pipeline::signature_metadata(signature);
+  meta.insert({{"producer", "flat_train"}, {"stage", state.stage}, {"step", std::to_string(state.step)}});
+  model::save_weights(model, tmp + "/model.safetensors", model::WeightNaming::wan, meta);
   maybe_kill_for_test(state.step);
   save_safetensors(tmp + "/optimizer.safetensors", optimiser.state(), {{"optimiser", "adamw"}});
   save_safetensors(tmp + "/rng.safetensors", capture_rng());
@@ -170,33 +159,6 @@ LoadedCheckpoint read_checkpoint(const std::string& dir) {
   c.optimiser = load_safetensors(dir + "/optimizer.safetensors");
   c.rng = load_safetensors(dir + "/rng.safetensors");
   return c;
-}
-
-void load_model_weights(torch::nn::Module& model, const TensorMap& tensors, const ModelSignature& found,
-                        const ModelSignature& expected, const std::string& label) {
-  if (!found.yaml.empty() && found.yaml != expected.yaml) {
-    auto a = signature_lines(found), b = signature_lines(expected);
-    std::string diff;
-    for (const auto& [k, v] : b) {
-      auto it = a.find(k);
-      const std::string theirs = it == a.end() ? "(absent)" : it->second;
-      if (theirs != v) diff += "\n  " + k + ": checkpoint " + theirs + ", this config " + v;
-    }
-    for (const auto& [k, v] : a)
-      if (!b.count(k)) diff += "\n  " + k + ": checkpoint " + v + ", this config (absent)";
-    fail(label + ": the checkpoint's model differs from this config's:" + diff);
-  }
-  model::load_state(model, tensors, {}, label);
-}
-
-std::string resolve_model_file(const std::string& path) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) fail(path + ": not found (init.path: a run folder, a checkpoint folder or a model file)");
-  if (fs::is_regular_file(path, ec)) return path;
-  if (fs::exists(fs::path(path) / "model.safetensors", ec)) return path + "/model.safetensors";
-  const std::string latest = latest_checkpoint(path + "/checkpoints");
-  if (latest.empty()) fail(path + ": a folder without model.safetensors or any checkpoint under checkpoints/");
-  return latest + "/model.safetensors";
 }
 
 TensorMap capture_rng() {

@@ -255,9 +255,9 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
 
   // ---- the end -------------------------------------------------------------------
   summary.model_file = run.root + "/model.safetensors";
-  model::save_weights(*decoder, summary.model_file, model::WeightNaming::wan,
-                      {{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)},
-                       {"model_signature", signature.yaml}});
+  auto meta = pipeline::signature_metadata(signature);
+  meta.insert({{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)}});
+  model::save_weights(*decoder, summary.model_file, model::WeightNaming::wan, meta);
   summary.steps_done = state.step;
   summary.skipped_steps = state.skipped_steps;
   spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg.stage, state.step,

@@ -21,24 +21,13 @@ double total_norm(const std::vector<at::Tensor>& grads) {
 
 }  // namespace
 
-ModelSignature model_signature(const pipeline::PipelineConfig& p) {
-  config::Describer d("pipeline.model.");
-  auto model = p.model;
-  model.visit(d);
-  std::string yaml;
-  for (const auto& row : d.rows)
-    if (row.key != "pipeline.model.stream_trunk_frames") yaml += row.key + ": " + row.value + "\n";
-  yaml += "pipeline.triangles.channels: " + std::to_string(p.triangles.channels().total) + "\n";
-  return {yaml};
-}
-
 TrainingSession::TrainingSession(const TrainConfig& cfg)
     : decoder(cfg.pipeline.model, cfg.pipeline.triangles.channels()), grad_clip_(cfg.optim.grad_clip) {
   device = at::Device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
   if (device.is_cuda() && !torch::cuda::is_available())
     fail("device: cuda requested but no CUDA device is available (set device: cpu)");
   bf16 = cfg.precision == "bf16" && device.is_cuda();
-  signature = model_signature(cfg.pipeline);
+  signature = pipeline::model_signature(cfg.pipeline);
   if (cfg.init.from == "wan_vae") {
     auto report = decoder->load_pretrained_vae(cfg.init.path);
     spdlog::info("init: {}", report.summary());
@@ -46,7 +35,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg)
     const std::string file = resolve_model_file(cfg.init.path);
     Metadata meta;
     auto tensors = load_safetensors(file, &meta);
-    load_model_weights(*decoder, tensors, {meta.count("model_signature") ? meta["model_signature"] : ""}, signature,
+    load_model_weights(*decoder, tensors, {meta.count("model_signature") ? meta["model_signature"] : "", ""}, signature,
                        file);
     spdlog::info("init: model weights of the earlier stage from {}", file);
   }

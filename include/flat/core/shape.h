@@ -19,4 +19,7 @@ void check_shape(const at::Tensor& t, const std::vector<int64_t>& expected, cons
 // Throws flat::Error naming `what` if `t` holds NaN or Inf.
 void check_finite(const at::Tensor& t, const std::string& what);
 
+// An image size "HxW" (e.g. "176x320", both > 0) -> height, width; false when malformed.
+bool parse_size(const std::string& text, int64_t& height, int64_t& width);
+
 }  // namespace flat

@@ -76,6 +76,10 @@ void validate_scene(const Scene& scene, bool check_files);
 // Writes scene.json atomically (the camera fields through camera_entry()).
 void write_scene_json(const Scene& scene);
 
+// Scene folders under `root`: root itself when it holds scene.json, else its
+// sub-folders that do, sorted. Throws naming root when there are none.
+std::vector<std::string> scene_dirs_under(const std::string& root);
+
 // Zero-padded frame file stem: 7 -> "000007".
 std::string frame_stem(int64_t index);
 

@@ -2,6 +2,8 @@
 // SSIM and LPIPS are computed by src/loss (one implementation, shared with
 // training); this header is the evaluation-facing name for them.
 #pragma once
+#include <string>
+
 #include <ATen/ATen.h>
 
 #include "flat/loss/lpips.h"
@@ -18,6 +20,19 @@ at::Tensor psnr(const at::Tensor& rendered, const at::Tensor& target, double dat
 inline at::Tensor ssim(const at::Tensor& rendered, const at::Tensor& target, double data_range = 1.0) {
   return loss::ssim(rendered, target, data_range);
 }
+
+// The two SSIM conventions that published tables use; same window (Gaussian
+// 11x11, sigma 1.5), constants and population covariance, different borders:
+//   skimage: scikit-image's structural_similarity (Wang et al.): statistics
+//            only where the window fits inside the image, mean of that map.
+//            Ours (ssim() above) and the default of flat_eval.
+//   3dgs:    the ssim() of the 3DGS / 2DGS repositories: zero padding of 5
+//            pixels, mean over every pixel (dark borders pull it down).
+enum class SsimConvention { skimage, gaussian_zero_pad };
+SsimConvention parse_ssim_convention(const std::string& name);  // "skimage" | "3dgs"
+std::string ssim_convention_name(SsimConvention c);
+at::Tensor ssim(const at::Tensor& rendered, const at::Tensor& target, SsimConvention convention,
+                double data_range = 1.0);
 
 // LPIPS (VGG) per image (V), without gradient, in chunks, no resizing unless
 // max_size > 0.

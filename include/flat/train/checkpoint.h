@@ -20,6 +20,7 @@
 #include <torch/nn/module.h>
 
 #include "flat/core/tensor_io.h"
+#include "flat/pipeline/trained_model.h"
 #include "flat/train/adamw.h"
 
 namespace flat::train {
@@ -32,11 +33,9 @@ struct TrainerState {
   std::string config_yaml;        // the run's effective config
 };
 
-// The architecture keys of a model config (YAML) that must agree between a
-// checkpoint and the model it is loaded into.
-struct ModelSignature {
-  std::string yaml;  // "pipeline.model.vae.dim: 96\n..." one key per line
-};
+// The model's architecture signature and pipeline config, written into every
+// model file (pipeline/trained_model.h).
+using pipeline::ModelSignature;
 
 // Writes step_<step> under checkpoints_dir and removes all but the newest
 // `keep`. Returns the folder written.
@@ -59,14 +58,8 @@ struct LoadedCheckpoint {
 // Reads and validates every file of a checkpoint folder (throws naming the file).
 LoadedCheckpoint read_checkpoint(const std::string& dir);
 
-// Loads the model weights of `dir`, checking first that its architecture
-// signature equals `expected` (the error lists the keys that differ).
-void load_model_weights(torch::nn::Module& model, const TensorMap& tensors, const ModelSignature& found,
-                        const ModelSignature& expected, const std::string& label);
-
-// Where init.from: checkpoint points: a run folder (its newest checkpoint), a
-// checkpoint folder, or a model .safetensors file -> the model file to read.
-std::string resolve_model_file(const std::string& path);
+using pipeline::load_model_weights;
+using pipeline::resolve_model_file;
 
 // Generator states: "cpu", "cuda.<i>" for every visible CUDA device.
 TensorMap capture_rng();

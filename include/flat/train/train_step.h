@@ -16,6 +16,8 @@
 
 #include <ATen/ATen.h>
 
+#include "flat/core/autocast_scope.h"
+
 #include "flat/data/loader.h"
 #include "flat/loss/objective.h"
 #include "flat/pipeline/scene_pipeline.h"
@@ -37,20 +39,6 @@ struct StepResult {
   std::string nonfinite;                // when !finite: what was NaN/Inf (for the log)
 };
 
-// RAII: bf16 autocast on one device type while alive (no-op when off).
-class AutocastScope {
- public:
-  AutocastScope(bool enabled, at::DeviceType device);
-  ~AutocastScope();
-  AutocastScope(const AutocastScope&) = delete;
-  AutocastScope& operator=(const AutocastScope&) = delete;
-
- private:
-  bool enabled_;
-  at::DeviceType device_;
-  bool was_enabled_ = false;
-  at::ScalarType was_dtype_ = at::kFloat;
-};
 
 // Forward and backward of one batch; gradients accumulate into the decoder's
 // parameters (the caller zeroes them). times: optional per-phase timing.

@@ -47,7 +47,6 @@ class TrainingSession {
   double grad_clip_ = 0;
 };
 
-// The keys of a pipeline config that decide the weights' shapes.
-ModelSignature model_signature(const pipeline::PipelineConfig& p);
+using pipeline::model_signature;
 
 }  // namespace flat::train
