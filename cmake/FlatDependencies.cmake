@@ -11,6 +11,26 @@ if(FLAT_WITH_OIIO)
   find_package(OpenImageIO REQUIRED)
 endif()
 
+# tinygltf (Debian libtinygltf-dev, a shared library there): the GLB writer of
+# the export module. Optional: Ubuntu has no package, and without it only the
+# GLB functions fail (the PLY export still works). The switch is carried by
+# flat_gltf, linked PRIVATE by the export module alone, so that turning it on
+# or off recompiles that module only (not the shared precompiled header).
+set(FLAT_GLTF_FOUND OFF)
+if(FLAT_WITH_GLTF)
+  find_package(TinyGLTF QUIET)
+  if(TARGET TinyGLTF::TinyGLTF)
+    set(FLAT_GLTF_FOUND ON)
+  else()
+    message(STATUS "tinygltf not found (Debian libtinygltf-dev): GLB export disabled, PLY export still works")
+  endif()
+endif()
+add_library(flat_gltf INTERFACE)
+target_compile_definitions(flat_gltf INTERFACE FLAT_WITH_GLTF=$<BOOL:${FLAT_GLTF_FOUND}>)
+if(FLAT_GLTF_FOUND)
+  target_link_libraries(flat_gltf INTERFACE TinyGLTF::TinyGLTF)
+endif()
+
 if(FLAT_WITH_CUDA)
   if(NOT DEFINED CMAKE_CUDA_ARCHITECTURES)
     set(CMAKE_CUDA_ARCHITECTURES 90)  # H100 / H200

@@ -8,7 +8,12 @@
 #     wheels are downloaded once into a cache folder and reused afterwards;
 #   - CUTLASS's headers (NVIDIA's `nvidia-cutlass` wheel, header-only for us:
 #     the Hopper convs of src/model/cuda_sm90), into the same environment;
-#   - the tensorboard package there, to check flat_train's event files.
+#   - the tensorboard package there, to check flat_train's event files;
+#   - the export module's tools: tinygltf (GLB), three.js (viewer), ffmpeg
+#     (MP4), and the readers that check our files (chromium for the viewer's
+#     screenshot test; assimp, Blender and the trimesh package for
+#     scripts/check_interop.py; Blender's glTF importer needs python3-numpy,
+#     which Debian's blender package does not pull in).
 # Python is only the installer of libtorch; nothing in the product runs it.
 set -euo pipefail
 
@@ -20,7 +25,8 @@ WHEELS="$CACHE/wheels-torch-$TORCH_VERSION"
 
 APT_PACKAGES=(cmake ninja-build g++ clang libclang-rt-14-dev
   libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev libglm-dev catch2
-  libopenimageio-dev openimageio-tools libopencv-core-dev python3-venv python3-pip)
+  libopenimageio-dev openimageio-tools libopencv-core-dev python3-venv python3-pip
+  libtinygltf-dev libjs-three ffmpeg chromium assimp-utils blender python3-numpy)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -63,4 +69,12 @@ if "$VENV/bin/python3" -c "import tensorboard" 2>/dev/null; then
 else
   echo "[install_deps] installing tensorboard into $VENV (only for scripts/check_tensorboard.py)"
   "$VENV/bin/python3" -m pip install -q tensorboard || echo "[install_deps] tensorboard could not be installed: the event-file check will be skipped"
+fi
+# trimesh (Python): one of the three readers of scripts/check_interop.py (our
+# PLY and GLB read by other programs). Not used by the product.
+if "$VENV/bin/python3" -c "import trimesh" 2>/dev/null; then
+  echo "[install_deps] trimesh (for the interop check): present in $VENV"
+else
+  echo "[install_deps] installing trimesh into $VENV (only for scripts/check_interop.py)"
+  "$VENV/bin/python3" -m pip install -q trimesh || echo "[install_deps] trimesh could not be installed: its interop check will say UNAVAILABLE"
 fi

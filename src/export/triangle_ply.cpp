@@ -1,6 +1,7 @@
 // Binary little-endian PLY reader/writer for triangle soups (docs/formats.md).
 #include "flat/export/triangle_ply.h"
 
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -14,6 +15,14 @@ namespace flat::exporter {
 namespace {
 
 constexpr const char* kFaceFloats[] = {"red", "green", "blue", "opacity", "sigma"};
+constexpr const char* kVertexColours[] = {"red", "green", "blue", "alpha"};
+constexpr size_t kVertexBytes = 3 * sizeof(float) + 4;  // x, y, z, red, green, blue, alpha
+
+// [0,1] -> 0..255, rounded; NaN -> 0 (the float face properties keep the value).
+uint8_t to_byte(float x) {
+  const float c = x > 0.f ? (x < 1.f ? x : 1.f) : 0.f;
+  return uint8_t(std::lround(255.f * c));
+}
 
 bool little_endian_host() {
   const uint16_t one = 1;
@@ -34,16 +43,28 @@ void write_triangle_ply(const std::string& path, const primitives::TriangleSoup&
   FLAT_CHECK(3 * n < (int64_t(1) << 31), "triangle ply: too many triangles for int vertex indices");
   const auto cpu = [](const at::Tensor& t) { return t.detach().to(at::kCPU, at::kFloat).contiguous(); };
   const at::Tensor v = cpu(soup.vertices), c = cpu(soup.colors), o = cpu(soup.opacities), s = cpu(soup.sigmas);
+  const float* vp = v.data_ptr<float>();
+  const float* cp = c.data_ptr<float>();
+  const float* op = o.data_ptr<float>();
+  const float* sp = s.data_ptr<float>();
   write_file_atomic(path, [&](std::ostream& out) {
     out << "ply\nformat binary_little_endian 1.0\ncomment FLAT triangle soup (docs/formats.md)\n"
-        << "element vertex " << 3 * n << "\nproperty float x\nproperty float y\nproperty float z\n"
-        << "element face " << n << "\nproperty list uchar int vertex_indices\n";
+        << "element vertex " << 3 * n << "\nproperty float x\nproperty float y\nproperty float z\n";
+    for (const char* p : kVertexColours) out << "property uchar " << p << "\n";
+    out << "element face " << n << "\nproperty list uchar int vertex_indices\n";
     for (const char* p : kFaceFloats) out << "property float " << p << "\n";
     out << "end_header\n";
-    out.write(reinterpret_cast<const char*>(v.data_ptr<float>()), (std::streamsize)(9 * n * sizeof(float)));
-    const float* cp = c.data_ptr<float>();
-    const float* op = o.data_ptr<float>();
-    const float* sp = s.data_ptr<float>();
+    // Vertices: each face's colour repeated on its three corners, for readers
+    // that only know vertex colours (Blender, MeshLab, trimesh).
+    std::vector<char> vertex(kVertexBytes);
+    for (int64_t i = 0; i < n; ++i) {
+      const uint8_t rgba[4] = {to_byte(cp[3 * i]), to_byte(cp[3 * i + 1]), to_byte(cp[3 * i + 2]), to_byte(op[i])};
+      for (int k = 0; k < 3; ++k) {
+        std::memcpy(vertex.data(), vp + 9 * i + 3 * k, 3 * sizeof(float));
+        std::memcpy(vertex.data() + 12, rgba, sizeof(rgba));
+        out.write(vertex.data(), (std::streamsize)vertex.size());
+      }
+    }
     std::vector<char> face(1 + 3 * 4 + 5 * 4);
     for (int64_t i = 0; i < n; ++i) {
       face[0] = 3;
@@ -93,8 +114,7 @@ primitives::TriangleSoup read_triangle_ply(const std::string& path) {
       if (element == "vertex") {
         std::string name;
         ls >> name;
-        if (type != "float") throw bad("element 'vertex': property '" + name + "' must be float, is " + type);
-        vertex_props.push_back(name);
+        vertex_props.push_back(type + " " + name);
       } else if (element == "face") {
         if (type == "list") {
           std::string count_t, index_t, name;
@@ -117,15 +137,25 @@ primitives::TriangleSoup read_triangle_ply(const std::string& path) {
   }
   if (!format_ok) throw bad("missing 'format' line");
   if (n_vertex < 0 || n_face < 0) throw bad("needs both 'element vertex' and 'element face'");
-  if (vertex_props != std::vector<std::string>{"x", "y", "z"})
-    throw bad("element 'vertex': properties must be exactly float x, y, z");
+  // Files written before the vertex colours have x, y, z only; both layouts
+  // carry the same data (the face properties are the source of the colours).
+  const std::vector<std::string> xyz = {"float x", "float y", "float z"};
+  std::vector<std::string> xyz_rgba = xyz;
+  for (const char* p : kVertexColours) xyz_rgba.push_back(std::string("uchar ") + p);
+  if (vertex_props != xyz && vertex_props != xyz_rgba)
+    throw bad("element 'vertex': properties must be float x, y, z, optionally followed by uchar red, green, blue, "
+              "alpha");
+  const size_t vertex_bytes = vertex_props == xyz ? 3 * sizeof(float) : kVertexBytes;
   const std::vector<std::string> want = {"list:vertex_indices", "red", "green", "blue", "opacity", "sigma"};
   if (face_props != want)
     throw bad("element 'face': properties must be 'list uchar int vertex_indices' then float red, green, blue, "
               "opacity, sigma");
-  std::vector<float> verts(3 * n_vertex);
-  in.read(reinterpret_cast<char*>(verts.data()), (std::streamsize)(verts.size() * sizeof(float)));
+  std::vector<char> vertex_data(size_t(n_vertex) * vertex_bytes);
+  in.read(vertex_data.data(), (std::streamsize)vertex_data.size());
   if (!in) throw bad("element 'vertex': file ends after fewer than " + std::to_string(n_vertex) + " vertices");
+  std::vector<float> verts(3 * n_vertex);
+  for (int64_t j = 0; j < n_vertex; ++j)
+    std::memcpy(verts.data() + 3 * j, vertex_data.data() + size_t(j) * vertex_bytes, 3 * sizeof(float));
   primitives::TriangleSoup soup;
   soup.vertices = at::empty({n_face, 3, 3}, at::kFloat);
   soup.colors = at::empty({n_face, 3}, at::kFloat);

@@ -1,10 +1,13 @@
 // Triangle soup as binary little-endian PLY (layout in docs/formats.md):
 //   element vertex 3N : float x, y, z            (world, metres)
+//                       uchar red, green, blue, alpha (the face's colour and
+//                       opacity, quantised: for readers that know only vertex colours)
 //   element face N    : list uchar int vertex_indices (3 per face),
-//                       float red, green, blue    (linear [0,1]),
+//                       float red, green, blue    (display values in [0,1], as the images),
 //                       float opacity             ([0,1]),
 //                       float sigma               (window sharpness, > 0)
-// Mesh viewers read it as a triangle mesh; our tools read back the attributes.
+// The face properties are the lossless source; our reader takes the colours
+// from them and also reads files without the vertex colours (older files).
 #pragma once
 #include <string>
 

@@ -1,0 +1,53 @@
+// Our PLY and GLB read by other programs (trimesh, assimp, Blender) through
+// scripts/check_interop.py. Hidden tag: run by its own CTest entry
+// (export_interop, tests/CMakeLists.txt), since Blender takes seconds to start.
+// With FLAT_INTEROP_REQUIRE_ALL=1 (CI) every reader must be present.
+#include <cstdlib>
+#include <filesystem>
+
+#include <torch/torch.h>
+
+#include "flat/export/triangle_glb.h"
+#include "flat/export/triangle_ply.h"
+#include "programs.h"
+#include "render/render_scenes.h"
+#include "test_support.h"
+
+TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.interop][export]") {
+  const char* env = std::getenv("FLAT_INTEROP_REQUIRE_ALL");
+  const bool require_all = env && std::string(env) == "1";
+  // The venv of scripts/install_deps.sh holds trimesh; any python3 runs the script.
+  const char* home = std::getenv("HOME");
+  std::string python = home ? std::string(home) + "/.cache/flat/venv/bin/python3" : "";
+  if (python.empty() || !std::filesystem::exists(python)) python = flat::test::find_program("python3");
+  if (python.empty()) {
+    REQUIRE_FALSE(require_all);
+    FLAT_SKIP("no python3: interop readers not run");
+  }
+  if (!flat::exporter::glb_export_available()) REQUIRE_FALSE(require_all);
+
+  auto dir = flat::test::scratch_dir("interop");
+  const int64_t n = 23;
+  auto s = flat::test::random_soup(n, torch::kFloat, 21);
+  s.colors[0] = torch::tensor({0.0f, 1.0f, 0.02f});  // ends of the range and the sRGB curve's linear toe
+  const flat::primitives::TriangleSoup soup{s.vertices, s.colors, s.opacities, s.sigmas};
+  const auto ply = (dir / "scene.ply").string();
+  flat::exporter::write_triangle_ply(ply, soup);
+  std::string glb = "-";
+  if (flat::exporter::glb_export_available()) {
+    glb = (dir / "scene.glb").string();
+    flat::exporter::write_triangle_glb(glb, soup);
+  }
+  std::vector<std::string> argv = {python, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", ply, glb,
+                                   std::to_string(n)};
+  if (require_all) argv.push_back("--require-all");
+  const auto log = (dir / "check_interop.txt").string();
+  const int rc = flat::test::run_program(argv, log, 1200);
+  const std::string report = flat::test::slurp(log);
+  std::printf("check_interop.py (%s):\n%s", require_all ? "--require-all" : "readers that are present", report.c_str());
+  INFO(report);
+  CHECK(rc == 0);
+  CHECK(report.find("MISMATCH") == std::string::npos);
+  if (report.find("UNAVAILABLE") != std::string::npos)
+    WARN("some interop readers are unavailable (see above); CI sets FLAT_INTEROP_REQUIRE_ALL=1 to require them");
+}
