@@ -2,8 +2,11 @@
 // scripts/check_interop.py. Hidden tag: run by its own CTest entry
 // (export_interop, tests/CMakeLists.txt), since Blender takes seconds to start.
 // With FLAT_INTEROP_REQUIRE_ALL=1 (CI) every reader must be present.
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <string>
+#include <vector>
 
 #include <torch/torch.h>
 
