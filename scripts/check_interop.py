@@ -182,9 +182,13 @@ def blender_read(path, kind, sample):
     helper = os.path.join(HERE, "check_interop_blender.py")
     with tempfile.TemporaryDirectory() as tmp:
         result = os.path.join(tmp, "result.json")
+        # Debian's blender embeds the system Python and finds its home through the
+        # `python3` on PATH: put blender's own folder first so that a pyenv or venv
+        # python3 earlier on PATH (without numpy) is not taken for it.
+        env = dict(os.environ, PATH=os.path.dirname(exe) + os.pathsep + os.environ.get("PATH", ""))
         run = subprocess.run([exe, "--background", "--factory-startup", "--python-exit-code", "3",
                               "--python", helper, "--", path, result] + [str(f) for f in sample],
-                             capture_output=True, text=True, timeout=900)
+                             capture_output=True, text=True, timeout=900, env=env)
         if run.returncode != 0 or not os.path.exists(result):
             raise Mismatch(f"blender failed (status {run.returncode}): {(run.stdout + run.stderr)[-400:]}")
         with open(result) as f:
