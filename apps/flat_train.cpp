@@ -12,6 +12,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "flat/core/cli.h"
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
@@ -20,7 +21,7 @@
 int main(int argc, char** argv) {
   CLI::App app{"flat_train: train the FLAT scene decoder (one stage of the paper's schedule per run folder)"};
   app.get_formatter()->column_width(34);
-  std::string config_file, resume_dir, log_level;
+  std::string config_file, resume_dir, log_level, device, precision;
   std::vector<std::string> overrides;
   bool overwrite = false, print_config = false, help_config = false;
   app.add_option("--config", config_file, "stage config (YAML), layered over the defaults (--help-config)")
@@ -28,10 +29,15 @@ int main(int argc, char** argv) {
   app.add_option("--resume", resume_dir, "continue the run in this folder from its newest checkpoint");
   app.add_option("--set", overrides, "override a key: --set steps=500 --set optim.lr=2e-4")->take_all();
   app.add_flag("--overwrite", overwrite, "delete what run_dir holds and start afresh");
-  app.add_option("--log-level", log_level, "trace|debug|info|warn|error (default: the config's log.level)");
+  app.add_option("--log-level", log_level, "trace|debug|info|warn|error (default: the config's log.level)")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
+  app.add_option("--device", device, "auto | cpu | cuda: overrides the config's device (auto = cuda when present)")
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
+  app.add_option("--precision", precision, "fp32 | bf16: overrides the config's precision")
+      ->check(CLI::IsMember({"fp32", "bf16"}));
   app.add_flag("--print-config", print_config, "print the effective config and exit");
   app.add_flag("--help-config", help_config, "print every config key with its default and meaning");
-  app.set_version_flag("--version", "flat_train 0.1.0");
+  app.set_version_flag("--version", std::string("flat_train ") + flat::cli::kVersion);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -44,6 +50,8 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (!log_level.empty()) overrides.push_back("log.level=" + log_level);
+    if (!device.empty()) overrides.push_back(std::string("device=") + (flat::cli::resolve_device(device).is_cuda() ? "cuda" : "cpu"));
+    if (!precision.empty()) overrides.push_back("precision=" + precision);
     if (resume_dir.empty() == config_file.empty()) {
       std::cerr << "flat_train: give exactly one of --config FILE (a new run, e.g. configs/tiny/stage1.yaml) or "
                    "--resume RUN_DIR\n";

@@ -6,17 +6,21 @@
 // (docs/scene_format.md). Whether the encoder was pretrained or random is
 // written to both and printed loudly.
 //
-//   flat_latents --scenes data/re10k --weights Wan2.1_VAE.safetensors --window 17 --size 176x320 --device cuda --dtype bf16
+//   flat_latents --scenes data/re10k --weights Wan2.1_VAE.safetensors --window 17 --size 176x320 --device cuda --precision bf16
 //   flat_latents --scenes data/synth --random-weights --seed 0 --dim 8   # pipeline tests only
-#include <cstdio>
+//
+// Scenes shorter than one window are skipped with a warning; when no scene is
+// long enough the run stops before loading the encoder, with exit code 1.
 #include <filesystem>
 
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 #include <torch/torch.h>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/progress.h"
+#include "flat/core/shape.h"
 #include "flat/data/frame_resize.h"
 #include "flat/data/scene.h"
 #include "flat/data/scene_frames.h"
@@ -32,44 +36,60 @@ namespace {
 
 struct Options {
   std::vector<std::string> scenes;
-  std::string weights, size, device = "cpu", dtype = "fp32", store = "float32";
+  std::string weights, weights_prefix, size, device = "auto", precision = "fp32", store = "fp32", log_level = "info";
   bool random_weights = false, full = false;
   int64_t seed = 0, dim = 96, window = 17, step = 0;
 };
 
-std::vector<std::string> scene_dirs(const std::vector<std::string>& roots) {
-  std::vector<std::string> dirs;
-  for (const auto& r : roots) {
-    if (fs::exists(fs::path(r) / data::kSceneFile)) {
-      dirs.push_back(r);
-      continue;
-    }
-    if (!fs::is_directory(r)) fail(r + ": not a folder");
-    std::vector<std::string> sub;
-    for (const auto& e : fs::directory_iterator(r))
-      if (fs::exists(e.path() / data::kSceneFile)) sub.push_back(e.path().string());
-    std::sort(sub.begin(), sub.end());
-    if (sub.empty()) fail(r + ": no scene folders (with scene.json) inside");
-    dirs.insert(dirs.end(), sub.begin(), sub.end());
-  }
-  return dirs;
+int64_t window_count(int64_t frames, int64_t window, int64_t step) {
+  return frames < window ? 0 : (frames - window) / step + 1;
 }
 
 void run(const Options& o) {
-  FLAT_CHECK(o.random_weights != !o.weights.empty(), "flat_latents: give exactly one of --weights FILE or --random-weights");
-  FLAT_CHECK(o.weights.empty() || o.dim == 96, "flat_latents: --dim applies only to --random-weights");
-  FLAT_CHECK(o.window >= 1 && (o.window - 1) % 4 == 0, "flat_latents: --window must be 1+4k frames (17, 49, ...)");
-  if (o.device == "cuda") FLAT_CHECK(torch::cuda::is_available(), "flat_latents: --device cuda but no CUDA device");
+  if (o.random_weights == !o.weights.empty())
+    throw cli::UsageError("flat_latents: give exactly one of --weights FILE or --random-weights");
+  if (!o.weights.empty() && o.dim != 96) throw cli::UsageError("flat_latents: --dim applies only to --random-weights");
+  if (o.window < 1 || (o.window - 1) % 4 != 0)
+    throw cli::UsageError("flat_latents: --window must be 1+4k frames (17, 49, ...), got " + std::to_string(o.window));
   int64_t H = 0, W = 0;
   if (!o.size.empty()) {
-    long long h = 0, w = 0;
-    char x = 0;
-    if (std::sscanf(o.size.c_str(), "%lld%c%lld", &h, &x, &w) != 3 || (x != 'x' && x != 'X'))
-      fail("flat_latents: --size must be HxW, got '" + o.size + "'");
-    H = h;
-    W = w;
-    FLAT_CHECK(H % 8 == 0 && W % 8 == 0, "flat_latents: --size must be multiples of 8 (the VAE downsamples by 8)");
+    if (!parse_size(o.size, H, W))
+      throw cli::UsageError("flat_latents: --size must be HxW (e.g. 176x320), got '" + o.size + "'");
+    if (H % 8 != 0 || W % 8 != 0)
+      throw cli::UsageError("flat_latents: --size must be multiples of 8 (the VAE downsamples by 8), got " + o.size);
   }
+  const auto device = cli::resolve_device(o.device);
+  const int64_t step = o.step > 0 ? o.step : o.window;
+
+  // Every scene is read first: a run that would encode nothing stops here.
+  std::vector<std::string> dirs;
+  for (const auto& root : o.scenes) {
+    auto sub = data::scene_dirs_under(root);
+    dirs.insert(dirs.end(), sub.begin(), sub.end());
+  }
+  cli::start_logging(o.log_level, (fs::path(o.scenes.front()) / "flat_latents.log").string());
+  std::vector<data::Scene> scenes;
+  int64_t total_windows = 0, longest = 0, largest = 0;
+  for (const auto& dir : dirs) {
+    data::Scene scene = data::read_scene(dir);
+    longest = std::max(longest, scene.size());
+    const int64_t n = window_count(scene.size(), o.window, step);
+    if (n == 0) {
+      spdlog::warn("flat_latents: {}: {} frames, fewer than one window of {}; skipped", dir, scene.size(), o.window);
+      continue;
+    }
+    total_windows += n;
+    largest = std::max(largest, H ? H * W : (scene.height - scene.height % 8) * (scene.width - scene.width % 8));
+    scenes.push_back(std::move(scene));
+  }
+  if (scenes.empty())
+    fail("flat_latents: no scene has --window " + std::to_string(o.window) + " frames (" + std::to_string(dirs.size()) +
+         " scene(s), the longest has " + std::to_string(longest) + "); nothing to encode");
+  // A window's frames plus the encoder's widest activations (dim channels at full size, a
+  // chunk of 4 frames when streaming): refuse what cannot fit before allocating.
+  const double frames_in_flight = o.full ? double(o.window) : 4.0;
+  cli::check_memory(double(largest) * 4.0 * (3.0 * double(o.window) + 6.0 * double(o.dim) * frames_in_flight),
+                    "flat_latents: encoding a window of " + std::to_string(o.window) + " frames", device);
 
   model::WanVAEConfig config;
   config.dim = o.dim;
@@ -77,7 +97,7 @@ void run(const Options& o) {
   model::WanVAE vae(config);
   data::LatentInfo info;
   info.seed = o.seed;
-  info.dtype = o.store;
+  info.dtype = cli::stored_dtype_name(o.store);
   if (o.random_weights) {
     info.encoder = "random";
     spdlog::warn("=====================================================================");
@@ -86,23 +106,22 @@ void run(const Options& o) {
     spdlog::warn("encoder=\"random\" in latents.safetensors and scene.json.");
     spdlog::warn("=====================================================================");
   } else {
-    auto report = model::load_weights(*vae, o.weights);
+    model::LoadSpec spec;
+    spec.strip_prefix = o.weights_prefix;
+    auto report = model::load_weights(*vae, o.weights, spec);
     info.encoder = "pretrained";
     info.weights = fs::path(o.weights).filename().string();
     spdlog::info("flat_latents: PRETRAINED encoder weights from {} ({})", o.weights, report.summary());
   }
   vae->eval();
-  vae->to(o.device == "cuda" ? torch::kCUDA : torch::kCPU, o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat);
+  vae->to(device, cli::precision_dtype(o.precision));
   auto weight = vae->conv2->weight;
   torch::NoGradGuard no_grad;
 
-  auto dirs = scene_dirs(o.scenes);
-  Progress progress("flat_latents", int64_t(dirs.size()));
-  int64_t written = 0;
-  for (const auto& dir : dirs) {
-    data::Scene scene = data::read_scene(dir);
+  // Progress per window: one scene can take minutes.
+  Progress progress("flat_latents windows", total_windows, 5.0);
+  for (auto& scene : scenes) {
     const int64_t h = H ? H : scene.height - scene.height % 8, w = W ? W : scene.width - scene.width % 8;
-    const int64_t step = o.step > 0 ? o.step : o.window;
     data::LatentInfo si = info;
     si.height = h;
     si.width = w;
@@ -117,20 +136,16 @@ void run(const Options& o) {
       data::WindowLatents l;
       l.video = vae->encode(video, !o.full)[0].to(at::kCPU, at::kFloat);
       l.camera = model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full)[0].to(at::kCPU, at::kFloat);
+      check_finite(l.video, scene.dir + ": window at frame " + std::to_string(start) + ": video latent");
       latents.push_back(l);
       si.windows.push_back({start, o.window});
+      progress.step();
     }
-    if (latents.empty()) {
-      spdlog::warn("flat_latents: {}: {} frames, fewer than one window of {}; skipped", dir, scene.size(), o.window);
-    } else {
-      data::write_scene_latents(scene, si, latents);
-      ++written;
-    }
-    progress.step();
+    data::write_scene_latents(scene, si, latents);
   }
   progress.finish();
-  spdlog::info("flat_latents: wrote latents for {} of {} scenes (window {}, encoder {})", written, dirs.size(), o.window,
-               info.encoder);
+  spdlog::info("flat_latents: wrote latents for {} of {} scenes (window {}, encoder {})", scenes.size(), dirs.size(),
+               o.window, info.encoder);
   if (o.random_weights) spdlog::warn("flat_latents: reminder: RANDOM encoder weights; the latents are test data only");
 }
 
@@ -139,25 +154,24 @@ void run(const Options& o) {
 int main(int argc, char** argv) {
   CLI::App app{"flat_latents: precompute video and camera latents of scene folders with the Wan 2.1 VAE encoder"};
   Options o;
+  cli::add_common(app, "flat_latents", o.log_level);
   app.add_option("--scenes", o.scenes, "scene folders, or folders holding scene folders")->required();
-  app.add_option("--weights", o.weights, "Wan 2.1 VAE weights (.safetensors, Wan or diffusers naming)");
+  app.add_option("--weights", o.weights, "Wan 2.1 VAE weights: .safetensors (Wan or diffusers naming) or a diffusers folder");
+  app.add_option("--weights-prefix", o.weights_prefix, "strip this prefix from the file's keys (default: detected)");
   app.add_flag("--random-weights", o.random_weights, "random encoder (pipeline tests only; recorded as such)");
-  app.add_option("--seed", o.seed, "seed for --random-weights")->capture_default_str();
-  app.add_option("--dim", o.dim, "base width (96 = Wan 2.1; smaller only with --random-weights)")->capture_default_str();
-  app.add_option("--window", o.window, "frames per latent window, 1+4k (17 or 49)")->capture_default_str();
-  app.add_option("--step", o.step, "frames between window starts (default: the window, no overlap)");
+  app.add_option("--seed", o.seed, "seed for --random-weights");
+  app.add_option("--dim", o.dim, "base width (96 = Wan 2.1; smaller only with --random-weights)")->check(CLI::PositiveNumber);
+  app.add_option("--window", o.window, "frames per latent window, 1+4k (17 or 49)");
+  app.add_option("--step", o.step, "frames between window starts (0 = the window, no overlap)")->check(CLI::NonNegativeNumber);
   app.add_option("--size", o.size, "frame size HxW to encode at (multiples of 8; default: the scene's, floored to 8)");
-  app.add_option("--device", o.device, "cpu or cuda")->check(CLI::IsMember({"cpu", "cuda"}))->capture_default_str();
-  app.add_option("--dtype", o.dtype, "compute dtype fp32 or bf16")->check(CLI::IsMember({"fp32", "bf16"}))->capture_default_str();
-  app.add_option("--store", o.store, "stored dtype float32, bfloat16 or float16")
-      ->check(CLI::IsMember({"float32", "bfloat16", "float16"}))
-      ->capture_default_str();
+  cli::add_device(app, o.device);
+  cli::add_precision(app, o.precision);
+  app.add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
+  cli::add_store(app, o.store);
   app.add_flag("--full", o.full, "encode the whole window at once instead of streaming chunks");
-  CLI11_PARSE(app, argc, argv);
-  try {
+  if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
+  return cli::run([&] {
     run(o);
-  } catch (...) {
-    return flat::report_current_error();
-  }
-  return 0;
+    return 0;
+  });
 }

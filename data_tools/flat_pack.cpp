@@ -6,6 +6,7 @@
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/progress.h"
 #include "flat/data/pack.h"
@@ -15,25 +16,19 @@ int main(int argc, char** argv) {
   namespace fs = std::filesystem;
   CLI::App app{"flat_pack: write frames.safetensors (images U8, depth F32, normals F16) for each scene"};
   std::vector<std::string> roots;
+  std::string log_level = "info";
   bool remove = false;
+  flat::cli::add_common(app, "flat_pack", log_level);
   app.add_option("--scenes", roots, "scene folders, or folders holding scene folders")->required();
   app.add_flag("--remove-files", remove, "delete the per-frame image/depth/normal files after packing");
-  CLI11_PARSE(app, argc, argv);
-  try {
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  return flat::cli::run([&] {
     std::vector<std::string> dirs;
     for (const auto& r : roots) {
-      if (fs::exists(fs::path(r) / flat::data::kSceneFile)) {
-        dirs.push_back(r);
-        continue;
-      }
-      if (!fs::is_directory(r)) flat::fail(r + ": not a folder");
-      std::vector<std::string> sub;
-      for (const auto& e : fs::directory_iterator(r))
-        if (fs::exists(e.path() / flat::data::kSceneFile)) sub.push_back(e.path().string());
-      std::sort(sub.begin(), sub.end());
-      if (sub.empty()) flat::fail(r + ": no scene folders (with scene.json) inside");
+      auto sub = flat::data::scene_dirs_under(r);
       dirs.insert(dirs.end(), sub.begin(), sub.end());
     }
+    flat::cli::start_logging(log_level, (fs::path(roots.front()) / "flat_pack.log").string());
     flat::Progress progress("flat_pack", int64_t(dirs.size()));
     for (const auto& d : dirs) {
       auto scene = flat::data::read_scene(d);
@@ -42,8 +37,6 @@ int main(int argc, char** argv) {
     }
     progress.finish();
     spdlog::info("packed {} scenes", dirs.size());
-  } catch (...) {
-    return flat::report_current_error();
-  }
-  return 0;
+    return 0;
+  });
 }

@@ -1,5 +1,7 @@
 // flat_render: render a triangle soup (PLY, docs/formats.md) into every camera
 // of a cameras JSON: RGB, alpha, depth and normals, as images or safetensors.
+// The output folder appears whole or not at all; an existing one is kept
+// unless --overwrite.
 #include <filesystem>
 
 #include <CLI/CLI.hpp>
@@ -7,9 +9,11 @@
 #include <torch/torch.h>
 
 #include "flat/camera/camera_json.h"
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
 #include "flat/core/progress.h"
+#include "flat/core/staged_dir.h"
 #include "flat/core/tensor_io.h"
 #include "flat/export/triangle_ply.h"
 #include "flat/render/rasterize.h"
@@ -33,37 +37,46 @@ std::vector<double> parse_rgb(const std::string& text) {
 
 int run(int argc, char** argv) {
   CLI::App app{"flat_render: render a triangle soup into cameras (RGB, alpha, depth, normals)"};
-  std::string ply, cams_path, out_dir, format = "safetensors", window = "flat", background = "0,0,0", device = "cpu";
+  std::string ply, cams_path, out_dir, format = "safetensors", window = "flat", background = "0,0,0", device = "auto";
+  std::string log_level = "info";
+  bool overwrite = false;
   double eps = flat::render::RasterSettings{}.eps;
+  flat::cli::add_common(app, "flat_render", log_level);
   app.add_option("--triangles", ply, "triangle soup PLY (docs/formats.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--cameras", cams_path, "cameras JSON (docs/formats.md)")->required()->check(CLI::ExistingFile);
-  app.add_option("--out", out_dir, "output folder")->required();
+  app.add_option("--out", out_dir, "output folder (must not exist unless --overwrite)")->required();
+  app.add_flag("--overwrite", overwrite, "replace an existing output folder (only once the new one is complete)");
   app.add_option("--format", format, "png | exr | safetensors (png: rgb/alpha 8-bit, depth/normal need exr)")
       ->check(CLI::IsMember({"png", "exr", "safetensors"}));
   app.add_option("--window", window, "window function: flat (paper) | ts (Triangle Splatting)")
       ->check(CLI::IsMember({"flat", "ts"}));
   app.add_option("--eps", eps, "FLAT window support beyond each edge, in inradii")->check(CLI::Range(0.0, 1.0));
   app.add_option("--background", background, "background colour r,g,b in [0,1]");
-  app.add_option("--device", device, "cpu | cuda")->check(CLI::IsMember({"cpu", "cuda"}));
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  flat::cli::add_device(app, device);
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  std::string log = out_dir;
+  while (log.size() > 1 && log.back() == '/') log.pop_back();
+  flat::cli::start_logging(log_level, log + ".log");
   flat::render::RasterSettings settings;
   settings.window = window;
   settings.eps = eps;
   settings.background = parse_rgb(background);
   settings.check();
-  FLAT_CHECK(device == "cpu" || torch::cuda::is_available(), "--device cuda: no CUDA device is available");
-  const torch::Device dev(device == "cuda" ? torch::kCUDA : torch::kCPU);
+  const torch::Device dev = flat::cli::resolve_device(device);
+  flat::StagedDir staged(out_dir, overwrite);  // refuses an existing folder before any work
 
   const auto soup = flat::exporter::read_triangle_ply(ply);
   const auto set = flat::camera::read_cameras_json(cams_path);
   spdlog::info("{}: {} triangles; {}: {} cameras at {}x{}", ply, soup.vertices.size(0), cams_path, set.cameras.size(),
                set.width, set.height);
-  std::filesystem::create_directories(out_dir);
   const int64_t V = set.cameras.size();
+  // Every view's RGB, alpha, depth and normals (8 floats a pixel) are kept on the host;
+  // one view's buffers (a few times that) on the device.
+  const double pixels = double(set.height) * double(set.width);
+  flat::cli::check_memory(double(V) * pixels * 8.0 * 4.0, "flat_render: " + std::to_string(V) + " views at " +
+                          std::to_string(set.width) + "x" + std::to_string(set.height), c10::Device(c10::kCPU));
+  flat::cli::check_memory(pixels * 8.0 * 4.0 * 4.0, "flat_render: one view at " + std::to_string(set.width) + "x" +
+                          std::to_string(set.height), dev);
   torch::NoGradGuard no_grad;
   auto v = soup.vertices.to(dev), c = soup.colors.to(dev), o = soup.opacities.to(dev), s = soup.sigmas.to(dev);
   flat::Progress progress("render", V);
@@ -78,14 +91,15 @@ int run(int argc, char** argv) {
     progress.step();
   }
   progress.finish();
-  const auto out = std::filesystem::path(out_dir);
+  const auto out = std::filesystem::path(staged.path());
   if (format == "safetensors") {
     flat::save_safetensors((out / "render.safetensors").string(),
                            {{"rgb", torch::cat(rgb)}, {"alpha", torch::cat(alpha)}, {"depth", torch::cat(depth)},
                             {"normal", torch::cat(normal)}},
                            {{"window", window}, {"eps", std::to_string(eps)}, {"triangles", ply}, {"cameras", cams_path},
                             {"depth", "alpha-weighted expected depth (divide by alpha for metric depth)"}});
-    spdlog::info("wrote {}", (out / "render.safetensors").string());
+    staged.commit();
+    spdlog::info("wrote {}", (std::filesystem::path(out_dir) / "render.safetensors").string());
     return 0;
   }
   for (int64_t i = 0; i < V; ++i) {
@@ -104,6 +118,7 @@ int run(int argc, char** argv) {
       flat::write_image(base + "_normal.exr", normal[i][0]);
     }
   }
+  staged.commit();
   spdlog::info("wrote {} views to {}", V, out_dir);
   return 0;
 }
@@ -111,9 +126,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (...) {
-    return flat::report_current_error();
-  }
+  return flat::cli::run([&] { return run(argc, argv); });
 }

@@ -1,58 +1,82 @@
 // flat_synth: deterministic synthetic scenes with exact RGB, metric depth and
 // camera-space normals, ray cast from analytic shapes (docs/data_tools.md).
 //   flat_synth --out DIR --scenes 8 --seed 0 --family room --frames 49 --size 176x320 --motion mixed
+// Scenes are named <family>_<index>; an existing scene of the batch is refused
+// before anything is rendered (never mixed with a new one) unless --overwrite,
+// and --first-index continues the numbering of an earlier batch.
 #include <cstdio>
 #include <filesystem>
 
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/progress.h"
+#include "flat/core/shape.h"
+#include "flat/core/staged_dir.h"
 #include "flat/data/synthetic_scene.h"
+
+namespace fs = std::filesystem;
 
 int main(int argc, char** argv) {
   CLI::App app{"flat_synth: write synthetic scene folders (rooms or object-centric) with exact depth and normals"};
-  std::string out, size = "176x320";
-  int64_t scenes = 1;
-  int64_t seed = 0;
+  std::string out, size = "176x320", log_level = "info";
+  int64_t scenes = 1, seed = 0, first = 0;
+  bool overwrite = false;
   flat::data::SynthOptions o;
-  app.add_option("--out", out, "output folder (one sub-folder per scene)")->required();
-  app.add_option("--scenes", scenes, "number of scenes")->check(CLI::PositiveNumber)->capture_default_str();
-  app.add_option("--seed", seed, "base seed; scene i uses seed*1000003+i")->capture_default_str();
-  app.add_option("--family", o.family, "room or object")->check(CLI::IsMember({"room", "object"}))->capture_default_str();
-  app.add_option("--frames", o.frames, "frames per scene (the paper's videos: 49 to 81)")
-      ->check(CLI::Range(1, 1000))
-      ->capture_default_str();
-  app.add_option("--size", size, "frame size HxW")->capture_default_str();
-  app.add_option("--motion", o.motion, "pan, zoom, orbit or mixed")
-      ->check(CLI::IsMember({"pan", "zoom", "orbit", "mixed"}))
-      ->capture_default_str();
-  CLI11_PARSE(app, argc, argv);
-  try {
-    long long h = 0, w = 0;
-    char x = 0;
-    if (std::sscanf(size.c_str(), "%lld%c%lld", &h, &x, &w) != 3 || (x != 'x' && x != 'X'))
-      flat::fail("--size must be HxW (e.g. 176x320), got '" + size + "'");
-    o.height = h;
-    o.width = w;
-    flat::Progress progress("flat_synth", scenes);
-    for (int64_t i = 0; i < scenes; ++i) {
-      flat::data::SynthOptions s = o;
-      s.seed = uint64_t(seed) * 1000003ull + uint64_t(i);
+  flat::cli::add_common(app, "flat_synth", log_level);
+  app.add_option("--out", out, "output folder (one sub-folder per scene, <family>_<index>)")->required();
+  app.add_option("--scenes", scenes, "number of scenes")->check(CLI::PositiveNumber);
+  app.add_option("--first-index", first, "index of the first scene (continue an earlier batch in the same folder)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--overwrite", overwrite, "replace scenes of the same names (each only once its new folder is complete)");
+  app.add_option("--seed", seed, "base seed; scene i uses seed*1000003+i");
+  app.add_option("--family", o.family, "room or object")->check(CLI::IsMember({"room", "object"}));
+  app.add_option("--frames", o.frames, "frames per scene (the paper's videos: 49 to 81)")->check(CLI::Range(1, 1000));
+  app.add_option("--size", size, "frame size HxW");
+  app.add_option("--motion", o.motion, "pan, zoom, orbit or mixed")->check(CLI::IsMember({"pan", "zoom", "orbit", "mixed"}));
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  return flat::cli::run([&] {
+    if (!flat::parse_size(size, o.height, o.width))
+      throw flat::cli::UsageError("flat_synth: --size must be HxW (e.g. 176x320), got '" + size + "'");
+    auto name_of = [&](int64_t i) {
       char name[64];
       std::snprintf(name, sizeof(name), "%s_%06lld", o.family.c_str(), static_cast<long long>(i));
+      return std::string(name);
+    };
+    // Refuse up front: a second batch must not replace the first one's scenes halfway.
+    std::vector<std::string> existing;
+    for (int64_t i = first; i < first + scenes; ++i)
+      if (fs::exists(fs::path(out) / name_of(i))) existing.push_back(name_of(i));
+    if (!existing.empty() && !overwrite)
+      flat::fail(out + ": already holds " + std::to_string(existing.size()) + " scene(s) of this batch (" +
+                 existing.front() + (existing.size() > 1 ? ", ..." : "") +
+                 "); pass --first-index N to continue the numbering, or --overwrite to replace them");
+    // Outputs plus the ray-casting buffers of one frame: refuse what cannot fit before rendering.
+    const double pixels = double(o.height) * double(o.width);
+    flat::cli::check_memory(pixels * 4.0 * (double(o.frames) * 9.0 + 40.0),
+                            "flat_synth: a scene of " + std::to_string(o.frames) + " frames at " + size,
+                            c10::Device(c10::kCPU));
+    fs::create_directories(out);
+    flat::cli::start_logging(log_level, (fs::path(out) / "flat_synth.log").string());
+    flat::Progress progress("flat_synth frames", scenes * o.frames, 5.0);
+    for (int64_t i = first; i < first + scenes; ++i) {
+      flat::data::SynthOptions s = o;
+      s.seed = uint64_t(seed) * 1000003ull + uint64_t(i);
+      s.on_frame = [&] { progress.step(); };
+      const std::string name = name_of(i);
       auto rendered = flat::data::render_synthetic_scene(s);
-      const std::string dir = (std::filesystem::path(out) / name).string();
-      flat::data::write_synthetic_scene(rendered, dir, name,
+      // Staged: a replaced scene keeps no stale frames, a failed one leaves the old one.
+      flat::StagedDir staged((fs::path(out) / name).string(), overwrite);
+      flat::data::write_synthetic_scene(rendered, staged.path(), name,
                                         "flat_synth family=" + o.family + " motion=" + rendered.motion +
                                             " seed=" + std::to_string(s.seed));
-      progress.step();
+      staged.commit();
     }
     progress.finish();
-    spdlog::info("wrote {} {} scenes of {} frames at {}x{} to {}", scenes, o.family, o.frames, o.height, o.width, out);
-  } catch (...) {
-    return flat::report_current_error();
-  }
-  return 0;
+    spdlog::info("wrote {} {} scenes ({}..{}) of {} frames at {}x{} to {}", scenes, o.family, name_of(first),
+                 name_of(first + scenes - 1), o.frames, o.height, o.width, out);
+    return 0;
+  });
 }

@@ -9,17 +9,20 @@
 // to a .safetensors file, or PNG frames (B=1) to a folder. Weights in the
 // original Wan or the diffusers naming are detected; --random-weights --seed S
 // runs without a checkpoint. Outputs record in their metadata whether the
-// weights were pretrained or random.
+// weights were pretrained or random. An existing output is refused (before any
+// work) unless --overwrite; a frame folder appears whole or not at all.
 #include <filesystem>
 
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 #include <torch/torch.h>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
 #include "flat/core/progress.h"
 #include "flat/core/shape.h"
+#include "flat/core/staged_dir.h"
 #include "flat/core/tensor_io.h"
 #include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
@@ -31,31 +34,53 @@ using namespace flat::model;
 namespace {
 
 struct Options {
-  std::string weights, in, out, mode = "streaming", device = "cpu", dtype = "fp32";
-  bool random_weights = false, trim = false, no_clamp = false;
+  std::string weights, weights_prefix, in, out, mode = "streaming", device = "auto", precision = "fp32";
+  std::string log_level = "info";
+  bool random_weights = false, trim = false, no_clamp = false, overwrite = false;
   int64_t seed = 0, dim = 96;
 };
 
 void add_common(CLI::App* cmd, Options& o) {
-  cmd->add_option("--weights", o.weights, "VAE weights (.safetensors, Wan or diffusers naming)");
+  cmd->add_option("--weights", o.weights, "VAE weights: .safetensors (Wan or diffusers naming) or a diffusers folder");
+  cmd->add_option("--weights-prefix", o.weights_prefix, "strip this prefix from the file's keys (default: detected)");
   cmd->add_flag("--random-weights", o.random_weights, "use randomly initialised weights (testing without a checkpoint)");
   cmd->add_option("--seed", o.seed, "seed for --random-weights")->capture_default_str();
   cmd->add_option("--in", o.in, "input")->required();
-  cmd->add_option("--out", o.out, "output")->required();
+  cmd->add_option("--out", o.out, "output (must not exist unless --overwrite)")->required();
+  cmd->add_flag("--overwrite", o.overwrite, "replace an existing output (only once the new one is complete)");
   cmd->add_option("--mode", o.mode, "streaming (bounded memory) or full (whole sequence at once)")
       ->check(CLI::IsMember({"streaming", "full"}))
       ->capture_default_str();
-  cmd->add_option("--device", o.device, "cpu or cuda")->check(CLI::IsMember({"cpu", "cuda"}))->capture_default_str();
-  cmd->add_option("--dtype", o.dtype, "fp32 or bf16")->check(CLI::IsMember({"fp32", "bf16"}))->capture_default_str();
+  cli::add_device(*cmd, o.device);
+  cli::add_precision(*cmd, o.precision);
+  cmd->add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
   cmd->add_option("--dim", o.dim, "base width (96 = pretrained Wan 2.1; smaller only with --random-weights)")
-      ->capture_default_str();
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
+}
+
+// Usage checks before any work: one weights source, an output that may be written.
+void check_usage(const Options& o, bool decode) {
+  if (o.random_weights == !o.weights.empty())
+    throw cli::UsageError("flat_vae: give exactly one of --weights FILE or --random-weights");
+  if (!o.weights.empty() && o.dim != 96) throw cli::UsageError("flat_vae: --dim applies only to --random-weights");
+  const std::string ext = fs::path(o.out).extension().string();
+  if (!decode && ext != ".safetensors")
+    throw cli::UsageError("flat_vae encode: --out must be a .safetensors file, got '" + o.out + "'");
+  if (decode && !ext.empty() && ext != ".safetensors")
+    throw cli::UsageError("flat_vae decode: --out must be a .safetensors file or a folder for PNG frames, got '" +
+                          o.out + "' (videos: write PNG frames, then encode them with ffmpeg)");
+  if (fs::exists(o.out) && !o.overwrite)
+    fail(o.out + ": already exists; choose a new output or pass --overwrite");
+  std::string log = o.out;
+  while (log.size() > 1 && log.back() == '/') log.pop_back();
+  cli::start_logging(o.log_level, log + ".log");
 }
 
 // The VAE on the requested device and dtype, plus the metadata describing its weights.
 WanVAE make_vae(const Options& o, Metadata& meta) {
-  FLAT_CHECK(o.random_weights != !o.weights.empty(), "flat_vae: give exactly one of --weights FILE or --random-weights");
-  FLAT_CHECK(o.weights.empty() || o.dim == 96, "flat_vae: --dim applies only to --random-weights");
-  if (o.device == "cuda") FLAT_CHECK(torch::cuda::is_available(), "flat_vae: --device cuda but no CUDA device is available");
+  const auto device = cli::resolve_device(o.device);
   WanVAEConfig config;
   config.dim = o.dim;
   if (o.random_weights) torch::manual_seed(o.seed);
@@ -65,16 +90,18 @@ WanVAE make_vae(const Options& o, Metadata& meta) {
     meta["seed"] = std::to_string(o.seed);
     spdlog::warn("flat_vae: RANDOM weights (seed {}): outputs are not meaningful images", o.seed);
   } else {
-    auto report = load_weights(*vae, o.weights);
+    LoadSpec spec;
+    spec.strip_prefix = o.weights_prefix;
+    auto report = load_weights(*vae, o.weights, spec);
     meta["weights"] = "pretrained";
     meta["weights_file"] = fs::path(o.weights).filename().string();
     meta["weights_naming"] = naming_name(report.naming);
   }
   vae->eval();
-  if (o.device == "cuda") at::globalContext().setBenchmarkCuDNN(true);  // conv autotuning
-  vae->to(o.device == "cuda" ? torch::kCUDA : torch::kCPU, o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat);
+  if (device.is_cuda()) at::globalContext().setBenchmarkCuDNN(true);  // conv autotuning
+  vae->to(device, cli::precision_dtype(o.precision));
   meta["mode"] = o.mode;
-  meta["dtype"] = o.dtype;
+  meta["dtype"] = o.precision;
   return vae;
 }
 
@@ -95,13 +122,29 @@ at::Tensor read_video(const Options& o) {
     }
     return (at::stack(frames, 1).unsqueeze(0) * 2 - 1);  // (1,3,F,H,W) in [-1,1]
   }
-  return load_tensor_checked(o.in, "video", {-1, 3, -1, -1, -1}, "(B,3,F,H,W)").to(at::kFloat);
+  at::Tensor video = load_tensor_checked(o.in, "video", {-1, 3, -1, -1, -1}, "(B,3,F,H,W)");
+  FLAT_CHECK(video.is_floating_point(), "flat_vae: " + o.in + ": video has dtype " +
+                                            std::string(c10::toString(video.scalar_type())) +
+                                            "; expected floating point values in [-1,1]");
+  return video.to(at::kFloat);
+}
+
+// Values outside [-1,1] mean another convention ([0,1] is fine, [0,255] is not):
+// the encoder would run and write a meaningless latent.
+void check_video_range(const at::Tensor& video, const std::string& what) {
+  if (video.numel() == 0) return;
+  const double lo = video.min().item<double>(), hi = video.max().item<double>();
+  if (lo < -1.001 || hi > 1.001)
+    fail("flat_vae: " + what + ": values span [" + std::to_string(lo) + ", " + std::to_string(hi) +
+         "]; the VAE expects [-1,1] (e.g. 2*x/255-1 for 8-bit values)");
 }
 
 void encode(const Options& o) {
   Metadata meta;
+  check_usage(o, false);
   at::Tensor video = read_video(o);
   check_finite(video, o.in + ": video");
+  check_video_range(video, o.in + ": video");
   const int64_t F = video.size(2);
   if ((F - 1) % 4 != 0) {
     const int64_t keep = 1 + 4 * ((F - 1) / 4);
@@ -114,6 +157,11 @@ void encode(const Options& o) {
   }
   FLAT_CHECK(video.size(3) % 8 == 0 && video.size(4) % 8 == 0,
              "flat_vae: height and width must be multiples of 8, got " + shape_str(video));
+  // The input plus the encoder's widest activations (dim channels at full size).
+  const double frames_in_flight = o.mode == "full" ? double(video.size(2)) : 4.0;
+  cli::check_memory(double(video.numel()) * 4.0 + double(video.size(3) * video.size(4)) * 4.0 * 6.0 * double(o.dim) *
+                                                      frames_in_flight,
+                    "flat_vae encode of " + shape_str(video), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
   auto weight = vae->conv2->weight;
   torch::NoGradGuard no_grad;
@@ -126,6 +174,7 @@ void encode(const Options& o) {
   }
   progress.finish();
   at::Tensor latent = at::cat(latents, 0);
+  check_finite(latent, "flat_vae: the encoded latent");
   meta["frames"] = std::to_string(video.size(2));
   meta["height"] = std::to_string(video.size(3));
   meta["width"] = std::to_string(video.size(4));
@@ -136,8 +185,17 @@ void encode(const Options& o) {
 
 void decode(const Options& o) {
   Metadata meta;
-  at::Tensor latent = load_tensor_checked(o.in, "latent", {-1, 16, -1, -1, -1}, "(B,16,T',h,w)").to(at::kFloat);
+  check_usage(o, true);
+  at::Tensor latent = load_tensor_checked(o.in, "latent", {-1, 16, -1, -1, -1}, "(B,16,T',h,w)");
+  FLAT_CHECK(latent.is_floating_point(), "flat_vae: " + o.in + ": latent has dtype " +
+                                             std::string(c10::toString(latent.scalar_type())) + "; expected floating point");
+  latent = latent.to(at::kFloat);
   check_finite(latent, o.in + ": latent");
+  // The decoded video (B,3,1+4(T'-1),8h,8w) in float32, twice (output and the last activations).
+  const double frames = double(1 + 4 * (latent.size(2) - 1)), pixels = double(latent.size(3) * latent.size(4) * 64);
+  cli::check_memory(double(latent.size(0)) * 3.0 * frames * pixels * 4.0 * 2.0 +
+                        pixels * 4.0 * 6.0 * double(o.dim) * (o.mode == "full" ? frames : 4.0),
+                    "flat_vae decode of latent " + shape_str(latent), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
   auto weight = vae->conv2->weight;
   torch::NoGradGuard no_grad;
@@ -150,6 +208,7 @@ void decode(const Options& o) {
   }
   progress.finish();
   at::Tensor video = at::cat(videos, 0);
+  check_finite(video, "flat_vae: the decoded video");
   meta["clamped"] = o.no_clamp ? "false" : "true";
   if (fs::path(o.out).extension() == ".safetensors") {
     save_safetensors(o.out, {{"video", video}}, meta);
@@ -158,15 +217,17 @@ void decode(const Options& o) {
   }
   FLAT_CHECK(video.size(0) == 1, "flat_vae: writing frames to a folder needs B = 1, got " + shape_str(video) +
                                      "; use a .safetensors output");
-  fs::create_directories(o.out);
+  // Staged: an earlier folder's frames never stay beside the new ones.
+  StagedDir staged(o.out, o.overwrite);
   Progress writing("writing frames", video.size(2));
   for (int64_t t = 0; t < video.size(2); ++t) {
     char name[32];
     std::snprintf(name, sizeof(name), "frame_%04lld.png", static_cast<long long>(t));
-    write_image((fs::path(o.out) / name).string(), (video[0].select(1, t) + 1) / 2);
+    write_image(staged.file(name), (video[0].select(1, t) + 1) / 2);
     writing.step();
   }
   writing.finish();
+  staged.commit();
   spdlog::info("flat_vae: wrote {} frames to {}", video.size(2), o.out);
 }
 
@@ -174,6 +235,8 @@ void decode(const Options& o) {
 
 int main(int argc, char** argv) {
   CLI::App app{"flat_vae: Wan 2.1 VAE encode (video -> normalised latent) and decode (latent -> video)"};
+  app.option_defaults()->always_capture_default();
+  app.set_version_flag("--version", std::string("flat_vae ") + cli::kVersion);
   app.require_subcommand(1);
   Options enc, dec;
   auto* e = app.add_subcommand("encode", "image folder or safetensors `video` (B,3,F,H,W) in [-1,1] -> `latent`");
@@ -182,14 +245,10 @@ int main(int argc, char** argv) {
   auto* d = app.add_subcommand("decode", "safetensors `latent` (B,16,T',h,w) -> `video` file or PNG frame folder");
   add_common(d, dec);
   d->add_flag("--no-clamp", dec.no_clamp, "keep the raw decoder output (no clamp to [-1,1])");
-  try {
-    app.parse(argc, argv);
+  if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
+  return cli::run([&] {
     if (e->parsed()) encode(enc);
     if (d->parsed()) decode(dec);
-  } catch (const CLI::ParseError& err) {
-    return app.exit(err);
-  } catch (...) {
-    return flat::report_current_error();
-  }
-  return 0;
+    return 0;
+  });
 }

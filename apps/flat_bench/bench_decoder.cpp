@@ -3,7 +3,7 @@
 // the paper's sizes: 13 latent frames of 54x96 (49 views at 432x768) and 21.
 //
 //   flat_bench decoder                       # 13 and 21 frames, full and streaming
-//   flat_bench decoder --frames 13 --mode full --camera encoded --breakdown
+//   flat_bench decoder --latent-frames 13 --mode full --camera encoded --breakdown
 //
 // Timing: median of --repeats runs after --warmup runs, each bracketed by
 // device synchronisation. Memory: peak of the CUDA caching allocator during the
@@ -17,6 +17,7 @@
 
 #include "bench_registry.h"
 #include "flat/camera/cameras.h"
+#include "flat/core/cli.h"
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/model/camera_latents.h"
@@ -39,7 +40,7 @@ struct DecoderBenchOptions {
   std::string heads = "independent";
   int64_t stream_trunk_frames = SceneDecoderConfig{}.stream_trunk_frames;
   std::string dtype = "bf16";
-  std::string device = "cuda";
+  std::string device = "auto";
   int64_t dim = 96;
   int repeats = 5, warmup = 2;
   bool channels_last = true, fused_norm = true, breakdown = false, ops = false, cudnn_benchmark = true;
@@ -208,9 +209,8 @@ void run_breakdown(SceneDecoder& scene, const at::Tensor& latent, const at::Tens
 }
 
 void run_decoder_bench(const DecoderBenchOptions& o) {
-  const bool cuda = o.device == "cuda";
-  FLAT_CHECK(!cuda || torch::cuda::is_available(), "flat_bench decoder: --device cuda but no CUDA device; use --device cpu");
-  const torch::Device dev(cuda ? torch::kCUDA : torch::kCPU);
+  const torch::Device dev = cli::resolve_device(o.device);
+  const bool cuda = dev.is_cuda();
   const auto dtype = o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat;
   set_fused_norm_enabled(o.fused_norm);
   // cuDNN autotuning: the warm-up runs try the algorithms for every conv shape.
@@ -289,7 +289,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
 void add_decoder(CLI::App& app) {
   auto opts = std::make_shared<DecoderBenchOptions>();
   auto* cmd = app.add_subcommand("decoder", "FLAT scene decoder (camera adapter + Wan decoder + heads) forward");
-  cmd->add_option("--frames", opts->frames, "latent frame counts (13 = 49 views, 21 = 81)")->capture_default_str();
+  cmd->add_option("--latent-frames", opts->frames, "latent frame counts (13 = 49 views, 21 = 81)")->capture_default_str();
   cmd->add_option("--height", opts->height, "latent height (54 = 432 px)")->capture_default_str();
   cmd->add_option("--width", opts->width, "latent width (96 = 768 px)")->capture_default_str();
   cmd->add_option("--mode", opts->mode, "full, streaming or both")
@@ -305,8 +305,9 @@ void add_decoder(CLI::App& app) {
                   "streaming: latent frames per step of the low-resolution trunk")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
-  cmd->add_option("--dtype", opts->dtype, "bf16 or fp32")->check(CLI::IsMember({"bf16", "fp32"}))->capture_default_str();
-  cmd->add_option("--device", opts->device, "cuda or cpu")->check(CLI::IsMember({"cuda", "cpu"}))->capture_default_str();
+  cli::add_precision(*cmd, opts->dtype);
+  cmd->add_option("--dtype", opts->dtype, "old name of --precision")->check(CLI::IsMember({"bf16", "fp32"}))->group("");
+  cli::add_device(*cmd, opts->device);
   cmd->add_option("--dim", opts->dim, "decoder base width (96 = paper)")->capture_default_str();
   cmd->add_option("--repeats", opts->repeats, "timed runs")->capture_default_str();
   cmd->add_option("--warmup", opts->warmup, "untimed runs first")->capture_default_str();

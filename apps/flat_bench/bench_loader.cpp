@@ -4,7 +4,7 @@
 // and from packed scenes (frames.safetensors).
 //
 //   flat_bench loader                                   # stage 1, files and packed
-//   flat_bench loader --frames 49 --targets 49 --scene-frames 81   # stage 2
+//   flat_bench loader --window 49 --targets 49 --scene-frames 81   # stage 2
 //   flat_bench loader --data /data/re10k --workers 8
 //
 // Reports batches/s and samples/s over --batches batches after --warmup.
@@ -129,7 +129,7 @@ void add_loader(CLI::App& app) {
   sub->add_option("--scene-frames", o->scene_frames, "frames per synthetic scene")->capture_default_str();
   sub->add_option("--source-size", o->source_size, "synthetic frame size HxW")->capture_default_str();
   sub->add_option("--size", o->size, "loader output size HxW (stage 1: 320p)")->capture_default_str();
-  sub->add_option("--frames", o->frames, "input window F")->capture_default_str();
+  sub->add_option("--window", o->frames, "input window F (frames)")->capture_default_str();
   sub->add_option("--targets", o->targets, "target views V")->capture_default_str();
   sub->add_option("--batch", o->batch, "scenes per batch")->capture_default_str();
   sub->add_option("--workers", o->workers, "prefetch threads")->capture_default_str();

@@ -2,7 +2,8 @@
 // memory of the triangle rasterizer at the paper's sizes, on a synthetic
 // "decoded scene": for each of T frames, one camera-facing triangle per 2x2
 // pixel block on the walls of a box room (the anchor workload of the issue),
-// rendered into every other camera. Or any PLY + cameras JSON.
+// rendered into every other camera (--workload paper|stage1|both). Or any PLY +
+// cameras JSON. --device auto|cpu|cuda (peak memory is reported on CUDA only).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -17,6 +18,8 @@
 
 #include "bench_registry.h"
 #include "flat/camera/camera_json.h"
+#include "flat/core/cli.h"
+#include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/export/triangle_ply.h"
 #include "flat/render/rasterize.h"
@@ -126,35 +129,33 @@ void profile_scene(const std::string& label, const Scene& sc, const render::Rast
 
 void time_scene(const std::string& label, const Scene& sc, const render::RasterSettings& settings, int repeats) {
   const auto dev = sc.vertices.device();
-  auto sync = [] { torch::cuda::synchronize(); };
+  auto sync = [&] {
+    if (dev.is_cuda()) torch::cuda::synchronize();
+  };
   const int64_t V = sc.targets.size();
   // Random upstream weights so every output carries gradient.
   auto w_rgb = torch::rand({V, 3, sc.height, sc.width}, sc.vertices.options());
   std::vector<double> fwd, fwdbwd;
   double peak_fwd = 0, peak_all = 0;
-  const int devi = dev.index() < 0 ? 0 : dev.index();
-  using c10::cuda::CUDACachingAllocator::getDeviceStats;
-  using c10::cuda::CUDACachingAllocator::resetPeakStats;
-  const auto agg = static_cast<size_t>(c10::CachingAllocator::StatType::AGGREGATE);
   int64_t visible = 0;
   for (int it = 0; it < repeats + 2; ++it) {
     {
       torch::NoGradGuard ng;
       sync();
-      resetPeakStats(devi);
+      reset_peak_memory(dev);
       const double t0 = now_ms();
       auto r = render::rasterize(sc.vertices, sc.colors, sc.opacities, sc.sigmas, sc.targets, sc.height, sc.width,
                                  settings);
       sync();
       const double t1 = now_ms();
       if (it >= 2) fwd.push_back(t1 - t0);
-      peak_fwd = std::max(peak_fwd, double(getDeviceStats(devi).allocated_bytes[agg].peak));
+      peak_fwd = std::max(peak_fwd, peak_memory_gib(dev));
       if (it == 0) visible = (r.max_weight > 0).sum().item<int64_t>();
     }
     auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
     auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
     sync();
-    resetPeakStats(devi);
+    reset_peak_memory(dev);
     const double t0 = now_ms();
     auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
     auto loss = (r.rgb * w_rgb).sum() + r.alpha.sum() + 0.1 * r.depth.sum() + r.normal.sum();
@@ -162,9 +163,9 @@ void time_scene(const std::string& label, const Scene& sc, const render::RasterS
     sync();
     const double t1 = now_ms();
     if (it >= 2) fwdbwd.push_back(t1 - t0);
-    peak_all = std::max(peak_all, double(getDeviceStats(devi).allocated_bytes[agg].peak));
+    peak_all = std::max(peak_all, peak_memory_gib(dev));
   }
-  const double gib = 1024.0 * 1024.0 * 1024.0;
+  const double gib = 1.0;  // peak_memory_gib is in GiB already
   spdlog::info("raster {}: {} triangles ({} with weight > 0), {} views at {}x{}, window {}", label,
                sc.vertices.size(0), visible, V, sc.height, sc.width, settings.window);
   spdlog::info("raster {}: forward {:.2f} ms (median of {}), forward+backward {:.2f} ms, peak {:.2f} GiB forward, "
@@ -180,22 +181,23 @@ void time_scene(const std::string& label, const Scene& sc, const render::RasterS
 void add_raster(CLI::App& app) {
   auto* sub = app.add_subcommand("raster", "triangle rasterizer: forward, forward+backward time and peak memory");
   struct Opts {
-    std::string size = "both", ply, cams, window = "flat";
+    std::string workload = "both", ply, cams, window = "flat", device = "auto";
     int repeats = 5;
     bool profile = false;
   };
   auto opts = std::make_shared<Opts>();
-  sub->add_option("--size", opts->size, "paper (49x216x384 tris, 24 views 432x768) | stage1 (17x160x288, 17 views "
-                                        "320x576) | both")
+  sub->add_option("--workload", opts->workload, "paper (49x216x384 tris, 24 views 432x768) | stage1 (17x160x288, 17 "
+                                                "views 320x576) | both")
       ->check(CLI::IsMember({"paper", "stage1", "both"}));
+  cli::add_device(*sub, opts->device);
   sub->add_option("--triangles", opts->ply, "time this triangle soup PLY instead (with --cameras)");
   sub->add_option("--cameras", opts->cams, "cameras JSON for --triangles");
   sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}));
   sub->add_option("--repeats", opts->repeats, "timed repeats after 2 warm-ups")->check(CLI::Range(1, 1000));
   sub->add_flag("--profile", opts->profile, "also print GPU time per kernel of one forward+backward step");
   sub->callback([opts] {
-    FLAT_CHECK(torch::cuda::is_available(), "flat_bench raster: needs a CUDA device");
-    const torch::Device dev(torch::kCUDA, 0);
+    const torch::Device dev = cli::resolve_device(opts->device);
+    FLAT_CHECK(!opts->profile || dev.is_cuda(), "flat_bench raster: --profile needs --device cuda (GPU kernel times)");
     render::RasterSettings settings;
     settings.window = opts->window;
     std::printf("| workload | triangles | views | HxW | window | forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|\n");
@@ -212,8 +214,8 @@ void add_raster(CLI::App& app) {
       time_scene(label, sc, settings, opts->repeats);
       if (opts->profile) profile_scene(label, sc, settings);
     };
-    if (opts->size == "stage1" || opts->size == "both") run("stage1", room_scene(17, 320, 576, 17, dev));
-    if (opts->size == "paper" || opts->size == "both") run("paper", room_scene(49, 432, 768, 24, dev));
+    if (opts->workload == "stage1" || opts->workload == "both") run("stage1", room_scene(17, 320, 576, 17, dev));
+    if (opts->workload == "paper" || opts->workload == "both") run("paper", room_scene(49, 432, 768, 24, dev));
   });
 }
 

@@ -36,8 +36,17 @@ at::Tensor rigid(const at::Tensor& c2w) {
   return m.to(at::kFloat);
 }
 
-void finish_import(const Scene& scene) {
+std::unique_ptr<StagedDir> begin_import(const std::string& out_dir, bool overwrite) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(out_dir, ec) && std::filesystem::is_empty(out_dir, ec))
+    std::filesystem::remove(out_dir, ec);  // an empty folder holds nothing to protect
+  return std::make_unique<StagedDir>(out_dir, overwrite);
+}
+
+void finish_import(Scene& scene, StagedDir& staged) {
   write_scene_json(scene);
+  staged.commit();
+  scene.dir = staged.target();
   if (scene.size() >= 2) {
     try {
       AxesFocus f = principal_axes_focus(scene.cameras());

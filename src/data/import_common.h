@@ -2,11 +2,13 @@
 // camera sanity log line.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <utility>
 
 #include <ATen/ATen.h>
 
+#include "flat/core/staged_dir.h"
 #include "flat/data/importers.h"
 #include "flat/data/scene.h"
 
@@ -21,7 +23,14 @@ std::string write_import_image(const Scene& scene, int64_t index, const at::Tens
 // Re-orthonormalises the rotation of a c2w (4,4) (float noise in source files).
 at::Tensor rigid(const at::Tensor& c2w);
 
-// Logs the principal-axes focus of the imported cameras and writes scene.json.
-void finish_import(const Scene& scene);
+// The scene is built in "<out_dir>.incomplete-<pid>" and moved into place by
+// finish_import, so a failed import leaves an earlier scene at out_dir as it
+// was. An existing out_dir is refused unless `overwrite` (an empty folder
+// counts as absent). Call it after the inputs are parsed, before frames are written.
+std::unique_ptr<StagedDir> begin_import(const std::string& out_dir, bool overwrite);
+
+// Writes scene.json into the staging folder, moves the folder to its target
+// (scene.dir becomes the target) and logs the principal-axes focus of the cameras.
+void finish_import(Scene& scene, StagedDir& staged);
 
 }  // namespace flat::data::detail

@@ -86,8 +86,9 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
   for (size_t i = 0; i < all.size(); i += size_t(o.stride)) keep.push_back(i);
   if (o.max_frames > 0 && int64_t(keep.size()) > o.max_frames) keep.resize(size_t(o.max_frames));
 
+  auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
-  scene.dir = out_dir;
+  scene.dir = staged->path();
   scene.name = o.name.empty() ? fs::path(out_dir).filename().string() : o.name;
   scene.source = "RealEstate10K: " + camera_file;
   scene.metric_scale = o.metric_scale;
@@ -116,7 +117,7 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
     progress.step();
   }
   progress.finish();
-  detail::finish_import(scene);
+  detail::finish_import(scene, *staged);
   return scene;
 }
 

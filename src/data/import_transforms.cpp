@@ -140,8 +140,9 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
   if (o.max_frames > 0 && int64_t(kept.size()) > o.max_frames) kept.resize(size_t(o.max_frames));
   if (kept.empty()) fail(file.string() + ": no frames with images");
 
+  auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
-  scene.dir = out_dir;
+  scene.dir = staged->path();
   scene.name = o.name.empty() ? fs::path(out_dir).filename().string() : o.name;
   scene.source = "transforms.json: " + file.string();
   scene.metric_scale = o.metric_scale;
@@ -188,7 +189,7 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
     progress.step();
   }
   progress.finish();
-  detail::finish_import(scene);
+  detail::finish_import(scene, *staged);
   return scene;
 }
 

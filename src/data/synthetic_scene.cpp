@@ -58,6 +58,7 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
     depth.push_back(to_chw(z.unsqueeze(-1), 1));
     normals.push_back(to_chw(n_cam, 3));
     surface.push_back(hit.id.reshape({o.height, o.width}));
+    if (o.on_frame) o.on_frame();
   }
   SynthScene s;
   s.cameras = cams;

@@ -24,8 +24,12 @@ struct ImportOptions {
   int64_t stride = 1;         // keep every stride-th frame
   int64_t max_frames = 0;     // 0 = all
   bool skip_missing = false;  // transforms.json: skip frames whose image is missing (else an error)
+  bool overwrite = false;     // replace an existing scene folder (only once the new one is complete)
 };
 
+// Both build the scene in a staging folder beside out_dir and rename it into
+// place when complete: a failed import leaves out_dir as it was. An existing
+// out_dir (not empty) is refused unless options.overwrite.
 // `source` is a transforms.json file or a folder holding one.
 Scene import_transforms_json(const std::string& source, const std::string& out_dir, const ImportOptions& options);
 

@@ -8,6 +8,7 @@
 // "zoom" (dolly along the view direction), "orbit" (arc around a target),
 // "mixed" (one of the three, chosen by the seed).
 #pragma once
+#include <functional>
 #include <cstdint>
 #include <string>
 
@@ -25,6 +26,7 @@ struct SynthOptions {
   int64_t height = 24;
   int64_t width = 32;
   uint64_t seed = 0;
+  std::function<void()> on_frame;  // called after each rendered frame (progress inside a scene)
   void check() const;  // throws flat::Error naming the bad option
 };
 

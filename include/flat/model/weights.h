@@ -24,6 +24,11 @@ struct LoadSpec {
   std::vector<std::string> keep_initialised;
   // Strip this prefix from file keys before matching (e.g. "vae." for a bundle).
   std::string file_prefix;
+  // Stripped from every file key before the naming is detected (weights saved by
+  // other tools, e.g. "vae."). "" = detected: a dotted prefix that every key
+  // carries and no module parameter starts with (logged in one line); detected
+  // only when neither file_prefix nor take is set.
+  std::string strip_prefix;
 };
 
 struct LoadReport {
@@ -41,7 +46,14 @@ struct LoadReport {
 LoadReport load_state(torch::nn::Module& module, const TensorMap& tensors, const LoadSpec& spec,
                       const std::string& label);
 // Reads `path` (safetensors, either naming, detected) and calls load_state.
+// `path` may be a folder as diffusers saves one: its
+// diffusion_pytorch_model.safetensors (or model.safetensors, or its only
+// .safetensors file) is read.
 LoadReport load_weights(torch::nn::Module& module, const std::string& path, const LoadSpec& spec = {});
+
+// The weights file inside a diffusers-style folder (or `path` itself when it is
+// a file); throws naming the folder when there is no single candidate.
+std::string resolve_weights_file(const std::string& path);
 
 // The module's parameters as CPU tensors under the chosen naming.
 TensorMap state_tensors(const torch::nn::Module& module, WeightNaming naming = WeightNaming::wan);

@@ -1,0 +1,71 @@
+// The command-line vocabulary every FLAT tool shares (docs/cli.md): --version,
+// --log-level, --device auto|cpu|cuda, --precision fp32|bf16, --store
+// fp32|bf16|fp16, the exit codes, the log file beside a tool's outputs, and
+// the memory check that refuses a request before anything is allocated.
+// Tools add their own options and call these, so a flag means one thing
+// everywhere.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include <CLI/CLI.hpp>
+#include <c10/core/Device.h>
+#include <c10/core/ScalarType.h>
+
+namespace flat::cli {
+
+// Exit codes of every tool: 0 ok, 1 runtime error (the message names the
+// file, key or shape), 2 usage error (a bad or missing flag).
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitRuntime = 1;
+inline constexpr int kExitUsage = 2;
+
+inline constexpr const char* kVersion = "0.1.0";
+
+// A usage error found after parsing (two flags that contradict each other):
+// run() maps it to exit code 2.
+class UsageError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// --version ("<tool> 0.1.0") and --log-level trace|debug|info|warn|error;
+// every option's default is shown in --help from here on.
+void add_common(CLI::App& app, const std::string& tool, std::string& log_level);
+
+// --device auto|cpu|cuda (auto = cuda when present), --precision fp32|bf16
+// (compute dtype), --store fp32|bf16|fp16 (stored dtype).
+CLI::Option* add_device(CLI::App& app, std::string& device);
+CLI::Option* add_precision(CLI::App& app, std::string& precision);
+CLI::Option* add_store(CLI::App& app, std::string& store);
+
+// "auto" -> cuda when a CUDA device is present, else cpu; "cuda" without one
+// is a flat::Error that says so.
+c10::Device resolve_device(const std::string& device);
+c10::ScalarType precision_dtype(const std::string& precision);  // fp32 | bf16
+// The store flag's name as files name it: fp32 -> float32, bf16 -> bfloat16, fp16 -> float16.
+std::string stored_dtype_name(const std::string& store);
+
+// Parses argv. Returns -1 to go on; otherwise the exit code to return at once
+// (0 after --help or --version, 2 for a usage error, with CLI11's message).
+int parse(CLI::App& app, int argc, char** argv);
+
+// Runs a tool's body: its return value, 2 for a UsageError, 1 (and the
+// message through spdlog) for any other exception.
+int run(const std::function<int()>& body);
+
+// Console logging at `level`, plus `log_file` when given (appended; its
+// folder is created). Tools put it beside their outputs.
+void start_logging(const std::string& level, const std::string& log_file = "");
+
+// Bytes the device can still give: CUDA free memory, or the host's
+// MemAvailable (0 when unknown).
+uint64_t available_bytes(const c10::Device& device);
+// Throws flat::Error "<what> needs 12.3 GiB on cpu but 7.1 GiB are available"
+// when `bytes` exceed what `device` can give (nothing when unknown). Call it
+// before the allocation, with the request's size.
+void check_memory(double bytes, const std::string& what, const c10::Device& device);
+std::string gib_text(double bytes);  // "12.3 GiB" (or "512 MiB")
+
+}  // namespace flat::cli

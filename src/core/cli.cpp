@@ -1,0 +1,140 @@
+// The shared command-line vocabulary (include/flat/core/cli.h, docs/cli.md).
+#include "flat/core/cli.h"
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include <spdlog/spdlog.h>
+
+#if FLAT_WITH_CUDA
+#include <cuda_runtime_api.h>
+#endif
+
+#include <torch/cuda.h>
+
+#include "flat/core/error.h"
+#include "flat/core/log.h"
+
+namespace flat::cli {
+
+void add_common(CLI::App& app, const std::string& tool, std::string& log_level) {
+  // Every default in --help, also for options added after this call.
+  app.option_defaults()->always_capture_default();
+  app.set_version_flag("--version", tool + " " + kVersion);
+  app.add_option("--log-level", log_level, "trace | debug | info | warn | error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
+      ->capture_default_str();
+}
+
+CLI::Option* add_device(CLI::App& app, std::string& device) {
+  return app.add_option("--device", device, "auto (cuda when present) | cpu | cuda")
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}))
+      ->capture_default_str();
+}
+
+CLI::Option* add_precision(CLI::App& app, std::string& precision) {
+  return app.add_option("--precision", precision, "compute dtype: fp32 | bf16")
+      ->check(CLI::IsMember({"fp32", "bf16"}))
+      ->capture_default_str();
+}
+
+CLI::Option* add_store(CLI::App& app, std::string& store) {
+  return app.add_option("--store", store, "stored dtype: fp32 | bf16 | fp16")
+      ->check(CLI::IsMember({"fp32", "bf16", "fp16"}))
+      ->capture_default_str();
+}
+
+c10::Device resolve_device(const std::string& device) {
+  if (device == "cpu") return c10::Device(c10::kCPU);
+  const bool cuda = torch::cuda::is_available();
+  if (device == "auto") return cuda ? c10::Device(c10::kCUDA, 0) : c10::Device(c10::kCPU);
+  if (device == "cuda") {
+    FLAT_CHECK(cuda, "--device cuda: no CUDA device is available (use --device cpu or auto)");
+    return c10::Device(c10::kCUDA, 0);
+  }
+  fail("--device '" + device + "': expected auto, cpu or cuda");
+}
+
+c10::ScalarType precision_dtype(const std::string& precision) {
+  if (precision == "fp32") return c10::kFloat;
+  if (precision == "bf16") return c10::kBFloat16;
+  fail("--precision '" + precision + "': expected fp32 or bf16");
+}
+
+std::string stored_dtype_name(const std::string& store) {
+  if (store == "fp32") return "float32";
+  if (store == "bf16") return "bfloat16";
+  if (store == "fp16") return "float16";
+  fail("--store '" + store + "': expected fp32, bf16 or fp16");
+}
+
+int parse(CLI::App& app, int argc, char** argv) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // --help and --version are "errors" with code 0; everything else is usage.
+    return app.exit(e) == 0 ? kExitOk : kExitUsage;
+  }
+  return -1;
+}
+
+int run(const std::function<int()>& body) {
+  try {
+    return body();
+  } catch (const UsageError& e) {
+    std::cerr << e.what() << "\n";
+    return kExitUsage;
+  } catch (...) {
+    return report_current_error();
+  }
+}
+
+void start_logging(const std::string& level, const std::string& log_file) { setup_logging(level, log_file); }
+
+uint64_t available_bytes(const c10::Device& device) {
+#if FLAT_WITH_CUDA
+  if (device.is_cuda()) {
+    size_t free = 0, total = 0;
+    int old = 0;
+    if (cudaGetDevice(&old) != cudaSuccess) return 0;
+    cudaSetDevice(device.has_index() ? device.index() : 0);
+    const bool ok = cudaMemGetInfo(&free, &total) == cudaSuccess;
+    cudaSetDevice(old);
+    return ok ? uint64_t(free) : 0;
+  }
+#endif
+  if (device.is_cuda()) return 0;
+  std::ifstream in("/proc/meminfo");
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("MemAvailable:", 0) != 0) continue;
+    std::istringstream ls(line.substr(13));
+    uint64_t kib = 0;
+    ls >> kib;
+    return kib * 1024;
+  }
+  return 0;
+}
+
+std::string gib_text(double bytes) {
+  char buf[64];
+  const double gib = bytes / double(1ull << 30);
+  if (gib >= 1.0 || !std::isfinite(gib)) {
+    std::snprintf(buf, sizeof(buf), "%.1f GiB", gib);
+  } else {
+    std::snprintf(buf, sizeof(buf), "%.0f MiB", bytes / double(1ull << 20));
+  }
+  return buf;
+}
+
+void check_memory(double bytes, const std::string& what, const c10::Device& device) {
+  const uint64_t avail = available_bytes(device);
+  if (avail == 0) return;  // unknown: let the allocator decide
+  if (!(bytes <= double(avail)))
+    fail(what + " needs " + gib_text(bytes) + " on " + device.str() + " but " + gib_text(double(avail)) +
+         " are available");
+}
+
+}  // namespace flat::cli

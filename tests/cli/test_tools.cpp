@@ -1,0 +1,342 @@
+// The tools as a new user meets them (issue #13): bad input is refused up
+// front with exit code 1 (runtime) or 2 (usage) and a message naming what is
+// wrong; a failed or refused run leaves earlier outputs byte-identical; every
+// tool shares --version, --log-level, --device and the exit codes (docs/cli.md).
+#include <filesystem>
+
+#include <torch/torch.h>
+
+#include "cli_fixtures.h"
+#include "flat/core/image_io.h"
+#include "flat/core/tensor_io.h"
+
+namespace fs = std::filesystem;
+using namespace flat::test;
+
+namespace {
+
+// Made once per test process: a 5-frame synthetic room, a transforms.json
+// capture of 3 PNG frames, a random latent and small tensor files.
+struct Fixtures {
+  std::string root, synth, capture, bad_capture, latent, video_ok;
+};
+
+void write_capture(const std::string& dir, bool truncate_last) {
+  std::string frames;
+  for (int i = 0; i < 3; ++i) {
+    const std::string name = "images/" + std::to_string(i) + ".png";
+    flat::write_image(dir + "/" + name, torch::rand({3, 16, 24}));
+    if (truncate_last && i == 2) fs::resize_file(dir + "/" + name, 40);  // a download cut short
+    frames += std::string(i ? "," : "") + "{\"file_path\": \"" + name +
+              "\", \"transform_matrix\": [[1,0,0," + std::to_string(0.1 * i) + "],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}";
+  }
+  write_text(dir + "/transforms.json",
+             "{\"fl_x\": 20, \"fl_y\": 20, \"cx\": 12, \"cy\": 8, \"w\": 24, \"h\": 16, \"frames\": [" + frames + "]}");
+}
+
+const Fixtures& fixtures() {
+  static Fixtures f = [] {
+    Fixtures x;
+    x.root = fresh_dir("cli").string();
+    x.synth = x.root + "/synth";
+    REQUIRE(tool("flat_synth", {"--out", x.synth, "--scenes", "1", "--frames", "5", "--size", "16x24"}, x.root,
+                 "fixture_synth")
+                .rc == 0);
+    x.capture = x.root + "/capture";
+    write_capture(x.capture, false);
+    x.bad_capture = x.root + "/capture_truncated";
+    write_capture(x.bad_capture, true);
+    x.latent = x.root + "/latent.safetensors";
+    flat::save_safetensors(x.latent, {{"latent", torch::randn({1, 16, 2, 2, 3})}});
+    x.video_ok = x.root + "/video.safetensors";
+    flat::save_safetensors(x.video_ok, {{"video", torch::rand({1, 3, 5, 16, 16}) * 2 - 1}});
+    flat::save_safetensors(x.root + "/video_int64.safetensors",
+                           {{"video", torch::randint(0, 2, {1, 3, 5, 16, 16}, torch::kLong)}});
+    flat::save_safetensors(x.root + "/video_255.safetensors", {{"video", torch::rand({1, 3, 5, 16, 16}) * 255}});
+    flat::save_safetensors(x.root + "/weights_nan.safetensors",
+                           {{"encoder.conv1.weight", torch::full({4, 3, 3, 3, 3}, NAN)}});
+    flat::save_safetensors(x.root + "/weights_u8.safetensors",
+                           {{"encoder.conv1.weight", torch::zeros({4, 3, 3, 3, 3}, torch::kByte)}});
+    // A PLY header claiming 4e9 faces over a few bytes of body.
+    write_text(x.root + "/huge.ply",
+               "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+               "property float z\nelement face 4000000000\nproperty list uchar int vertex_indices\n"
+               "property float red\nproperty float green\nproperty float blue\nproperty float opacity\n"
+               "property float sigma\nend_header\n" +
+                   std::string(36, '\0'));
+    const std::string cam = "{\"width\": 300000, \"height\": 300000, \"intrinsics\": [1, 1, 0.5, 0.5], "
+                            "\"c2w\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}";
+    write_text(x.root + "/huge_cams.json", "{\"version\": 1, \"cameras\": [" + cam + "," + cam + "]}");
+    write_text(x.root + "/cams_small.json",
+               "{\"version\": 1, \"cameras\": [{\"width\": 8, \"height\": 8, \"intrinsics\": [1, 1, 0.5, 0.5], "
+               "\"c2w\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}");
+    return x;
+  }();
+  return f;
+}
+
+// One row of the table: a command, its exit code and the words its message must hold.
+struct Case {
+  std::string name, program;
+  std::vector<std::string> args;
+  int rc;
+  std::vector<std::string> words;
+};
+
+std::vector<std::string> expand(const std::vector<std::string>& args, const Fixtures& f) {
+  std::vector<std::string> out;
+  for (std::string a : args) {
+    for (const auto& [key, value] : {std::pair<std::string, std::string>{"{R}", f.root}, {"{SYNTH}", f.synth}}) {
+      const auto at = a.find(key);
+      if (at != std::string::npos) a.replace(at, key.size(), value);
+    }
+    out.push_back(a);
+  }
+  return out;
+}
+
+void check_cases(const std::vector<Case>& cases) {
+  const Fixtures& f = fixtures();
+  for (const auto& c : cases) {
+    INFO(c.name << ": " << c.program);
+    const ToolResult r = tool(c.program, expand(c.args, f), f.root, "case_" + c.name);
+    INFO(r.output);
+    CHECK(r.rc == c.rc);
+    for (const auto& w : c.words) CHECK_THAT(r.output, FLAT_CONTAINS(w));
+    // Never a C++ stack trace or an allocator's bare message in place of ours.
+    CHECK_THAT(r.output, !FLAT_CONTAINS("Exception raised from"));
+    CHECK_THAT(r.output, !FLAT_CONTAINS("std::bad_alloc"));
+  }
+}
+
+const std::vector<std::string> kTools = {"flat_import", "flat_synth", "flat_vae",  "flat_latents", "flat_pack",
+                                         "flat_render", "flat_train", "flat_infer", "flat_eval",    "flat_bench"};
+
+}  // namespace
+
+TEST_CASE("every tool: --version exits 0, an unknown flag is a usage error (2), --help shows defaults", "[cli]") {
+  const Fixtures& f = fixtures();
+  for (const auto& t : kTools) {
+    INFO(t);
+    auto v = tool(t, {"--version"}, f.root, t + "_version");
+    CHECK(v.rc == 0);
+    CHECK_THAT(v.output, FLAT_CONTAINS(t + " 0.1.0"));
+    auto u = tool(t, {"--no-such-flag"}, f.root, t + "_unknown");
+    CHECK(u.rc == 2);
+    CHECK_THAT(u.output, FLAT_CONTAINS("--help"));  // CLI11: "Run with --help for more information."
+    CHECK(tool(t, {"--help"}, f.root, t + "_help").rc == 0);
+  }
+  // Defaults are shown, and --device/--log-level mean the same in every tool that computes.
+  for (const auto& t : {"flat_latents", "flat_render", "flat_infer", "flat_eval"}) {
+    INFO(t);
+    auto h = tool(t, {"--help"}, f.root, std::string(t) + "_help2");
+    CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("auto"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("--log-level"));
+  }
+  for (const auto& sub : {"encode", "decode"}) {
+    auto h = tool("flat_vae", {sub, "--help"}, f.root, std::string("flat_vae_help_") + sub);
+    CHECK_THAT(h.output, FLAT_CONTAINS("--precision"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("[auto]"));
+  }
+  for (const auto& sub : {"decoder", "raster", "loader"}) {
+    auto h = tool("flat_bench", {sub, "--help"}, f.root, std::string("flat_bench_help_") + sub);
+    CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
+  }
+  CHECK_THAT(tool("flat_bench", {"raster", "--help"}, f.root, "raster_help").output, FLAT_CONTAINS("--workload"));
+}
+
+TEST_CASE("bad inputs: exit code and the words of the message, before any work", "[cli]") {
+  check_cases({
+      // usage errors (2)
+      {"synth_size", "flat_synth", {"--out", "{R}/s1", "--size", "16by24"}, 2, {"--size", "HxW"}},
+      {"synth_frames", "flat_synth", {"--out", "{R}/s1", "--frames", "0"}, 2, {"--frames"}},
+      {"latents_window", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--window", "4"}, 2, {"1+4k"}},
+      {"latents_no_weights", "flat_latents", {"--scenes", "{SYNTH}"}, 2, {"--random-weights"}},
+      {"latents_size", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--size", "20x20"}, 2,
+       {"multiples of 8"}},
+      {"latents_device", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--device", "gpu"}, 2,
+       {"--device"}},
+      {"latents_store", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--store", "float32"}, 2,
+       {"--store"}},
+      {"vae_mp4", "flat_vae", {"decode", "--random-weights", "--dim", "4", "--in", "{R}/latent.safetensors", "--out",
+                               "{R}/video.mp4"}, 2, {".safetensors file or a folder"}},
+      {"vae_encode_png", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", "{R}/video.safetensors",
+                                      "--out", "{R}/latent.png"}, 2, {"--out must be a .safetensors"}},
+      {"vae_two_weights", "flat_vae", {"encode", "--in", "{R}/video.safetensors", "--out", "{R}/z.safetensors"}, 2,
+       {"--weights FILE or --random-weights"}},
+      {"import_no_frames_dir", "flat_import", {"re10k", "--in", "{R}/cams.txt", "--out", "{R}/re"}, 2,
+       {"--frames-dir"}},
+      {"bench_raster_size", "flat_bench", {"raster", "--size", "paper"}, 2, {"--size"}},
+      {"train_log_level", "flat_train", {"--config", "{R}/capture/transforms.json", "--log-level", "loud"}, 2, {"--log-level"}},
+      // runtime errors (1): wrong or meaningless input, refused with the file, key or figure
+      {"latents_short", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--dim", "4", "--window", "21"},
+       1, {"no scene has --window 21", "longest has 5"}},
+      {"latents_no_scenes", "flat_latents", {"--scenes", "{R}/capture", "--random-weights"}, 1,
+       {"no scene folders"}},
+      {"vae_nan_weights", "flat_vae", {"encode", "--weights", "{R}/weights_nan.safetensors", "--in",
+                                       "{R}/video.safetensors", "--out", "{R}/z_nan.safetensors"}, 1,
+       {"weights_nan.safetensors", "encoder.conv1.weight", "non-finite"}},
+      {"vae_u8_weights", "flat_vae", {"encode", "--weights", "{R}/weights_u8.safetensors", "--in",
+                                      "{R}/video.safetensors", "--out", "{R}/z_u8.safetensors"}, 1,
+       {"weights_u8.safetensors", "floating point"}},
+      {"vae_int64_video", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in",
+                                       "{R}/video_int64.safetensors", "--out", "{R}/z_i64.safetensors"}, 1,
+       {"video_int64.safetensors", "Long", "floating point"}},
+      {"vae_255_video", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", "{R}/video_255.safetensors",
+                                     "--out", "{R}/z_255.safetensors"}, 1, {"video_255.safetensors", "[-1,1]"}},
+      {"vae_weights_dir_empty", "flat_vae", {"encode", "--weights", "{R}/capture/images", "--in",
+                                             "{R}/video.safetensors", "--out", "{R}/z_dir.safetensors"}, 1,
+       {"without a .safetensors file"}},
+      {"synth_huge", "flat_synth", {"--out", "{R}/huge", "--size", "100000x100000", "--frames", "9"}, 1,
+       {"needs", "GiB", "available"}},
+      {"render_huge_ply", "flat_render", {"--triangles", "{R}/huge.ply", "--cameras", "{R}/cams_small.json", "--out",
+                                          "{R}/render_huge_ply", "--device", "cpu"}, 1,
+       {"huge.ply", "4000000000 faces", "bytes follow the header"}},
+      {"render_huge_camera", "flat_render", {"--triangles", "{R}/huge.ply", "--cameras", "{R}/huge_cams.json",
+                                             "--out", "{R}/render_huge_cam", "--device", "cpu"}, 1,
+       {"huge.ply"}},
+      {"pack_not_scenes", "flat_pack", {"--scenes", "{R}/capture"}, 1, {"capture", "no scene folders"}},
+  });
+  // Nothing was left behind by the refused runs.
+  const Fixtures& f = fixtures();
+  CHECK_FALSE(fs::exists(f.root + "/z_nan.safetensors"));
+  CHECK_FALSE(fs::exists(f.root + "/z_255.safetensors"));
+  CHECK_FALSE(fs::exists(f.root + "/render_huge_ply"));
+  CHECK_FALSE(fs::exists(f.root + "/huge/room_000000"));
+}
+
+TEST_CASE("flat_render refuses a camera size that cannot fit, with the figure", "[cli]") {
+  const Fixtures& f = fixtures();
+  // A valid one-triangle PLY, rendered into two 300000x300000 views.
+  std::string face(33, '\0');
+  face[0] = 3;  // vertex count, then indices 0, 1, 2 (int32 little-endian) and five floats
+  face[5] = 1;
+  face[9] = 2;
+  write_text(f.root + "/one.ply",
+             "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+             "property float red\nproperty float green\nproperty float blue\nproperty float opacity\n"
+             "property float sigma\nend_header\n" +
+                 std::string(36, '\0') + face);
+  auto r = tool("flat_render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/huge_cams.json", "--out",
+                                f.root + "/render_huge", "--device", "cpu"},
+                f.root, "render_huge_cam_valid");
+  INFO(r.output);
+  CHECK(r.rc == 1);
+  CHECK_THAT(r.output, FLAT_CONTAINS("300000x300000"));
+  CHECK_THAT(r.output, FLAT_CONTAINS("GiB"));
+  CHECK_THAT(r.output, !FLAT_CONTAINS("bad_alloc"));
+  CHECK_FALSE(fs::exists(f.root + "/render_huge"));
+}
+
+TEST_CASE("flat_import: a failed import into an existing scene leaves it byte-identical", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_import").string(), scene = d + "/scene";
+  auto ok = tool("flat_import", {"transforms", "--in", f.capture, "--out", scene}, d, "good");
+  INFO(ok.output);
+  REQUIRE(ok.rc == 0);
+  const auto before = snapshot(scene);
+  REQUIRE(before.count("scene.json"));
+  // Refused up front without --overwrite.
+  auto refused = tool("flat_import", {"transforms", "--in", f.capture, "--out", scene}, d, "again");
+  CHECK(refused.rc == 1);
+  CHECK_THAT(refused.output, FLAT_CONTAINS("already exists"));
+  CHECK_THAT(refused.output, FLAT_CONTAINS("--overwrite"));
+  CHECK(snapshot(scene) == before);
+  // With --overwrite, a truncated image midway: exit 1 naming it, the old scene as it was.
+  auto bad = tool("flat_import", {"transforms", "--in", f.bad_capture, "--out", scene, "--overwrite"}, d, "bad");
+  INFO(bad.output);
+  CHECK(bad.rc == 1);
+  CHECK_THAT(bad.output, FLAT_CONTAINS("2.png"));
+  CHECK_THAT(bad.output, !FLAT_CONTAINS("done in"));  // progress never claims success for a failed loop
+  CHECK(snapshot(scene) == before);
+  for (const auto& e : fs::directory_iterator(d))
+    CHECK(e.path().filename().string().find("incomplete") == std::string::npos);
+  // A good --overwrite replaces it whole; the log lies beside the scene.
+  CHECK(tool("flat_import", {"transforms", "--in", f.capture, "--out", scene, "--overwrite", "--max-side", "12"}, d,
+             "replace")
+            .rc == 0);
+  CHECK(snapshot(scene) != before);
+  CHECK(fs::exists(d + "/scene.log"));
+}
+
+TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[cli]") {
+  const std::string d = fresh_dir("cli_synth").string(), out = d + "/data";
+  const std::vector<std::string> batch = {"--out", out, "--scenes", "1", "--frames", "5", "--size", "16x24"};
+  REQUIRE(tool("flat_synth", batch, d, "first").rc == 0);
+  // Latents of the first batch, which a replaced scene would orphan.
+  REQUIRE(tool("flat_latents", {"--scenes", out, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents")
+              .rc == 0);
+  const auto before = snapshot(out + "/room_000000");
+  REQUIRE(before.count("latents.safetensors"));
+  auto again = tool("flat_synth", batch, d, "second");
+  CHECK(again.rc == 1);
+  CHECK_THAT(again.output, FLAT_CONTAINS("room_000000"));
+  CHECK_THAT(again.output, FLAT_CONTAINS("--first-index"));
+  CHECK(snapshot(out + "/room_000000") == before);
+  // Continuing the numbering adds room_000001 beside it.
+  auto more = batch;
+  more.insert(more.end(), {"--first-index", "1", "--seed", "4"});
+  CHECK(tool("flat_synth", more, d, "continue").rc == 0);
+  CHECK(fs::exists(out + "/room_000001/scene.json"));
+  CHECK(snapshot(out + "/room_000000") == before);
+  // --overwrite replaces a scene whole: no stale file of the old one stays.
+  write_text(out + "/room_000000/images/stale.png", "x");
+  auto over = batch;
+  over.push_back("--overwrite");
+  CHECK(tool("flat_synth", over, d, "overwrite").rc == 0);
+  CHECK_FALSE(fs::exists(out + "/room_000000/images/stale.png"));
+  CHECK_FALSE(fs::exists(out + "/room_000000/latents.safetensors"));
+  CHECK(fs::exists(out + "/room_000000/scene.json"));
+  CHECK(fs::exists(out + "/flat_synth.log"));
+}
+
+TEST_CASE("flat_vae decode: an existing frame folder is kept unless --overwrite, then replaced whole", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_vae").string(), frames = d + "/frames";
+  const std::vector<std::string> args = {"decode", "--random-weights", "--dim", "4", "--in", f.latent, "--out", frames};
+  auto first = tool("flat_vae", args, d, "first");
+  INFO(first.output);
+  REQUIRE(first.rc == 0);
+  write_text(frames + "/frame_0099.png", "stale");
+  const auto before = snapshot(frames);
+  auto again = tool("flat_vae", args, d, "again");
+  CHECK(again.rc == 1);
+  CHECK_THAT(again.output, FLAT_CONTAINS("already exists"));
+  CHECK(snapshot(frames) == before);
+  auto over = args;
+  over.push_back("--overwrite");
+  CHECK(tool("flat_vae", over, d, "overwrite").rc == 0);
+  CHECK_FALSE(fs::exists(frames + "/frame_0099.png"));
+  CHECK(fs::exists(frames + "/frame_0004.png"));  // 1 + 4 (T'-1) frames of T' = 2
+  // A file output too: refused, byte-identical.
+  const std::string z = d + "/z.safetensors";
+  const std::vector<std::string> enc = {"encode", "--random-weights", "--dim", "4", "--in", f.video_ok, "--out", z};
+  REQUIRE(tool("flat_vae", enc, d, "encode").rc == 0);
+  const auto z_before = snapshot(d)["z.safetensors"];
+  CHECK(tool("flat_vae", enc, d, "encode_again").rc == 1);
+  CHECK(snapshot(d)["z.safetensors"] == z_before);
+}
+
+TEST_CASE("flat_train: a run folder that holds a run is refused and left byte-identical", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_train").string(), run_dir = d + "/run";
+  write_text(run_dir + "/config.yaml", "steps: 7\n");
+  write_text(run_dir + "/metrics/train.jsonl", "{\"step\": 1, \"loss\": 0.5}\n");
+  write_text(run_dir + "/renders/val_step_1.png", "png");
+  const auto before = snapshot(run_dir);
+  write_text(d + "/config.yaml", "run_dir: " + run_dir + "\nsteps: 2\ndevice: cpu\ndata: {datasets: [{root: " +
+                                     f.synth + "}], height: 16, width: 24, input_frames: 5, target_views: 2}\n");
+  auto r = tool("flat_train", {"--config", d + "/config.yaml"}, d, "train");
+  INFO(r.output);
+  CHECK(r.rc == 1);
+  CHECK_THAT(r.output, FLAT_CONTAINS("already holds a run"));
+  CHECK(snapshot(run_dir) == before);
+  // --set of a boolean key is parsed as YAML, never a crash.
+  auto s = tool("flat_train", {"--config", d + "/config.yaml", "--set", "data.latents=false", "--print-config"}, d,
+                "set_bool");
+  CHECK(s.rc == 0);
+  CHECK_THAT(s.output, FLAT_CONTAINS("latents: false"));
+}
