@@ -50,5 +50,9 @@ seeds_cfg="$root/fuzz/corpus/config"
 [[ -d "$seeds_cfg" ]] || seeds_cfg="$root/configs"
 run_fuzzer fuzz_config "$seeds_cfg" || status=1
 
+# Seeds written by hand in the formats of docs/formats.md (one and three-by-four cameras; PLYs with and without vertex colours).
+run_fuzzer fuzz_triangle_ply "$root/fuzz/corpus/triangle_ply" || status=1
+run_fuzzer fuzz_cameras_json "$root/fuzz/corpus/cameras_json" || status=1
+
 if [[ $status -eq 0 ]]; then echo "fuzz smoke: no crashes"; fi
 exit $status

@@ -101,10 +101,12 @@ PlyTriangles parse_triangle_ply(std::istream& in, const std::string& path) {
   if (header_end < 0 || file_end < 0 || !in) throw bad("cannot determine the file size");
   const double available = double(file_end - header_end);
   const double needed = double(n_vertex) * double(vertex_bytes) + double(n_face) * double(kFaceBytes);
-  if (needed > available)
-    throw bad("header declares " + std::to_string(n_vertex) + " vertices and " + std::to_string(n_face) +
-              " faces (" + bytes_text(needed) + " bytes) but only " + bytes_text(available) +
-              " bytes follow the header");
+  if (needed > available) {
+    const bool vertices_alone = double(n_vertex) * double(vertex_bytes) > available;
+    throw bad(std::string(vertices_alone ? "element 'vertex'" : "element 'face'") + ": the header declares " +
+              std::to_string(n_vertex) + " vertices and " + std::to_string(n_face) + " faces (" + bytes_text(needed) +
+              " bytes) but only " + bytes_text(available) + " bytes follow the header");
+  }
   std::vector<char> vertex_data(size_t(n_vertex) * vertex_bytes);
   in.read(vertex_data.data(), (std::streamsize)vertex_data.size());
   if (!in) throw bad("element 'vertex': file ends after fewer than " + std::to_string(n_vertex) + " vertices");

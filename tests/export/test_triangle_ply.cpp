@@ -38,6 +38,16 @@ TEST_CASE("triangle ply: malformed files are reported with file and element", "[
   const auto truncated = (dir / "truncated.ply").string();
   std::ofstream(truncated, std::ios::binary) << bytes.substr(0, bytes.size() - 10);
   REQUIRE_THROWS_WITH(read_triangle_ply(truncated), FLAT_CONTAINS("truncated.ply: element 'face'"));
+  // A header that claims 4e9 faces over a short body: refused before allocating, with the figures.
+  const auto huge = (dir / "huge.ply").string();
+  std::string header = bytes.substr(0, bytes.find("end_header\n") + 11);
+  const auto at = header.find("element face 3");
+  REQUIRE(at != std::string::npos);
+  header.replace(at, 14, "element face 4000000000");
+  std::ofstream(huge, std::ios::binary) << header << bytes.substr(bytes.find("end_header\n") + 11);
+  REQUIRE_THROWS_WITH(read_triangle_ply(huge),
+                      FLAT_CONTAINS("huge.ply: element 'face'") && FLAT_CONTAINS("4000000000 faces") &&
+                          FLAT_CONTAINS("bytes follow the header"));
   const auto ascii = (dir / "ascii.ply").string();
   std::ofstream(ascii) << "ply\nformat ascii 1.0\nelement vertex 0\nend_header\n";
   REQUIRE_THROWS_WITH(read_triangle_ply(ascii), FLAT_CONTAINS("binary_little_endian"));

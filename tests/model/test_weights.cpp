@@ -1,5 +1,7 @@
 // Weight files: both key namings load to identical models, strict loading lists
 // every problem, partial loading of the scene decoder from a VAE file.
+#include <filesystem>
+
 #include "flat/core/error.h"
 #include "flat/core/tensor_io.h"
 #include "flat/model/scene_decoder.h"
@@ -116,4 +118,59 @@ TEST_CASE("Scene decoder initialises from a full VAE file (RGB head absent)", "[
   // Strict loading of the same file into the scene decoder refuses, naming the RGB head.
   SceneDecoder strict(config);
   REQUIRE_THROWS_WITH(load_weights(*strict, file), FLAT_CONTAINS("decoder.head.2.weight"));
+}
+
+TEST_CASE("Weights as other tools save them: a diffusers folder, a common key prefix", "[model][weights]") {
+  torch::manual_seed(7);
+  WanVAE source(tiny_config());
+  auto dir = flat::test::scratch_dir("model_weights_other_tools");
+  // A diffusers folder: the file inside is found.
+  std::filesystem::create_directories(dir / "vae");
+  save_weights(*source, (dir / "vae" / "diffusion_pytorch_model.safetensors").string(), WeightNaming::diffusers);
+  CHECK(resolve_weights_file((dir / "vae").string()) == (dir / "vae" / "diffusion_pytorch_model.safetensors").string());
+  WanVAE a(tiny_config());
+  load_weights(*a, (dir / "vae").string());
+  auto sp = source->named_parameters(), ap = a->named_parameters();
+  for (const auto& p : sp) CHECK(torch::equal(p.value(), ap[p.key()]));
+  // Keys under "vae." (a bundle of several models): detected and stripped.
+  flat::TensorMap prefixed;
+  for (const auto& [k, v] : state_tensors(*source)) prefixed.emplace("vae." + k, v);
+  flat::save_safetensors((dir / "bundle.safetensors").string(), prefixed);
+  WanVAE b(tiny_config());
+  auto report = load_weights(*b, (dir / "bundle.safetensors").string());
+  CHECK(report.loaded.size() == sp.size());
+  auto bp = b->named_parameters();
+  for (const auto& p : sp) CHECK(torch::equal(p.value(), bp[p.key()]));
+  // An explicit prefix works the same, and a wrong one names the key at fault.
+  WanVAE c(tiny_config());
+  LoadSpec spec;
+  spec.strip_prefix = "vae.";
+  CHECK(load_weights(*c, (dir / "bundle.safetensors").string(), spec).loaded.size() == sp.size());
+  spec.strip_prefix = "model.";
+  REQUIRE_THROWS_WITH(load_weights(*c, (dir / "bundle.safetensors").string(), spec),
+                      FLAT_CONTAINS("does not start with the prefix 'model.'"));
+  // A folder with no weights file, or two candidates, is named.
+  std::filesystem::create_directories(dir / "empty");
+  REQUIRE_THROWS_WITH(resolve_weights_file((dir / "empty").string()), FLAT_CONTAINS("without a .safetensors file"));
+}
+
+TEST_CASE("Weights files that are not weights are refused with the tensor named", "[model][weights]") {
+  auto dir = flat::test::scratch_dir("model_weights_bad");
+  WanVAE vae(tiny_config());
+  auto good = state_tensors(*vae);
+  auto nan = good;
+  nan.begin()->second = torch::full_like(nan.begin()->second, NAN);
+  flat::save_safetensors((dir / "nan.safetensors").string(), nan);
+  REQUIRE_THROWS_WITH(load_weights(*vae, (dir / "nan.safetensors").string()),
+                      FLAT_CONTAINS(nan.begin()->first) && FLAT_CONTAINS("non-finite"));
+  auto u8 = good;
+  u8.begin()->second = torch::zeros_like(u8.begin()->second, torch::kByte);
+  flat::save_safetensors((dir / "u8.safetensors").string(), u8);
+  REQUIRE_THROWS_WITH(load_weights(*vae, (dir / "u8.safetensors").string()), FLAT_CONTAINS("floating point"));
+  // No key matches at all: one hint instead of only the long lists.
+  flat::TensorMap foreign;
+  for (const auto& [k, v] : good) foreign.emplace("unet.blocks." + k, v);
+  foreign.emplace("text.weight", torch::zeros({2}));  // not one common prefix
+  flat::save_safetensors((dir / "foreign.safetensors").string(), foreign);
+  REQUIRE_THROWS_WITH(load_weights(*vae, (dir / "foreign.safetensors").string()), FLAT_CONTAINS("--weights-prefix"));
 }
