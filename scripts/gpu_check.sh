@@ -2,7 +2,7 @@
 # Build + every test (CUDA included) + benchmarks on the GPU machine, in one go.
 # Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench|train|infer]
 #   bench: everything; train: skip the decoder/raster benches; nobench: build and tests only;
-#   infer: flat_infer's streaming decode of 49- and 197-frame trajectories (peak memory per length).
+#   infer: flat_infer's streaming decode of 49- and 201-frame trajectories (peak memory per length).
 #   GPU_TRAIN_STAGES="1 2 3" picks the stages flat_bench train times (default 1);
 #   GPU_SKIP_TESTS=1 skips ctest; GPU_TARGETS limits the build.
 # Logs go to $OUT (or ./gpu_out); a summary table is printed last.
@@ -36,10 +36,10 @@ if [ "$MODE" = "bench" ] && [ -x "$BUILD/flat_bench" ]; then
   # stage-1 and paper scale (see docs/benchmarks.md).
   "$BUILD/flat_bench" decoder >"$OUT/bench_decoder.log" 2>&1; summary+=("bench decoder rc=$?")
   grep -E "median" "$OUT/bench_decoder.log" | tail -8
-  "$BUILD/flat_bench" raster --size both >"$OUT/bench_raster.log" 2>&1; summary+=("bench raster rc=$?")
+  "$BUILD/flat_bench" raster --workload both >"$OUT/bench_raster.log" 2>&1; summary+=("bench raster rc=$?")
   tail -12 "$OUT/bench_raster.log"
 fi
-if [ "$MODE" != "nobench" ] && [ -x "$BUILD/flat_train" ]; then
+if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_train" ]; then
   # flat_train on the GPU: the tiny config on synthetic rooms with CUDA (loss
   # and held-out PSNR), then flat_bench train at the paper's stage sizes on
   # synthetic scenes with random-weight dim-96 latents (random LPIPS weights).
@@ -83,8 +83,8 @@ if [ "$MODE" != "nobench" ] && [ -x "$BUILD/flat_train" ]; then
 fi
 if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
   # flat_infer on long trajectories: a dim-96 stage-1 decoder (2 steps from
-  # scratch: random weights in effect), then one 49-frame and one 197-frame
-  # window (13 and 50 latent frames, 176x320) decoded on CUDA in bf16, streaming
+  # scratch: random weights in effect), then one 49-frame and one 201-frame
+  # window (13 and 51 latent frames, 176x320) decoded on CUDA in bf16, streaming
   # and full-sequence; summary.json holds the peak memory of decoding and rendering.
   I="$OUT/infer"; rm -rf "$I"
   { "$BUILD/flat_synth" --out "$I/train" --scenes 1 --seed 3 --family room --frames 17 --size 176x320 --motion pan &&
@@ -93,7 +93,7 @@ if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
       --set "init.path=''" --set loss.lambda_perc=0 --set "data.datasets=[{root: $I/train}]" --set validation.datasets=[] \
       --set optim.warmup_steps=0; } >"$OUT/infer_model.log" 2>&1
   summary+=("infer: model rc=$?")
-  for T in 49 197; do
+  for T in 49 201; do
     { "$BUILD/flat_synth" --out "$I/long$T" --scenes 1 --seed 5 --family room --frames $T --size 176x320 --motion orbit &&
       "$BUILD/flat_latents" --scenes "$I/long$T" --random-weights --seed 0 --dim 96 --window $T --device cuda --dtype bf16; } \
       >"$OUT/infer_data_$T.log" 2>&1

@@ -90,12 +90,19 @@ InferSummary run_inference(const InferOptions& o) {
   // ---- decode ----------------------------------------------------------------------
   reset_peak_memory(device);
   auto t = Clock::now();
+  // Streaming moves each latent frame's triangles to the CPU as they are built,
+  // so the GPU holds only the decoder's working set, whatever the length.
   primitives::TriangleSoup all;
   {
     AutocastScope autocast(bf16, at::kCUDA);
-    all = pipe.decode(input.input, o.streaming).scene(0);
+    if (o.streaming) {
+      all = pipe.decode_to(input.input, at::kCPU).scene(0);
+    } else {
+      auto t = pipe.decode(input.input, false).scene(0);
+      all = {t.vertices.to(at::kCPU, at::kFloat), t.colors.to(at::kCPU, at::kFloat),
+             t.opacities.to(at::kCPU, at::kFloat), t.sigmas.to(at::kCPU, at::kFloat)};
+    }
   }
-  all = {all.vertices.to(at::kFloat), all.colors.to(at::kFloat), all.opacities.to(at::kFloat), all.sigmas.to(at::kFloat)};
   if (device.is_cuda()) torch::cuda::synchronize();
   s.decode_seconds = since(t);
   s.decode_peak_gib = peak_memory_gib(device);
@@ -110,8 +117,7 @@ InferSummary run_inference(const InferOptions& o) {
 
   // ---- export ----------------------------------------------------------------------
   t = Clock::now();
-  auto cpu_scene = export_view(primitives::TriangleSoup{scene.vertices.cpu(), scene.colors.cpu(),
-                                                        scene.opacities.cpu(), scene.sigmas.cpu()});
+  auto cpu_scene = export_view(scene);
   if (o.ply) {
     exporter::write_triangle_ply(out.file("scene.ply"), cpu_scene);
     s.outputs.push_back("scene.ply");
@@ -140,18 +146,20 @@ InferSummary run_inference(const InferOptions& o) {
   // ---- render ----------------------------------------------------------------------
   t = Clock::now();
   reset_peak_memory(device);
+  const primitives::TriangleSoup on_device{scene.vertices.to(device), scene.colors.to(device),
+                                           scene.opacities.to(device), scene.sigmas.to(device)};
   const bool video = o.video && exporter::ffmpeg_available();
   if (o.video && !video) s.notes.push_back("videos not written: ffmpeg is not on the PATH (Debian package ffmpeg)");
   if (o.renders || video) {
     const auto range = display_depth_range(scene, input.cameras);
-    auto r = render_trajectory(pipe, scene, input.cameras, H, W, o.renders ? out.file("renders/input") : "",
+    auto r = render_trajectory(pipe, on_device, input.cameras, H, W, o.renders ? out.file("renders/input") : "",
                                o.render_chunk, video, range, "render input views");
     s.input_views = r.views;
     if (o.renders) s.outputs.push_back("renders/");
     if (video) s.outputs.push_back("videos/");
     if (video) write_video(r, out.file("videos/input.mp4"), o.fps);
     if (novel.intrinsics.defined()) {
-      auto n = render_trajectory(pipe, scene, novel, H, W, o.renders ? out.file("renders/novel") : "", o.render_chunk,
+      auto n = render_trajectory(pipe, on_device, novel, H, W, o.renders ? out.file("renders/novel") : "", o.render_chunk,
                                  video, range, "render novel views");
       s.novel_views = n.views;
       if (video) write_video(n, out.file("videos/novel.mp4"), o.fps);

@@ -40,7 +40,7 @@ at::Tensor SceneDecoderImpl::tail(at::Tensor h, StreamCache* cache, size_t split
 }
 
 at::Tensor SceneDecoderImpl::run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming,
-                                 bool with_heads) {
+                                 bool with_heads, const std::function<void(const at::Tensor&)>* sink) {
   check_shape(latent, {-1, config_.vae.z_dim, -1, -1, -1}, "SceneDecoder: latent", "(B,16,T',h,w)");
   if (camera_latents.defined()) {
     FLAT_CHECK(adapter, "SceneDecoder: camera latents given but the model was built with camera = false");
@@ -68,13 +68,23 @@ at::Tensor SceneDecoderImpl::run(const at::Tensor& latent, const at::Tensor& cam
     for (int64_t j = i; j < i + n; ++j) {
       const int64_t frames = Decoder3dImpl::trunk_frames(j, split);
       tail_cache.begin_chunk();
-      outs.push_back(tail(h.narrow(2, frame, frames), &tail_cache, split, with_heads));
+      at::Tensor out = tail(h.narrow(2, frame, frames), &tail_cache, split, with_heads);
+      if (sink) {
+        (*sink)(out);
+      } else {
+        outs.push_back(out);
+      }
       frame += frames;
     }
     FLAT_CHECK(frame == h.size(2), "SceneDecoder: the streaming trunk gave " + std::to_string(h.size(2)) +
                                        " frames for " + std::to_string(n) + " latent frames");
   }
-  return at::cat(outs, 2);
+  return sink ? at::Tensor() : at::cat(outs, 2);
+}
+
+void SceneDecoderImpl::forward_chunks(const at::Tensor& latent, const at::Tensor& camera_latents,
+                                      const std::function<void(const at::Tensor&)>& sink) {
+  run(latent, camera_latents, /*streaming=*/true, /*with_heads=*/true, &sink);
 }
 
 at::Tensor SceneDecoderImpl::forward(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming) {

@@ -1,5 +1,9 @@
 #include "flat/pipeline/scene_pipeline.h"
 
+#include <vector>
+
+#include <ATen/core/grad_mode.h>
+
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 
@@ -51,6 +55,39 @@ primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool stream
   camera::Cameras anchors{in.input_intrinsics.reshape({B * T, 4}).to(device, at::kFloat),
                           in.input_c2w.reshape({B * T, 4, 4}).to(device, at::kFloat)};
   return primitives::build_triangles(raw, anchors, image_h, image_w, config_.triangles);
+}
+
+primitives::TriangleSoup ScenePipeline::decode_to(const SceneInput& in, const at::Device& out_device) {
+  check_shape(in.video_latents, {-1, 16, -1, -1, -1}, "pipeline: video latents", "(B,16,T',h,w)");
+  const int64_t B = in.video_latents.size(0), Tl = in.video_latents.size(2);
+  const int64_t T = 1 + 4 * (Tl - 1);
+  check_shape(in.input_intrinsics, {B, T, 4}, "pipeline: input intrinsics",
+              "(B,T,4) with T = 1+4(T'-1) = " + std::to_string(T));
+  check_shape(in.input_c2w, {B, T, 4, 4}, "pipeline: input camera-to-world", "(B,T,4,4)");
+  at::NoGradGuard no_grad;
+  const auto device = decoder_->conv2->weight.device();
+  auto latents = in.video_latents.to(device, at::kFloat);
+  auto camera_latents = in.camera_latents.defined() ? in.camera_latents.to(device, at::kFloat) : at::Tensor();
+  std::vector<primitives::TriangleSoup> parts;
+  int64_t first = 0;
+  decoder_->forward_chunks(latents, camera_latents, [&](const at::Tensor& raw) {
+    const int64_t t = raw.size(2);
+    FLAT_CHECK(first + t <= T, "pipeline: the decoder gave more than " + std::to_string(T) + " frames");
+    camera::Cameras anchors{in.input_intrinsics.narrow(1, first, t).reshape({B * t, 4}).to(device, at::kFloat),
+                            in.input_c2w.narrow(1, first, t).reshape({B * t, 4, 4}).to(device, at::kFloat)};
+    auto tri = primitives::build_triangles(raw, anchors, raw.size(3) * 2, raw.size(4) * 2, config_.triangles);
+    parts.push_back({tri.vertices.to(out_device, at::kFloat), tri.colors.to(out_device, at::kFloat),
+                     tri.opacities.to(out_device, at::kFloat), tri.sigmas.to(out_device, at::kFloat)});
+    first += t;
+  });
+  FLAT_CHECK(first == T, "pipeline: decoded " + std::to_string(first) + " frames, expected " + std::to_string(T));
+  auto cat = [&](auto member) {
+    std::vector<at::Tensor> xs;
+    for (const auto& p : parts) xs.push_back(p.*member);
+    return at::cat(xs, 1);
+  };
+  return {cat(&primitives::TriangleSoup::vertices), cat(&primitives::TriangleSoup::colors),
+          cat(&primitives::TriangleSoup::opacities), cat(&primitives::TriangleSoup::sigmas)};
 }
 
 RenderedViews ScenePipeline::render(const primitives::TriangleSoup& scene, const camera::Cameras& cams,

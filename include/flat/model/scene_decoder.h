@@ -12,6 +12,7 @@
 // so a Wan VAE file initialises conv2 and the decoder), "heads.*".
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include <ATen/ATen.h>
@@ -64,6 +65,13 @@ class SceneDecoderImpl : public torch::nn::Module {
   // (no camera term). Returns raw head outputs (B, channels().total, T, 4h, 4w).
   // streaming: one latent frame at a time with per-layer caches (bounded memory).
   at::Tensor forward(const at::Tensor& latent, const at::Tensor& camera_latents = {}, bool streaming = false);
+  // Streaming decode that hands each latent frame's head outputs to `sink` as
+  // soon as they exist (B, C, t, 4h, 4w; t = 1 for latent frame 0, 4 for the
+  // others, in order) instead of concatenating them: the caller turns them into
+  // triangles and moves them off the GPU, so decoding memory does not grow
+  // with the number of latent frames.
+  void forward_chunks(const at::Tensor& latent, const at::Tensor& camera_latents,
+                      const std::function<void(const at::Tensor&)>& sink);
   // The 96-channel decoder features before the heads (same arguments).
   at::Tensor features(const at::Tensor& latent, const at::Tensor& camera_latents = {}, bool streaming = false);
 
@@ -85,7 +93,9 @@ class SceneDecoderImpl : public torch::nn::Module {
 
  private:
   SceneDecoderConfig config_;
-  at::Tensor run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming, bool with_heads);
+  // sink: streaming only; receives each latent frame's output instead of the concatenation (then undefined is returned).
+  at::Tensor run(const at::Tensor& latent, const at::Tensor& camera_latents, bool streaming, bool with_heads,
+                 const std::function<void(const at::Tensor&)>* sink = nullptr);
   // adapter, conv2 and the decoder's first `split` stages / the rest and the heads.
   at::Tensor trunk(const at::Tensor& latent, const at::Tensor& camera_latents, StreamCache* cache, size_t split);
   at::Tensor tail(at::Tensor h, StreamCache* cache, size_t split, bool with_heads);

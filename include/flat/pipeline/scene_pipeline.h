@@ -79,6 +79,11 @@ class ScenePipeline {
   // input frames is 8x the latent's. streaming: bounded-memory decoding
   // (model::SceneDecoder::forward), same result.
   primitives::TriangleSoup decode(const SceneInput& input, bool streaming = false);
+  // Streaming decode whose triangles are built a latent frame at a time and
+  // moved to `out_device` as they come (e.g. the CPU), so the decoding memory
+  // on the model's device stays bounded whatever the number of latent frames.
+  // Same triangles as decode(input, true); no autograd graph is kept.
+  primitives::TriangleSoup decode_to(const SceneInput& input, const at::Device& out_device);
   // Renders one scene (vertices (N,3,3)) into cams, after pruning by the
   // config's prune_opacity.
   RenderedViews render(const primitives::TriangleSoup& scene, const camera::Cameras& cams, int64_t height,
