@@ -38,13 +38,17 @@ int main(int argc, char** argv) {
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
   app.add_option("--config", o.config, "pipeline config YAML instead of the one the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
-  app.add_option("--device", o.device, "auto | cpu | cuda")->capture_default_str();
+  app.add_option("--device", o.device, "auto | cpu | cuda")
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}))
+      ->capture_default_str();
   app.add_option("--precision", o.precision, "auto (bf16 on cuda) | fp32 | bf16")->capture_default_str();
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming)");
   app.add_flag("--redo", o.redo, "score every scene again (also needed to reuse --out with other settings)");
   app.add_option("--compare", compare, "flat_eval output folders to put side by side (no --model)")->take_all();
   app.add_option("--out-table", out_table, "--compare: also write the Markdown table here");
-  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")->capture_default_str();
+  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
+      ->capture_default_str();
   app.set_version_flag("--version", "flat_eval 0.1.0");
   try {
     app.parse(argc, argv);

@@ -31,7 +31,9 @@ int main(int argc, char** argv) {
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
   app.add_option("--config", o.config, "pipeline config YAML instead of the one the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
-  app.add_option("--device", o.device, "auto | cpu | cuda")->capture_default_str();
+  app.add_option("--device", o.device, "auto | cpu | cuda")
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}))
+      ->capture_default_str();
   app.add_option("--precision", o.precision, "auto (bf16 on cuda) | fp32 | bf16")->capture_default_str();
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
   app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
@@ -48,7 +50,9 @@ int main(int argc, char** argv) {
   app.add_flag("--no-renders", no_renders, "skip the per-view image files");
   app.add_flag("--no-video", no_video, "skip the MP4 videos");
   app.add_flag("--no-viewer", no_viewer, "skip the browser viewer");
-  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")->capture_default_str();
+  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
+      ->capture_default_str();
   app.set_version_flag("--version", "flat_infer 0.1.0");
   try {
     app.parse(argc, argv);

@@ -2,8 +2,6 @@
 //   flat_import transforms --in DIR_OR_JSON --out SCENE_DIR [--max-side 512] [--scale 1]
 //   flat_import re10k --in CAMERAS.txt --frames-dir FRAMES_DIR --out SCENE_DIR [--scale S]
 // The scene appears whole or not at all; an existing one is kept unless --overwrite.
-#include <filesystem>
-
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
@@ -37,9 +35,10 @@ int main(int argc, char** argv) {
     if (format == "re10k" && frames_dir.empty()) throw flat::cli::UsageError("flat_import re10k needs --frames-dir DIR");
     if (format == "transforms" && !frames_dir.empty())
       throw flat::cli::UsageError("flat_import transforms takes no --frames-dir (images are named in transforms.json)");
-    // The log lands beside the scene (outside it, so the staged folder stays the scene's own).
-    const auto target = std::filesystem::path(out).lexically_normal();
-    flat::cli::start_logging(log_level, (target.parent_path() / (target.filename().string() + ".import.log")).string());
+    // The log lands beside the scene, <out>.log (outside it: the staged folder holds the scene only).
+    std::string log = out;
+    while (log.size() > 1 && log.back() == '/') log.pop_back();
+    flat::cli::start_logging(log_level, log + ".log");
     const flat::data::Scene scene = format == "transforms" ? flat::data::import_transforms_json(in, out, o)
                                                            : flat::data::import_re10k(in, frames_dir, out, o);
     spdlog::info("wrote {} ({} frames, {}x{})", scene.json_path(), scene.size(), scene.width, scene.height);
