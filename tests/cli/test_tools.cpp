@@ -70,6 +70,23 @@ const Fixtures& fixtures() {
     write_text(x.root + "/cams_small.json",
                "{\"version\": 1, \"cameras\": [{\"width\": 8, \"height\": 8, \"intrinsics\": [1, 1, 0.5, 0.5], "
                "\"c2w\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}");
+    // A valid one-triangle PLY: three vertices, then vertex count 3, indices 0, 1, 2 (int32),
+    // colour, opacity and sigma (floats), all little-endian.
+    std::string body;
+    auto put = [&body](auto v) { body.append(reinterpret_cast<const char*>(&v), sizeof(v)); };
+    for (float v : {0.f, 0.f, 2.f, 0.5f, 0.f, 2.f, 0.f, 0.5f, 2.f}) put(v);
+    put(uint8_t(3));
+    for (int32_t i : {0, 1, 2}) put(i);
+    for (float v : {0.8f, 0.4f, 0.2f, 0.9f, 1.f}) put(v);
+    write_text(x.root + "/one.ply",
+               "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+               "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+               "property float red\nproperty float green\nproperty float blue\nproperty float opacity\n"
+               "property float sigma\nend_header\n" +
+                   body);
+    // A diffusers folder whose weights hold NaN: the folder is accepted, the NaN named.
+    flat::save_safetensors(x.root + "/diffusers/diffusion_pytorch_model.safetensors",
+                           {{"encoder.conv_in.weight", torch::full({4, 3, 3, 3, 3}, NAN)}});
     return x;
   }();
   return f;
@@ -197,6 +214,11 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
       {"render_huge_camera", "flat_render", {"--triangles", "{R}/huge.ply", "--cameras", "{R}/huge_cams.json",
                                              "--out", "{R}/render_huge_cam", "--device", "cpu"}, 1,
        {"huge.ply"}},
+      {"vae_weights_folder", "flat_vae", {"encode", "--weights", "{R}/diffusers", "--in", "{R}/video.safetensors",
+                                          "--out", "{R}/z_folder.safetensors"}, 1,
+       {"diffusion_pytorch_model.safetensors", "non-finite"}},
+      {"render_no_cuda", "flat_render", {"--triangles", "{R}/one.ply", "--cameras", "{R}/cams_small.json", "--out",
+                                         "{R}/render_cuda", "--device", "cuda"}, 1, {"--device cuda"}},
       {"pack_not_scenes", "flat_pack", {"--scenes", "{R}/capture"}, 1, {"capture", "no scene folders"}},
   });
   // Nothing was left behind by the refused runs.
@@ -209,17 +231,7 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
 
 TEST_CASE("flat_render refuses a camera size that cannot fit, with the figure", "[cli]") {
   const Fixtures& f = fixtures();
-  // A valid one-triangle PLY, rendered into two 300000x300000 views.
-  std::string face(33, '\0');
-  face[0] = 3;  // vertex count, then indices 0, 1, 2 (int32 little-endian) and five floats
-  face[5] = 1;
-  face[9] = 2;
-  write_text(f.root + "/one.ply",
-             "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
-             "property float red\nproperty float green\nproperty float blue\nproperty float opacity\n"
-             "property float sigma\nend_header\n" +
-                 std::string(36, '\0') + face);
+  // The fixtures' one-triangle PLY, rendered into two 300000x300000 views.
   auto r = tool("flat_render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/huge_cams.json", "--out",
                                 f.root + "/render_huge", "--device", "cpu"},
                 f.root, "render_huge_cam_valid");
@@ -346,4 +358,34 @@ TEST_CASE("flat_train: a run folder that holds a run is refused and left byte-id
   CHECK(p.rc == 0);
   CHECK_THAT(p.output, FLAT_CONTAINS("steps: 2"));
   CHECK_THAT(p.output, FLAT_CONTAINS("optim:"));
+}
+
+TEST_CASE("flat_render and flat_bench raster: --device cpu works, an existing output is kept unless --overwrite",
+          "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_render").string(), out = d + "/render";
+  const std::vector<std::string> args = {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json",
+                                         "--out", out, "--device", "cpu"};
+  auto first = tool("flat_render", args, d, "first");
+  INFO(first.output);
+  REQUIRE(first.rc == 0);
+  const auto before = snapshot(out);
+  REQUIRE(before.count("render.safetensors"));
+  auto again = tool("flat_render", args, d, "again");
+  CHECK(again.rc == 1);
+  CHECK_THAT(again.output, FLAT_CONTAINS("already exists"));
+  CHECK(snapshot(out) == before);
+  auto over = args;
+  over.insert(over.end(), {"--overwrite", "--format", "png"});
+  CHECK(tool("flat_render", over, d, "overwrite").rc == 0);
+  CHECK_FALSE(fs::exists(out + "/render.safetensors"));
+  CHECK(fs::exists(out + "/0000_rgb.png"));
+  CHECK(fs::exists(d + "/render.log"));
+  // The raster benchmark on the CPU, on the same PLY and cameras.
+  auto bench = tool("flat_bench", {"raster", "--device", "cpu", "--triangles", f.root + "/one.ply", "--cameras",
+                                   f.root + "/cams_small.json", "--repeats", "1"},
+                    d, "bench_raster_cpu");
+  INFO(bench.output);
+  CHECK(bench.rc == 0);
+  CHECK_THAT(bench.output, FLAT_CONTAINS("forward+backward"));
 }
