@@ -2,6 +2,7 @@
 # Build + every test (CUDA included) + benchmarks on the GPU machine, in one go.
 # Usage there (repo root, .deps carried):  bash scripts/gpu_check.sh [bench|nobench|train|infer]
 #   bench: everything; train: skip the decoder/raster benches; nobench: build and tests only;
+#   scale: stage-3/4 memory with and without activation checkpointing and 8-bit AdamW;
 #   infer: flat_infer's streaming decode of 49- and 201-frame trajectories (peak memory per length).
 #   GPU_TRAIN_STAGES="1 2 3" picks the stages flat_bench train times (default 1);
 #   GPU_SKIP_TESTS=1 skips ctest; GPU_TARGETS limits the build.
@@ -61,7 +62,7 @@ if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_trai
     esac
     D="$S/stage$stage"
     { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames $frames --size $size --motion mixed &&
-      "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $win --device cuda --dtype bf16 &&
+      "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $win --device cuda --precision bf16 &&
       "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 3 --steps ${GPU_TRAIN_STEPS:-10} \
         --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set data.workers=4; } \
       >"$OUT/bench_train_stage$stage.log" 2>&1
@@ -88,14 +89,14 @@ if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
   # and full-sequence; summary.json holds the peak memory of decoding and rendering.
   I="$OUT/infer"; rm -rf "$I"
   { "$BUILD/flat_synth" --out "$I/train" --scenes 1 --seed 3 --family room --frames 17 --size 176x320 --motion pan &&
-    "$BUILD/flat_latents" --scenes "$I/train" --random-weights --seed 0 --dim 96 --window 17 --device cuda --dtype bf16 &&
+    "$BUILD/flat_latents" --scenes "$I/train" --random-weights --seed 0 --dim 96 --window 17 --device cuda --precision bf16 &&
     "$BUILD/flat_train" --config configs/stage1.yaml --set run_dir="$I/run" --set steps=2 --set init.from=scratch \
       --set "init.path=''" --set loss.lambda_perc=0 --set "data.datasets=[{root: $I/train}]" --set validation.datasets=[] \
       --set optim.warmup_steps=0; } >"$OUT/infer_model.log" 2>&1
   summary+=("infer: model rc=$?")
   for T in 49 201; do
     { "$BUILD/flat_synth" --out "$I/long$T" --scenes 1 --seed 5 --family room --frames $T --size 176x320 --motion orbit &&
-      "$BUILD/flat_latents" --scenes "$I/long$T" --random-weights --seed 0 --dim 96 --window $T --device cuda --dtype bf16; } \
+      "$BUILD/flat_latents" --scenes "$I/long$T" --random-weights --seed 0 --dim 96 --window $T --device cuda --precision bf16; } \
       >"$OUT/infer_data_$T.log" 2>&1
     for mode in streaming full; do
       flag=""; [ $mode = full ] && flag="--full-sequence"
@@ -109,6 +110,28 @@ if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
     done
   done
   rm -rf "$I"
+fi
+if [ "$MODE" = "scale" ] && [ -x "$BUILD/flat_bench" ]; then
+  # Memory savers of stage 4 (8-bit AdamW, activation checkpointing), timed with
+  # flat_bench train at the paper's stage-3 and stage-4 sizes (random weights,
+  # random LPIPS, synthetic rooms with random-weight dim-96 latents).
+  for stage in ${GPU_SCALE_STAGES:-3 4}; do
+    case $stage in 3) size=360x640 ;; 4) size=432x768 ;; esac
+    D="$OUT/scale$stage"; rm -rf "$D"
+    { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames 49 --size $size --motion mixed &&
+      "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window 49 --device cuda --precision bf16; } \
+      >"$OUT/scale_data_$stage.log" 2>&1
+    for variant in "plain:--set optim.name=adamw --set pipeline.model.activation_checkpointing=false" \
+                   "ckpt:--set optim.name=adamw --set pipeline.model.activation_checkpointing=true" \
+                   "ckpt+8bit:--set optim.name=adamw8bit --set pipeline.model.activation_checkpointing=true"; do
+      name=${variant%%:*}; sets=${variant#*:}
+      "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 2 --steps ${GPU_TRAIN_STEPS:-5} \
+        --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set data.workers=4 $sets \
+        >"$OUT/scale_${stage}_$name.log" 2>&1
+      summary+=("stage $stage $name rc=$?: $(grep -E 'as trained' "$OUT/scale_${stage}_$name.log" | tail -1) $(grep -E 'peak memory' "$OUT/scale_${stage}_$name.log" | tail -1)")
+    done
+    rm -rf "$D"
+  done
 fi
 echo "==== summary (commit ${FLAT_COMMIT:-$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)}, $(date -u +%F))"
 printf '%s\n' "${summary[@]}"

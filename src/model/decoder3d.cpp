@@ -1,5 +1,7 @@
 #include "flat/model/decoder3d.h"
 
+#include "flat/model/activation_checkpoint.h"
+
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
@@ -70,9 +72,9 @@ at::Tensor Decoder3dImpl::forward_trunk(const at::Tensor& z, StreamCache* cache,
   FLAT_CHECK(z.dim() == 5 && z.size(1) == conv1->in_channels(),
              "Decoder3d: expected latent (B," + std::to_string(conv1->in_channels()) + ",T,h,w), got " + shape_str(z));
   at::Tensor h = cache ? conv1->forward_cached(z, cache->next()) : conv1->forward(z);
-  h = mid1->forward(h, cache);
-  h = mid_attn->forward(h);
-  h = mid2->forward(h, cache);
+  h = run_block([this, cache](const at::Tensor& x) { return mid1->forward(x, cache); }, h, cache);
+  h = run_block([this](const at::Tensor& x) { return mid_attn->forward(x); }, h, cache);
+  h = run_block([this, cache](const at::Tensor& x) { return mid2->forward(x, cache); }, h, cache);
   return forward_upsamples(h, cache, 0, end);
 }
 
@@ -86,9 +88,22 @@ at::Tensor Decoder3dImpl::forward_upsamples(at::Tensor h, StreamCache* cache, si
   size_t r = 0, s = 0;  // residual blocks and resamples before stage `begin`
   for (size_t i = 0; i < begin; ++i) (up_kind[i] == 0 ? r : s)++;
   for (size_t i = begin; i < end; ++i) {
-    h = up_kind[i] == 0 ? up_res[r++]->forward(h, cache) : up_resample[s++]->forward(h, cache);
+    if (up_kind[i] == 0) {
+      ResidualBlockImpl* block = up_res[r++].get();
+      h = run_block([block, cache](const at::Tensor& x) { return block->forward(x, cache); }, h, cache);
+    } else {
+      ResampleImpl* block = up_resample[s++].get();
+      h = run_block([block, cache](const at::Tensor& x) { return block->forward(x, cache); }, h, cache);
+    }
   }
   return h;
+}
+
+at::Tensor Decoder3dImpl::run_block(const std::function<at::Tensor(const at::Tensor&)>& block, const at::Tensor& h,
+                                    StreamCache* cache) const {
+  // Streaming caches are filled by the forward: a recomputation would fill them twice.
+  if (!checkpoint_blocks_ || cache) return block(h);
+  return checkpointed(block, h);
 }
 
 size_t Decoder3dImpl::trunk_stages() const {

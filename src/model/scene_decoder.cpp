@@ -17,6 +17,7 @@ SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config, const primi
   }
   conv2 = register_module("conv2", CausalConv3d(config_.vae.z_dim, config_.vae.z_dim, Int3{1, 1, 1}));
   decoder = register_module("decoder", Decoder3d(config_.vae, /*scene_variant=*/true));
+  decoder->set_activation_checkpointing(config_.activation_checkpointing);
   heads = register_module("heads", OutputHeads(decoder->out_features(), layout, config_.heads));
 }
 

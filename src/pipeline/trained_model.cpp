@@ -90,7 +90,9 @@ ModelSignature model_signature(const PipelineConfig& p) {
   model.visit(d);
   std::string yaml;
   for (const auto& row : d.rows)
-    if (row.key != "pipeline.model.stream_trunk_frames") yaml += row.key + ": " + row.value + "\n";
+    // Keys that change how the decoder runs, not its weights, stay out.
+    if (row.key != "pipeline.model.stream_trunk_frames" && row.key != "pipeline.model.activation_checkpointing")
+      yaml += row.key + ": " + row.value + "\n";
   yaml += "pipeline.triangles.channels: " + std::to_string(p.triangles.channels().total) + "\n";
   return {yaml, config::to_yaml(p)};
 }

@@ -1,6 +1,7 @@
 #include "flat/train/adamw.h"
 
 #include <cmath>
+#include <set>
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
@@ -8,17 +9,50 @@
 namespace flat::train {
 
 AdamW::AdamW(std::vector<std::pair<std::string, at::Tensor>> params, AdamWOptions options) : options_(options) {
+  FLAT_CHECK(options_.state_bits == 32 || options_.state_bits == 8,
+             "AdamW: state_bits must be 32 or 8, got " + std::to_string(options_.state_bits));
   for (auto& [name, p] : params) {
     FLAT_CHECK(p.is_floating_point(), "AdamW: parameter '" + name + "' is not floating point");
-    slots_.push_back({name, p, {}, {}, {}});
+    Slot s;
+    s.name = name;
+    s.param = p;
+    slots_.push_back(s);
   }
 }
 
+bool AdamW::quantised(const Slot& s) const {
+  return options_.state_bits == 8 && s.param.numel() >= options_.min_8bit_numel;
+}
+
 void AdamW::ensure_state(Slot& s) {
-  if (s.exp_avg.defined()) return;
+  if (s.has_state()) return;
+  s.step = at::zeros({}, s.param.options().dtype(at::kFloat));
+  if (quantised(s)) {
+    auto zeros = at::zeros({s.param.numel()}, s.param.options().dtype(at::kFloat));
+    s.exp_avg_q8 = quantise_blockwise(zeros, /*is_signed=*/true);
+    s.exp_avg_sq_q8 = quantise_blockwise(zeros, /*is_signed=*/false);
+    return;
+  }
   s.exp_avg = at::zeros_like(s.param, at::MemoryFormat::Preserve);
   s.exp_avg_sq = at::zeros_like(s.param, at::MemoryFormat::Preserve);
-  s.step = at::zeros({}, s.param.options().dtype(at::kFloat));
+}
+
+void AdamW::update_8bit(Slot& s, const at::Tensor& grad, double lr) {
+  // Dequantise, the fp32 update of the reference path, quantise again.
+  const auto& o = options_;
+  auto g = grad.to(at::kFloat);
+  auto m = dequantise_blockwise(s.exp_avg_q8, s.param.sizes());
+  auto v = dequantise_blockwise(s.exp_avg_sq_q8, s.param.sizes());
+  s.step.add_(1);
+  const double t = s.step.item<double>();
+  s.param.mul_(1 - lr * o.weight_decay);
+  m.lerp_(g, 1 - o.beta1);
+  v.mul_(o.beta2).addcmul_(g, g, 1 - o.beta2);
+  const double bias1 = 1 - std::pow(o.beta1, t), bias2 = 1 - std::pow(o.beta2, t);
+  auto denom = (v.sqrt() / std::sqrt(bias2)).add_(o.eps);
+  s.param.addcdiv_(m.to(s.param.scalar_type()), denom.to(s.param.scalar_type()), -lr / bias1);
+  s.exp_avg_q8 = quantise_blockwise(m, true);
+  s.exp_avg_sq_q8 = quantise_blockwise(v, false);
 }
 
 std::vector<at::Tensor> AdamW::grads() const {
@@ -40,6 +74,10 @@ void AdamW::step(double lr) {
     const auto& g = s.param.grad();
     if (!g.defined()) continue;
     ensure_state(s);
+    if (quantised(s)) {
+      update_8bit(s, g, lr);
+      continue;
+    }
     // The fused kernel walks params, grads and moments as flat arrays: only
     // when they share one dense layout.
     const bool fusable = o.fused && s.param.is_cuda() && s.param.scalar_type() == at::kFloat &&
@@ -72,7 +110,15 @@ void AdamW::step(double lr) {
 TensorMap AdamW::state() const {
   TensorMap m;
   for (const auto& s : slots_) {
-    if (!s.exp_avg.defined()) continue;
+    if (!s.has_state()) continue;
+    if (s.exp_avg_q8.codes.defined()) {
+      m["exp_avg.q8." + s.name] = s.exp_avg_q8.codes.cpu();
+      m["exp_avg.absmax." + s.name] = s.exp_avg_q8.absmax.cpu();
+      m["exp_avg_sq.q8." + s.name] = s.exp_avg_sq_q8.codes.cpu();
+      m["exp_avg_sq.absmax." + s.name] = s.exp_avg_sq_q8.absmax.cpu();
+      m["step." + s.name] = s.step.detach().cpu();
+      continue;
+    }
     m["exp_avg." + s.name] = s.exp_avg.detach().cpu();
     m["exp_avg_sq." + s.name] = s.exp_avg_sq.detach().cpu();
     m["step." + s.name] = s.step.detach().cpu();
@@ -81,40 +127,77 @@ TensorMap AdamW::state() const {
 }
 
 void AdamW::load_state(const TensorMap& state, const std::string& label) {
-  size_t used = 0;
+  std::set<std::string> used;
+  auto take = [&](const std::string& key) -> const at::Tensor* {
+    auto it = state.find(key);
+    if (it == state.end()) return nullptr;
+    used.insert(key);
+    return &it->second;
+  };
+  at::NoGradGuard no_grad;
   for (auto& s : slots_) {
-    auto m = state.find("exp_avg." + s.name), v = state.find("exp_avg_sq." + s.name), t = state.find("step." + s.name);
-    const int found = int(m != state.end()) + int(v != state.end()) + int(t != state.end());
-    if (found == 0) {
-      s.exp_avg = s.exp_avg_sq = s.step = at::Tensor();
-      continue;
+    s.exp_avg = s.exp_avg_sq = s.step = at::Tensor();
+    s.exp_avg_q8 = s.exp_avg_sq_q8 = QuantisedTensor{};
+    const at::Tensor* t = take("step." + s.name);
+    // Either form of the moments, as fp32 tensors shaped like the parameter.
+    at::Tensor m, v;
+    const at::Tensor *m32 = take("exp_avg." + s.name), *v32 = take("exp_avg_sq." + s.name);
+    const at::Tensor *mq = take("exp_avg.q8." + s.name), *ma = take("exp_avg.absmax." + s.name);
+    const at::Tensor *vq = take("exp_avg_sq.q8." + s.name), *va = take("exp_avg_sq.absmax." + s.name);
+    const int full = int(m32 != nullptr) + int(v32 != nullptr), q8 = int(mq && ma) + int(vq && va);
+    if (!t && full == 0 && !mq && !ma && !vq && !va) continue;  // not updated yet
+    FLAT_CHECK(t && (full == 2 || q8 == 2) && full + q8 == 2,
+               label + ": optimiser state of '" + s.name + "' is incomplete");
+    FLAT_CHECK(t->numel() == 1, label + ": optimiser tensor 'step." + s.name + "' is not a scalar");
+    if (full == 2) {
+      for (const auto& [key, x] : {std::pair<std::string, const at::Tensor*>{"exp_avg." + s.name, m32},
+                                   {"exp_avg_sq." + s.name, v32}})
+        FLAT_CHECK(x->sizes() == s.param.sizes(), label + ": optimiser tensor '" + key + "' has shape " +
+                                                      shape_str(*x) + ", the parameter has " + shape_str(s.param));
+      m = m32->to(s.param.device(), at::kFloat);
+      v = v32->to(s.param.device(), at::kFloat);
+    } else {
+      const int64_t blocks = (s.param.numel() + kQuantBlock - 1) / kQuantBlock;
+      for (const auto* x : {mq, vq})
+        FLAT_CHECK(x->scalar_type() == at::kByte && x->numel() == blocks * kQuantBlock,
+                   label + ": 8-bit optimiser state of '" + s.name + "' has " + std::to_string(x->numel()) +
+                       " codes, the parameter needs " + std::to_string(blocks * kQuantBlock));
+      for (const auto* x : {ma, va})
+        FLAT_CHECK(x->numel() == blocks, label + ": 8-bit optimiser state of '" + s.name + "' has " +
+                                             std::to_string(x->numel()) + " block scales, expected " +
+                                             std::to_string(blocks));
+      QuantisedTensor qm{mq->to(s.param.device()), ma->to(s.param.device(), at::kFloat), s.param.numel(), true};
+      QuantisedTensor qv{vq->to(s.param.device()), va->to(s.param.device(), at::kFloat), s.param.numel(), false};
+      if (quantised(s)) {  // kept as they are: no second rounding
+        s.exp_avg_q8 = qm;
+        s.exp_avg_sq_q8 = qv;
+      } else {
+        m = dequantise_blockwise(qm, s.param.sizes());
+        v = dequantise_blockwise(qv, s.param.sizes());
+      }
     }
-    FLAT_CHECK(found == 3, label + ": optimiser state of '" + s.name + "' is incomplete");
-    for (const auto* it : {&m, &v})
-      FLAT_CHECK((*it)->second.sizes() == s.param.sizes(),
-                 label + ": optimiser tensor '" + (*it)->first + "' has shape " + shape_str((*it)->second) +
-                     ", the parameter has " + shape_str(s.param));
-    FLAT_CHECK(t->second.numel() == 1, label + ": optimiser tensor '" + t->first + "' is not a scalar");
-    at::NoGradGuard no_grad;
-    s.exp_avg = at::empty_like(s.param, at::MemoryFormat::Preserve).copy_(m->second);
-    s.exp_avg_sq = at::empty_like(s.param, at::MemoryFormat::Preserve).copy_(v->second);
-    s.step = t->second.reshape({}).to(s.param.device(), at::kFloat).clone();
-    used += 3;
-  }
-  if (used != state.size()) {
-    for (const auto& [name, tensor] : state) {
-      bool known = false;
-      for (const auto& s : slots_)
-        known = known || name == "exp_avg." + s.name || name == "exp_avg_sq." + s.name || name == "step." + s.name;
-      FLAT_CHECK(known, label + ": optimiser tensor '" + name + "' matches no parameter of this model");
+    s.step = t->reshape({}).to(s.param.device(), at::kFloat).clone();
+    if (m.defined()) {
+      if (quantised(s)) {
+        s.exp_avg_q8 = quantise_blockwise(m, true);
+        s.exp_avg_sq_q8 = quantise_blockwise(v, false);
+      } else {
+        s.exp_avg = at::empty_like(s.param, at::MemoryFormat::Preserve).copy_(m);
+        s.exp_avg_sq = at::empty_like(s.param, at::MemoryFormat::Preserve).copy_(v);
+      }
     }
   }
+  for (const auto& [name, tensor] : state)
+    FLAT_CHECK(used.count(name), label + ": optimiser tensor '" + name + "' matches no parameter of this model");
 }
 
 int64_t AdamW::state_bytes() const {
   int64_t n = 0;
-  for (const auto& s : slots_)
-    if (s.exp_avg.defined()) n += int64_t(s.exp_avg.nbytes() + s.exp_avg_sq.nbytes() + s.step.nbytes());
+  for (const auto& s : slots_) {
+    if (!s.has_state()) continue;
+    n += int64_t(s.step.nbytes()) + s.exp_avg_q8.nbytes() + s.exp_avg_sq_q8.nbytes();
+    if (s.exp_avg.defined()) n += int64_t(s.exp_avg.nbytes() + s.exp_avg_sq.nbytes());
+  }
   return n;
 }
 

@@ -44,7 +44,8 @@ TrainingSession::TrainingSession(const TrainConfig& cfg)
   objective = std::make_unique<loss::Objective>(cfg.loss, device);
   optimiser = std::make_unique<AdamW>(decoder->named_parameters().pairs(),
                                       AdamWOptions{cfg.optim.beta1, cfg.optim.beta2, cfg.optim.eps,
-                                                   cfg.optim.weight_decay, cfg.optim.fused});
+                                                   cfg.optim.weight_decay, cfg.optim.fused,
+                                                   cfg.optim.name == "adamw8bit" ? 8 : 32});
   schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
 }
 

@@ -8,6 +8,7 @@
 // output is the 96-channel feature map at (1+4(T'-1), 4h, 4w) (paper appendix,
 // Scene Decoder Architecture).
 #pragma once
+#include <functional>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -42,6 +43,12 @@ class Decoder3dImpl : public torch::nn::Module {
   // its temporal x2 passes frame 0 and doubles the others; 1 without one.
   static int64_t trunk_frames(int64_t t, size_t split) { return split > 0 && t > 0 ? 2 : 1; }
 
+  // Full-sequence forwards with gradients recompute each block (mid blocks,
+  // residual blocks, resamples) in the backward instead of keeping its
+  // activations (activation_checkpoint.h). Same outputs and gradients.
+  void set_activation_checkpointing(bool on) { checkpoint_blocks_ = on; }
+  bool activation_checkpointing() const { return checkpoint_blocks_; }
+
   bool scene_variant() const { return scene_variant_; }
   int64_t out_features() const { return out_features_; }  // channels before the head (dim)
 
@@ -56,7 +63,11 @@ class Decoder3dImpl : public torch::nn::Module {
 
  private:
   at::Tensor forward_upsamples(at::Tensor h, StreamCache* cache, size_t begin, size_t end);
+  // block(h), checkpointed when switched on and no stream cache is in use.
+  at::Tensor run_block(const std::function<at::Tensor(const at::Tensor&)>& block, const at::Tensor& h,
+                       StreamCache* cache) const;
   bool scene_variant_;
+  bool checkpoint_blocks_ = false;
   int64_t out_features_ = 0;
 };
 TORCH_MODULE(Decoder3d);

@@ -40,6 +40,9 @@ struct SceneDecoderConfig {
   // leaves the GPU idle there; the high-resolution rest always streams one
   // latent frame at a time. Any value gives the same output.
   int64_t stream_trunk_frames = 16;
+  // Training: recompute the decoder's blocks in the backward instead of keeping
+  // their activations (paper, stage 4: gradient checkpointing). Same gradients.
+  bool activation_checkpointing = false;
 
   template <class V>
   void visit(V& v) {
@@ -50,6 +53,8 @@ struct SceneDecoderConfig {
     v.field("adapter_zero_kernel", adapter_zero_kernel, config::range(1, 3), "kernel of the zero conv: 1 or 3");
     v.field("stream_trunk_frames", stream_trunk_frames, config::positive(),
             "streaming: latent frames per step of the low-resolution trunk");
+    v.field("activation_checkpointing", activation_checkpointing,
+            "training: recompute decoder blocks in the backward (less memory, one more forward)");
   }
 };
 

@@ -9,6 +9,13 @@
 // On CUDA the update is ATen's fused multi-tensor kernel (_fused_adamw_, as
 // PyTorch's `fused=True`); on the CPU it is the loop below, op for op as
 // torch.optim.AdamW's single-tensor path, so CPU runs are deterministic.
+//
+// With state_bits = 8 (the paper's stage 4: 8-bit Adam) m and v of every
+// parameter with at least min_8bit_numel values are held block-wise quantised
+// (blockwise_quantisation.h: uint8 codes + one float per 256 values, about a
+// quarter of fp32 state); each step dequantises them, updates as above in
+// fp32, and quantises them again. Smaller tensors (biases, norms) keep fp32
+// state, as bitsandbytes does.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -18,12 +25,15 @@
 #include <ATen/ATen.h>
 
 #include "flat/core/tensor_io.h"
+#include "flat/train/blockwise_quantisation.h"
 
 namespace flat::train {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
   bool fused = true;  // CUDA: ATen's fused kernel; false: the op-by-op update everywhere
+  int state_bits = 32;             // 32 | 8
+  int64_t min_8bit_numel = 4096;   // smaller tensors keep fp32 state
 };
 
 class AdamW {
@@ -38,8 +48,10 @@ class AdamW {
   // The parameters' gradients (undefined ones left out), for norms and clipping.
   std::vector<at::Tensor> grads() const;
 
-  // "exp_avg.<name>", "exp_avg_sq.<name>", "step.<name>" (CPU copies). A
-  // parameter not yet updated has no entries.
+  // "exp_avg.<name>", "exp_avg_sq.<name>", "step.<name>" (CPU copies); 8-bit
+  // state as "exp_avg.q8.<name>" / "exp_avg.absmax.<name>" (and exp_avg_sq).
+  // A parameter not yet updated has no entries. load_state converts between
+  // the two forms, so a run may switch state_bits at a resume.
   TensorMap state() const;
   // Restores state() output; throws flat::Error naming `label` and the tensor
   // on an unknown name or a shape that does not match the parameter.
@@ -51,7 +63,11 @@ class AdamW {
   struct Slot {
     std::string name;
     at::Tensor param, exp_avg, exp_avg_sq, step;  // step: float32 scalar on the param's device
+    QuantisedTensor exp_avg_q8, exp_avg_sq_q8;    // 8-bit state (exp_avg, exp_avg_sq undefined then)
+    bool has_state() const { return step.defined(); }
   };
+  bool quantised(const Slot& s) const;
+  void update_8bit(Slot& s, const at::Tensor& grad, double lr);
   std::vector<Slot> slots_;
   AdamWOptions options_;
   void ensure_state(Slot& s);

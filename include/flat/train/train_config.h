@@ -37,7 +37,7 @@ struct InitConfig {
 };
 
 struct OptimConfig {
-  std::string name = "adamw";  // "adamw" (fp32 state)
+  std::string name = "adamw";  // "adamw" (fp32 state) | "adamw8bit" (block-wise 8-bit moments; paper, stage 4)
   double lr = 1e-4;            // paper
   double beta1 = 0.9;
   double beta2 = 0.999;
@@ -51,7 +51,7 @@ struct OptimConfig {
 
   template <class V>
   void visit(V& v) {
-    v.field("name", name, config::one_of({"adamw"}), "optimiser");
+    v.field("name", name, config::one_of({"adamw", "adamw8bit"}), "adamw (fp32 state) | adamw8bit (8-bit moments)");
     v.field("lr", lr, config::positive(), "peak learning rate");
     v.field("beta1", beta1, config::range(0.0, 0.999999), "Adam beta1");
     v.field("beta2", beta2, config::range(0.0, 0.999999), "Adam beta2");
