@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
   app.add_option("--ssim", ssim, "skimage (Wang et al., as scikit-image) | 3dgs (the 3DGS repositories')")
       ->capture_default_str();
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
-  app.add_option("--config", o.config, "pipeline config YAML instead of the one the model carries");
+  app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
   app.add_option("--device", o.device, "auto | cpu | cuda")
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}))

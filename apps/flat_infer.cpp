@@ -29,7 +29,7 @@ int main(int argc, char** argv) {
   app.add_option("--vae", o.input.vae_weights, "Wan VAE weights, to encode camera latents the latent file lacks");
   app.add_option("--out", o.out_dir, "output folder (must not exist unless --overwrite)")->required();
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
-  app.add_option("--config", o.config, "pipeline config YAML instead of the one the model carries");
+  app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
   app.add_option("--device", o.device, "auto | cpu | cuda")
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}))

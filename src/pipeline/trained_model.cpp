@@ -146,16 +146,20 @@ TrainedModel load_trained_model(const std::string& path, const std::string& conf
   if (meta.count("stage")) m.stage = meta["stage"];
   if (meta.count("step")) m.step = meta["step"];
 
+  // The model's own config, with a --config file layered over it (keys the
+  // file gives replace the model's; an architecture change fails below).
   YAML::Node node;
-  if (!config_file.empty()) {
-    node = pipeline_section(config::load_yaml_file(config_file));
-    m.config_source = config_file;
-  } else if (meta.count("pipeline_config")) {
+  if (meta.count("pipeline_config")) {
     node = config::load_yaml_text(meta["pipeline_config"], m.model_file + " (metadata 'pipeline_config')");
     m.config_source = m.model_file + " (metadata)";
-  } else if (!config_near(fs::path(m.model_file), node, m.config_source)) {
+  } else if (!config_near(fs::path(m.model_file), node, m.config_source) && config_file.empty()) {
     fail(m.model_file + ": the file does not say which pipeline config it was trained with (no 'pipeline_config' "
          "metadata, no trainer.json or config.yaml beside it); give the training config with --config");
+  }
+  if (!config_file.empty()) {
+    auto overlay = pipeline_section(config::load_yaml_file(config_file));
+    node = node.IsDefined() && !node.IsNull() ? config::merge(node, overlay) : overlay;
+    m.config_source = m.config_source.empty() ? config_file : m.config_source + " + " + config_file;
   }
   node = YAML::Clone(node);
   config::apply_overrides(node, overrides, "--set");

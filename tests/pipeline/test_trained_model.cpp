@@ -66,3 +66,14 @@ TEST_CASE("run and checkpoint folders resolve to their model file; older files f
         8);
   REQUIRE_THROWS_WITH(pipeline::load_trained_model((lone / "missing").string()), FLAT_CONTAINS("missing"));
 }
+
+TEST_CASE("--config layers over the config the model carries", "[pipeline]") {
+  const auto dir = test::scratch_dir("trained_model_layer");
+  const std::string file = (dir / "model.safetensors").string();
+  test::write_tiny_model(file);  // carries depth_far 12
+  std::ofstream(dir / "window.yaml") << "pipeline:\n  raster: {window: ts}\n";
+  auto m = pipeline::load_trained_model(file, (dir / "window.yaml").string());
+  CHECK(m.config.raster.window == "ts");            // from the file
+  CHECK(m.config.triangles.depth_far == 12.0);      // kept from the model
+  CHECK(m.config_source.find("window.yaml") != std::string::npos);
+}

@@ -21,7 +21,7 @@ namespace flat::eval {
 
 struct EvalRunOptions {
   std::string model;                   // run folder | checkpoint folder | model file
-  std::string config;                  // pipeline config YAML instead of the model's own
+  std::string config;                  // pipeline keys (YAML) layered over the model's own config
   std::vector<std::string> overrides;  // pipeline keys
   // Each: "NAME=PATH" or "PATH"; PATH is a folder of scene folders, one scene
   // folder, or a text file listing scene folders (one per line, # comments).

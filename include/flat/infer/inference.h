@@ -25,7 +25,7 @@ namespace flat::infer {
 
 struct InferOptions {
   std::string model;                   // run folder | checkpoint folder | model file
-  std::string config;                  // pipeline config YAML instead of the model's own ("" = the model's)
+  std::string config;                  // pipeline keys (YAML) layered over the model's own config
   std::vector<std::string> overrides;  // pipeline keys: "raster.window=ts"
   InputSpec input;
   std::string out_dir;

@@ -51,8 +51,9 @@ struct TrainedModel {
 };
 
 // path: run folder | checkpoint folder | model file. config_file: optional
-// YAML holding the pipeline config (a training config's `pipeline:` section,
-// or the section itself), used instead of the one the model carries.
+// YAML with pipeline keys (a training config's `pipeline:` section, or the
+// section itself), layered over the config the model carries (or used alone
+// for a model that carries none).
 // overrides: "key=value" relative to the pipeline section ("prune_opacity=0.4",
 // "raster.window=ts"); an override that changes the architecture fails the
 // signature check. The decoder is in eval mode on the CPU.
