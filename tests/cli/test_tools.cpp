@@ -25,7 +25,13 @@ void write_capture(const std::string& dir, bool truncate_last) {
   std::string frames;
   for (int i = 0; i < 3; ++i) {
     const std::string name = "images/" + std::to_string(i) + ".png";
-    flat::write_image(dir + "/" + name, torch::rand({3, 16, 24}));
+    // Without OpenImageIO (the GPU machine's build) the files only have to
+    // exist for the table's rows; the import tests that decode them skip.
+    if (flat::image_io_available()) {
+      flat::write_image(dir + "/" + name, torch::rand({3, 16, 24}));
+    } else {
+      write_text(dir + "/" + name, "not decoded in a build without OpenImageIO");
+    }
     if (truncate_last && i == 2) fs::resize_file(dir + "/" + name, 40);  // a download cut short
     frames += std::string(i ? "," : "") + "{\"file_path\": \"" + name +
               "\", \"transform_matrix\": [[1,0,0," + std::to_string(0.1 * i) + "],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}";
@@ -244,6 +250,7 @@ TEST_CASE("flat_render refuses a camera size that cannot fit, with the figure", 
 }
 
 TEST_CASE("flat_import: a failed import into an existing scene leaves it byte-identical", "[cli]") {
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the capture's PNGs cannot be imported");
   const Fixtures& f = fixtures();
   const std::string d = fresh_dir("cli_import").string(), scene = d + "/scene";
   auto ok = tool("flat_import", {"transforms", "--in", f.capture, "--out", scene}, d, "good");
@@ -306,6 +313,7 @@ TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[
 }
 
 TEST_CASE("flat_vae decode: an existing frame folder is kept unless --overwrite, then replaced whole", "[cli]") {
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: decoded frames are PNG files");
   const Fixtures& f = fixtures();
   const std::string d = fresh_dir("cli_vae").string(), frames = d + "/frames";
   const std::vector<std::string> args = {"decode", "--random-weights", "--dim", "4", "--in", f.latent, "--out", frames};
@@ -375,11 +383,13 @@ TEST_CASE("flat_render and flat_bench raster: --device cpu works, an existing ou
   CHECK(again.rc == 1);
   CHECK_THAT(again.output, FLAT_CONTAINS("already exists"));
   CHECK(snapshot(out) == before);
-  auto over = args;
-  over.insert(over.end(), {"--overwrite", "--format", "png"});
-  CHECK(tool("flat_render", over, d, "overwrite").rc == 0);
-  CHECK_FALSE(fs::exists(out + "/render.safetensors"));
-  CHECK(fs::exists(out + "/0000_rgb.png"));
+  if (flat::image_io_available()) {
+    auto over = args;
+    over.insert(over.end(), {"--overwrite", "--format", "png"});
+    CHECK(tool("flat_render", over, d, "overwrite").rc == 0);
+    CHECK_FALSE(fs::exists(out + "/render.safetensors"));
+    CHECK(fs::exists(out + "/0000_rgb.png"));
+  }
   CHECK(fs::exists(d + "/render.log"));
   // The raster benchmark on the CPU, on the same PLY and cameras.
   auto bench = tool("flat_bench", {"raster", "--device", "cpu", "--triangles", f.root + "/one.ply", "--cameras",
