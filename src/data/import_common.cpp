@@ -36,6 +36,12 @@ at::Tensor rigid(const at::Tensor& c2w) {
   return m.to(at::kFloat);
 }
 
+std::string default_scene_name(const std::string& out_dir) {
+  std::filesystem::path p = std::filesystem::path(out_dir).lexically_normal();
+  if (!p.has_filename()) p = p.parent_path();
+  return p.filename().string();
+}
+
 std::unique_ptr<StagedDir> begin_import(const std::string& out_dir, bool overwrite) {
   std::error_code ec;
   if (std::filesystem::is_directory(out_dir, ec) && std::filesystem::is_empty(out_dir, ec))

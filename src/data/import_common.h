@@ -20,6 +20,10 @@ std::pair<int64_t, int64_t> import_size(int64_t height, int64_t width, int64_t m
 // Resizes rgb (3,H,W) to the scene size and writes images/<stem>.png; returns the relative path.
 std::string write_import_image(const Scene& scene, int64_t index, const at::Tensor& rgb);
 
+// The scene's name when none is given: the output folder's name, also for
+// "out/scene/" (whose filename() is empty).
+std::string default_scene_name(const std::string& out_dir);
+
 // Re-orthonormalises the rotation of a c2w (4,4) (float noise in source files).
 at::Tensor rigid(const at::Tensor& c2w);
 

@@ -11,6 +11,7 @@
 #include "flat/data/frame_io.h"
 #include "flat/data/importers.h"
 #include "flat/data/scene_frames.h"
+#include "data/import_common.h"
 #include "flat/data/synthetic_scene.h"
 #include "flat/data/undistort.h"
 #include "data_test_dirs.h"
@@ -198,4 +199,11 @@ TEST_CASE("fox imports; its optical axes pass near a common point in front of th
   CHECK(data::principal_axes_focus(wrong).in_front == 0.0);
   auto img = data::load_frames(back, {0}, false, false).images;
   CHECK(img.sizes() == torch::IntArrayRef({1, 3, 160, 90}));
+}
+
+TEST_CASE("an imported scene is named after its output folder, with or without a trailing slash", "[data][import]") {
+  CHECK(flat::data::detail::default_scene_name("out/scene") == "scene");
+  CHECK(flat::data::detail::default_scene_name("out/scene/") == "scene");
+  CHECK(flat::data::detail::default_scene_name("out/scene//") == "scene");
+  CHECK(flat::data::detail::default_scene_name("scene") == "scene");
 }
