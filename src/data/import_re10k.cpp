@@ -89,7 +89,7 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
   auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
   scene.dir = staged->path();
-  scene.name = o.name.empty() ? default_scene_name(out_dir) : o.name;
+  scene.name = o.name.empty() ? detail::default_scene_name(out_dir) : o.name;
   scene.source = "RealEstate10K: " + camera_file;
   scene.metric_scale = o.metric_scale;
   Progress progress("import " + scene.name, int64_t(keep.size()));

@@ -143,7 +143,7 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
   auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
   scene.dir = staged->path();
-  scene.name = o.name.empty() ? default_scene_name(out_dir) : o.name;
+  scene.name = o.name.empty() ? detail::default_scene_name(out_dir) : o.name;
   scene.source = "transforms.json: " + file.string();
   scene.metric_scale = o.metric_scale;
   Progress progress("import " + scene.name, int64_t(kept.size()));
