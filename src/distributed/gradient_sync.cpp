@@ -1,0 +1,80 @@
+#include "flat/distributed/gradient_sync.h"
+
+#include "flat/core/error.h"
+
+namespace flat::distributed {
+
+void broadcast_tensors(ProcessGroup& group, const std::vector<at::Tensor>& tensors, int64_t root) {
+  at::NoGradGuard no_grad;
+  for (const auto& t : tensors) {
+    at::Tensor data = t.detach();  // shares storage: the broadcast writes the tensor itself
+    group.broadcast(data, root);
+  }
+}
+
+GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options)
+    : group_(group), params_(std::move(params)) {
+  FLAT_CHECK(options.bucket_bytes > 0, "gradient sync: bucket_bytes must be positive");
+  // Reverse order: backward produces the last layers' gradients first.
+  for (int64_t i = static_cast<int64_t>(params_.size()) - 1; i >= 0; --i) {
+    const at::Tensor& p = params_[i];
+    FLAT_CHECK(p.defined(), "gradient sync: parameter " + std::to_string(i) + " is undefined");
+    bool fits = false;
+    if (!buckets_.empty()) {
+      const Bucket& b = buckets_.back();
+      const at::Tensor& first = params_[b.params.front()];
+      fits = first.scalar_type() == p.scalar_type() && first.device() == p.device() &&
+             (b.numel + p.numel()) * static_cast<int64_t>(p.element_size()) <= options.bucket_bytes;
+    }
+    if (!fits) buckets_.emplace_back();
+    buckets_.back().params.push_back(i);
+    buckets_.back().numel += p.numel();
+  }
+}
+
+void GradientSync::all_reduce_gradients() {
+  for (size_t b = 0; b < buckets_.size(); ++b) reduce_bucket(b);
+}
+
+void GradientSync::reduce_bucket(size_t b) {
+  FLAT_CHECK(b < buckets_.size(), "gradient sync: bucket " + std::to_string(b) + " of " +
+                                      std::to_string(buckets_.size()));
+  at::NoGradGuard no_grad;
+  const Bucket& bucket = buckets_[b];
+  const at::Tensor& first = params_[bucket.params.front()];
+  const int64_t n = static_cast<int64_t>(bucket.params.size());
+  // [gradients..., one presence count per parameter]
+  at::Tensor flat = at::empty({bucket.numel + n}, first.options());
+  int64_t offset = 0;
+  for (int64_t k = 0; k < n; ++k) {
+    const at::Tensor& p = params_[bucket.params[k]];
+    at::Tensor slot = flat.narrow(0, offset, p.numel());
+    const at::Tensor& g = p.grad();
+    if (g.defined()) {
+      FLAT_CHECK(g.sizes() == p.sizes(), "gradient sync: a gradient's shape differs from its parameter's");
+      slot.copy_(g.reshape(-1));
+    } else {
+      slot.zero_();
+    }
+    flat[bucket.numel + k].fill_(g.defined() ? 1 : 0);
+    offset += p.numel();
+  }
+  group_.allreduce_sum(flat);
+  const at::Tensor counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
+  const auto* count = counts.data_ptr<float>();
+  flat.narrow(0, 0, bucket.numel).div_(static_cast<double>(group_.world_size()));
+  offset = 0;
+  for (int64_t k = 0; k < n; ++k) {
+    at::Tensor p = params_[bucket.params[k]];
+    at::Tensor mean = flat.narrow(0, offset, p.numel()).view(p.sizes());
+    offset += p.numel();
+    if (count[k] == 0) continue;  // no rank had a gradient: leave it undefined everywhere
+    if (p.grad().defined()) {
+      p.mutable_grad().copy_(mean);
+    } else {
+      p.mutable_grad() = mean.clone();
+    }
+  }
+}
+
+}  // namespace flat::distributed

@@ -1,0 +1,82 @@
+// GradientSync's bucketing and its handling of missing gradients, in one
+// process against a scripted group that plays the other rank.
+#include <functional>
+
+#include "flat/distributed/gradient_sync.h"
+#include "test_support.h"
+
+using namespace flat::distributed;
+
+namespace {
+
+// World of two: allreduce adds what `peer` says the other rank sent.
+class ScriptedGroup : public ProcessGroup {
+ public:
+  explicit ScriptedGroup(std::function<at::Tensor(const at::Tensor&)> peer)
+      : ProcessGroup(0, 2), peer_(std::move(peer)) {}
+  std::string backend() const override { return "scripted"; }
+  void allreduce_sum(at::Tensor& t) override {
+    sizes.push_back(t.numel());
+    dtypes.push_back(t.scalar_type());
+    t.add_(peer_(t));
+  }
+  void broadcast(at::Tensor& t, int64_t) override { t.fill_(7); }
+  std::vector<int64_t> sizes;
+  std::vector<at::ScalarType> dtypes;
+
+ private:
+  std::function<at::Tensor(const at::Tensor&)> peer_;
+};
+
+at::Tensor param(int64_t n, at::ScalarType dtype = at::kFloat) {
+  return torch::zeros({n}, torch::TensorOptions().dtype(dtype)).requires_grad_(true);
+}
+
+}  // namespace
+
+TEST_CASE("gradient sync: buckets hold one dtype and device, stay under the size, in reverse order", "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t.clone(); });
+  // floats 1000, 1000, doubles 10, floats 3000 (larger than a bucket: alone), floats 1.
+  std::vector<at::Tensor> params = {param(1000), param(1000), param(10, at::kDouble), param(3000), param(1)};
+  for (auto& p : params) p.mutable_grad() = torch::ones_like(p);
+  GradientSync sync(group, params, GradientSyncOptions{8000});  // 2000 floats
+  const auto& b = sync.buckets();
+  REQUIRE(b.size() == 4);
+  CHECK(b[0].params == std::vector<int64_t>{4});
+  CHECK(b[1].params == std::vector<int64_t>{3});
+  CHECK(b[2].params == std::vector<int64_t>{2});
+  CHECK(b[3].params == std::vector<int64_t>{1, 0});  // exactly 8000 bytes fits
+  CHECK(b[3].numel == 2000);
+  sync.all_reduce_gradients();
+  // One collective per bucket: its gradients plus one presence count per parameter.
+  CHECK(group.sizes == std::vector<int64_t>{2, 3001, 11, 2002});
+  CHECK(group.dtypes == std::vector<at::ScalarType>{at::kFloat, at::kFloat, at::kDouble, at::kFloat});
+  // Both ranks sent ones: the mean is one.
+  for (auto& p : params) CHECK(torch::equal(p.grad(), torch::ones_like(p)));
+}
+
+TEST_CASE("gradient sync: a gradient missing on some ranks is averaged with zeros, on all ranks none stays none",
+          "[distributed]") {
+  at::Tensor a = param(3), b = param(2), c = param(2);
+  a.mutable_grad() = torch::tensor({1.f, 2.f, 3.f});
+  // The other rank: a gradient of ones for a and b, none for c. Layout of the
+  // one bucket (reverse order): c, b, a, then the counts of c, b, a.
+  ScriptedGroup group([](const at::Tensor&) { return torch::tensor({0.f, 0.f, 1.f, 1.f, 1.f, 1.f, 1.f, 0.f, 1.f, 1.f}); });
+  GradientSync sync(group, {a, b, c});
+  REQUIRE(sync.buckets().size() == 1);
+  sync.all_reduce_gradients();
+  CHECK(torch::allclose(a.grad(), torch::tensor({1.f, 1.5f, 2.f})));
+  REQUIRE(b.grad().defined());
+  CHECK(torch::allclose(b.grad(), torch::full({2}, 0.5f)));
+  CHECK_FALSE(c.grad().defined());
+}
+
+TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t; });
+  torch::nn::Linear lin(3, 2);
+  std::vector<at::Tensor> tensors = lin->parameters();
+  broadcast_tensors(group, tensors);
+  CHECK(torch::equal(lin->weight, torch::full({2, 3}, 7.f)));
+  CHECK(torch::equal(lin->bias, torch::full({2}, 7.f)));
+  CHECK(lin->weight.requires_grad());
+}
