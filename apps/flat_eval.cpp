@@ -12,6 +12,7 @@
 #include <CLI/CLI.hpp>
 
 #include "flat/core/atomic_file.h"
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/shape.h"
@@ -21,6 +22,7 @@ int main(int argc, char** argv) {
   CLI::App app{"flat_eval: Table-1 metrics of a trained decoder over scene folders, or a comparison of runs"};
   app.get_formatter()->column_width(36);
   flat::eval::EvalRunOptions o;
+  flat::cli::add_common(app, "flat_eval", o.log_level);
   std::vector<std::string> compare;
   std::string size, ssim = "skimage", out_table;
   bool full_sequence = false;
@@ -38,23 +40,13 @@ int main(int argc, char** argv) {
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
-  app.add_option("--device", o.device, "auto | cpu | cuda")
-      ->check(CLI::IsMember({"auto", "cpu", "cuda"}))
-      ->capture_default_str();
-  app.add_option("--precision", o.precision, "auto (bf16 on cuda) | fp32 | bf16")->capture_default_str();
+  flat::cli::add_device(app, o.device);
+  flat::cli::add_precision(app, o.precision);  // bf16 applies on CUDA; the CPU computes in fp32
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming)");
   app.add_flag("--redo", o.redo, "score every scene again (also needed to reuse --out with other settings)");
   app.add_option("--compare", compare, "flat_eval output folders to put side by side (no --model)")->take_all();
   app.add_option("--out-table", out_table, "--compare: also write the Markdown table here");
-  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
-      ->capture_default_str();
-  app.set_version_flag("--version", "flat_eval 0.1.0");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
-  }
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     flat::setup_logging(o.log_level);
     if (!compare.empty()) {

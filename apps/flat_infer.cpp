@@ -10,6 +10,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/shape.h"
@@ -19,6 +20,7 @@ int main(int argc, char** argv) {
   CLI::App app{"flat_infer: latents -> triangle scene (PLY, GLB), renders, videos and a browser viewer"};
   app.get_formatter()->column_width(36);
   flat::infer::InferOptions o;
+  flat::cli::add_common(app, "flat_infer", o.log_level);
   std::string size, novel = "orbit";
   bool full_sequence = false, no_ply = false, no_glb = false, no_renders = false, no_video = false, no_viewer = false;
   app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors")->required();
@@ -31,10 +33,8 @@ int main(int argc, char** argv) {
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
-  app.add_option("--device", o.device, "auto | cpu | cuda")
-      ->check(CLI::IsMember({"auto", "cpu", "cuda"}))
-      ->capture_default_str();
-  app.add_option("--precision", o.precision, "auto (bf16 on cuda) | fp32 | bf16")->capture_default_str();
+  flat::cli::add_device(app, o.device);
+  flat::cli::add_precision(app, o.precision);  // bf16 applies on CUDA; the CPU computes in fp32
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
   app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
   app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON")->capture_default_str();
@@ -50,15 +50,7 @@ int main(int argc, char** argv) {
   app.add_flag("--no-renders", no_renders, "skip the per-view image files");
   app.add_flag("--no-video", no_video, "skip the MP4 videos");
   app.add_flag("--no-viewer", no_viewer, "skip the browser viewer");
-  app.add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
-      ->capture_default_str();
-  app.set_version_flag("--version", "flat_infer 0.1.0");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
-  }
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     flat::setup_logging(o.log_level);
     o.streaming = !full_sequence;

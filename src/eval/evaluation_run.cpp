@@ -111,10 +111,10 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     if (o.device == "cuda") FLAT_CHECK(torch::cuda::is_available(), "--device cuda: no CUDA device is available");
     return (o.device == "cpu" || !torch::cuda::is_available()) ? at::Device(at::kCPU) : at::Device(at::kCUDA, 0);
   }();
-  FLAT_CHECK(o.precision == "auto" || o.precision == "fp32" || o.precision == "bf16",
-             "--precision: expected auto, fp32 or bf16, got '" + o.precision + "'");
+  FLAT_CHECK(o.precision == "fp32" || o.precision == "bf16",
+             "--precision: expected fp32 or bf16, got '" + o.precision + "'");
   auto settings_run = o.settings;
-  settings_run.bf16 = device.is_cuda() && o.precision != "fp32";
+  settings_run.bf16 = device.is_cuda() && o.precision == "bf16";  // the CPU computes in fp32
   trained.decoder->to(device);
   pipeline::ScenePipeline pipe(trained.config, trained.decoder);
   loss::Lpips lpips{nullptr};

@@ -60,10 +60,9 @@ InferSummary run_inference(const InferOptions& o) {
   spdlog::info("flat_infer: writing into {} (appears when finished)", o.out_dir);
 
   const at::Device device = choose_device(o.device);
-  FLAT_CHECK(o.precision == "auto" || o.precision == "fp32" || o.precision == "bf16",
-             "--precision: expected auto, fp32 or bf16, got '" + o.precision + "'");
-  const bool bf16 = device.is_cuda() && o.precision != "fp32";
-  if (o.precision == "bf16" && !device.is_cuda()) spdlog::warn("--precision bf16 applies on CUDA only; the CPU runs fp32");
+  FLAT_CHECK(o.precision == "fp32" || o.precision == "bf16",
+             "--precision: expected fp32 or bf16, got '" + o.precision + "'");
+  const bool bf16 = device.is_cuda() && o.precision == "bf16";  // the CPU computes in fp32
   FLAT_CHECK(o.prune_opacity >= 0 && o.prune_opacity < 1, "--prune-opacity must be in [0, 1)");
 
   auto trained = pipeline::load_trained_model(o.model, o.config, o.overrides);

@@ -38,13 +38,20 @@ ScenePipeline::ScenePipeline(PipelineConfig config, model::SceneDecoder decoder)
                  std::to_string(config_.triangles.channels().total));
 }
 
-primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool streaming) {
+namespace {
+// Checks the input's shapes; returns T = 1 + 4(T'-1), the frames it decodes to.
+int64_t check_input(const SceneInput& in) {
   check_shape(in.video_latents, {-1, 16, -1, -1, -1}, "pipeline: video latents", "(B,16,T',h,w)");
-  const int64_t B = in.video_latents.size(0), Tl = in.video_latents.size(2);
-  const int64_t T = 1 + 4 * (Tl - 1);
+  const int64_t B = in.video_latents.size(0), T = 1 + 4 * (in.video_latents.size(2) - 1);
   check_shape(in.input_intrinsics, {B, T, 4}, "pipeline: input intrinsics",
               "(B,T,4) with T = 1+4(T'-1) = " + std::to_string(T));
   check_shape(in.input_c2w, {B, T, 4, 4}, "pipeline: input camera-to-world", "(B,T,4,4)");
+  return T;
+}
+}  // namespace
+
+primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool streaming) {
+  const int64_t B = in.video_latents.size(0), T = check_input(in);
   const auto device = decoder_->conv2->weight.device();
   auto latents = in.video_latents.to(device, at::kFloat);
   auto camera_latents = in.camera_latents.defined() ? in.camera_latents.to(device, at::kFloat) : at::Tensor();
@@ -58,12 +65,7 @@ primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool stream
 }
 
 primitives::TriangleSoup ScenePipeline::decode_to(const SceneInput& in, const at::Device& out_device) {
-  check_shape(in.video_latents, {-1, 16, -1, -1, -1}, "pipeline: video latents", "(B,16,T',h,w)");
-  const int64_t B = in.video_latents.size(0), Tl = in.video_latents.size(2);
-  const int64_t T = 1 + 4 * (Tl - 1);
-  check_shape(in.input_intrinsics, {B, T, 4}, "pipeline: input intrinsics",
-              "(B,T,4) with T = 1+4(T'-1) = " + std::to_string(T));
-  check_shape(in.input_c2w, {B, T, 4, 4}, "pipeline: input camera-to-world", "(B,T,4,4)");
+  const int64_t B = in.video_latents.size(0), T = check_input(in);
   at::NoGradGuard no_grad;
   const auto device = decoder_->conv2->weight.device();
   auto latents = in.video_latents.to(device, at::kFloat);

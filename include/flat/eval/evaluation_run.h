@@ -30,7 +30,7 @@ struct EvalRunOptions {
   std::string out_dir;
   std::string name;  // the method's label (default: the model's run folder name)
   EvalSettings settings;
-  std::string device = "auto", precision = "auto";
+  std::string device = "auto", precision = "bf16";  // precision: bf16 applies on CUDA only
   std::string lpips_weights;  // "" = no LPIPS column
   bool redo = false;
   std::string log_level = "info";

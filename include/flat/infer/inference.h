@@ -31,7 +31,7 @@ struct InferOptions {
   std::string out_dir;
   bool overwrite = false;
   std::string device = "auto";     // auto (cuda when present) | cpu | cuda
-  std::string precision = "auto";  // auto (bf16 on cuda, fp32 on cpu) | fp32 | bf16
+  std::string precision = "bf16";  // bf16 (on CUDA; the CPU computes in fp32) | fp32
   bool streaming = true;           // bounded-memory decoding, one latent frame at a time
   double prune_opacity = 0.05;     // triangles below this opacity are dropped before export and rendering
   camera::TrajectorySpec novel;    // preset "none" = no novel renders; a file name = cameras JSON
