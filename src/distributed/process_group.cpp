@@ -2,6 +2,7 @@
 
 #include <torch/csrc/distributed/c10d/TCPStore.hpp>
 
+#include "distributed/gloo_process_group.h"
 #include "distributed/nccl_process_group.h"
 #include "distributed/store_process_group.h"
 #include "flat/core/error.h"
@@ -10,10 +11,8 @@ namespace flat::distributed {
 
 std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, const std::string& backend,
                                                  std::chrono::milliseconds timeout) {
-  FLAT_CHECK(backend == "store" || backend == "nccl",
-             "distributed: unknown backend '" + backend + "' (expected store or nccl" +
-                 (backend == "gloo" ? "; gloo cannot be built from C++ against this torch wheel, use store" : "") +
-                 ")");
+  FLAT_CHECK(backend == "gloo" || backend == "store" || backend == "nccl",
+             "distributed: unknown backend '" + backend + "' (expected gloo, nccl or store)");
   FLAT_CHECK(env.world_size >= 1 && env.rank >= 0 && env.rank < env.world_size,
              "distributed: rank " + std::to_string(env.rank) + " is outside a world of " +
                  std::to_string(env.world_size));
@@ -34,7 +33,10 @@ std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, cons
          "): " + e.what_without_backtrace());
   }
   if (backend == "nccl") return detail::make_nccl_process_group(store, env.rank, env.world_size, timeout);
+  if (backend == "gloo") return detail::make_gloo_process_group(store, env.rank, env.world_size, timeout);
   return detail::make_store_process_group(store, env.rank, env.world_size, timeout);
 }
+
+bool gloo_backend_available() { return detail::gloo_available(); }
 
 }  // namespace flat::distributed

@@ -4,12 +4,13 @@
 //
 // Backends:
 //   "nccl"  - c10d::ProcessGroupNCCL (CUDA builds; tensors on this rank's GPU).
-//   "store" - the collectives through the TCPStore itself (CPU; tests and
-//             CPU runs). The torch wheel we build against ships
-//             ProcessGroupGloo's symbols but not the gloo headers its header
-//             includes, so Gloo cannot be constructed from C++ here; "store"
-//             stands in for it. It moves every tensor through rank 0's store:
-//             fine for tests and small models, not for GPU-sized traffic.
+//   "gloo"  - c10d::ProcessGroupGloo (CPU). The torch wheel ships its code but
+//             not the gloo headers its header includes; Debian's libgloo-dev
+//             provides them (gloo_backend_available() says whether this build
+//             found them).
+//   "store" - the collectives through the TCPStore itself (CPU), a fallback
+//             for builds without the gloo headers. It moves every tensor
+//             through rank 0's store: fine for tests and small models only.
 //
 // Every rank must call the same collectives in the same order with tensors of
 // the same shape and dtype. A dead or stuck peer makes a collective throw
@@ -47,9 +48,12 @@ class ProcessGroup {
 };
 
 // Rendezvous at env.master_addr:env.port and the group of env.world_size
-// ranks; `backend` is "store" or "nccl". Waits up to `timeout` for all ranks
+// ranks; `backend` is "gloo", "nccl" or "store". Waits up to `timeout` for all ranks
 // to arrive, and the collectives use the same timeout.
 std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, const std::string& backend,
                                                  std::chrono::milliseconds timeout);
+
+// True when this build can construct the "gloo" backend.
+bool gloo_backend_available();
 
 }  // namespace flat::distributed
