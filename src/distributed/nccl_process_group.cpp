@@ -7,6 +7,8 @@
 #if FLAT_WITH_CUDA && __has_include(<nccl.h>)
 #define FLAT_HAVE_NCCL 1
 #include <torch/csrc/distributed/c10d/ProcessGroupNCCL.hpp>
+
+#include "distributed/c10d_process_group.h"
 #else
 #define FLAT_HAVE_NCCL 0
 #endif
@@ -14,42 +16,15 @@
 namespace flat::distributed::detail {
 
 #if FLAT_HAVE_NCCL
-namespace {
-
 // Each collective is enqueued on NCCL's stream and waited for; the caller has
 // made this rank's GPU the current device (local_rank).
-class NcclProcessGroup : public ProcessGroup {
- public:
-  NcclProcessGroup(c10::intrusive_ptr<c10d::ProcessGroupNCCL> pg, int64_t rank, int64_t world_size)
-      : ProcessGroup(rank, world_size), pg_(std::move(pg)) {}
-  std::string backend() const override { return "nccl"; }
-
-  void allreduce_sum(at::Tensor& tensor) override {
-    std::vector<at::Tensor> v{tensor};
-    c10d::AllreduceOptions o;
-    o.reduceOp = c10d::ReduceOp::SUM;
-    pg_->allreduce(v, o)->wait();
-  }
-  void broadcast(at::Tensor& tensor, int64_t root) override {
-    std::vector<at::Tensor> v{tensor};
-    c10d::BroadcastOptions o;
-    o.rootRank = root;
-    pg_->broadcast(v, o)->wait();
-  }
-
- private:
-  c10::intrusive_ptr<c10d::ProcessGroupNCCL> pg_;
-};
-
-}  // namespace
-
 std::unique_ptr<ProcessGroup> make_nccl_process_group(c10::intrusive_ptr<c10d::Store> store, int64_t rank,
                                                       int64_t world_size, std::chrono::milliseconds timeout) {
   auto opts = c10d::ProcessGroupNCCL::Options::create();
   opts->timeout = timeout;  // NCCL's watchdog aborts a collective that outlives it
   auto pg = c10::make_intrusive<c10d::ProcessGroupNCCL>(store, static_cast<int>(rank), static_cast<int>(world_size),
                                                         opts);
-  return std::make_unique<NcclProcessGroup>(std::move(pg), rank, world_size);
+  return std::make_unique<C10dProcessGroup>(std::move(pg), "nccl", rank, world_size);
 }
 #else
 std::unique_ptr<ProcessGroup> make_nccl_process_group(c10::intrusive_ptr<c10d::Store>, int64_t, int64_t,
