@@ -1,27 +1,60 @@
 #!/usr/bin/env bash
-# Rasterizer profile on the GPU machine: per-view workload statistics, the
-# per-kernel time of one step, and Nsight Compute counters of one launch of
-# each kernel (middle view). Usage there: bash scripts/gpu_profile_raster.sh [paper|stage1]
+# Rasterizer on the anchor workload, on the GPU machine, in one go:
+#   1. build flat_bench (and the render and bench tests with RASTER_TESTS=1, run
+#      then: the CUDA-vs-CPU errors of docs/rasterizer.md);
+#   2. if .anchor/ holds ../shared/bench/*.py (carry it): the anchor's own files
+#      (export_workload.py, CUDA) against ours (--write-workload), compared
+#      value by value, and our rasterizer timed on the Python file's triangles too;
+#   3. flat_bench raster on the workloads: times, per-view load, GPU time per kernel;
+#   4. Nsight Compute counters of one launch (middle view) of each kernel.
+# Usage there (repo root, .deps and .anchor carried):
+#   bash scripts/gpu_profile_raster.sh            RASTER_WORKLOADS="anchor-large anchor-small"
+#   RASTER_NCU=0 skips step 4; RASTER_NCU_KERNELS picks the kernels (regexes).
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
-SIZE="${1:-paper}"
+WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
 BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+W="${RASTER_WORK_DIR:-/tmp/flat_raster_workloads}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
+t0=$(date +%s)
+targets="flat_bench"
+[ "${RASTER_TESTS:-0}" = 1 ] && targets="$targets flat_test_render flat_test_bench"
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
   -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
-ninja -C "$BUILD" flat_bench >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+ninja -C "$BUILD" $targets >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+echo "== built $targets in $(( $(date +%s) - t0 )) s"
 B="$BUILD/flat_bench"
-SPDLOG_LEVEL=debug "$B" raster --workload "$SIZE" --repeats 3 --profile 2>&1 | grep -vE "raster view ([0-9]|1[0-9]|2[0-2]):" \
-  | tee "$OUT/profile_$SIZE.log" | tail -40
-SPDLOG_LEVEL=debug "$B" raster --workload "$SIZE" --repeats 1 2>&1 | grep "raster view" | sort -u -t: -k1,1 | head -30 >"$OUT/views_$SIZE.log"
-head -30 "$OUT/views_$SIZE.log"
+if [ "${RASTER_TESTS:-0}" = 1 ]; then
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed" \
+    >"$OUT/test_render.log"; echo "== render tests rc=${PIPESTATUS[0]}"; tail -3 "$OUT/test_render.log")
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -2)
+fi
+if [ -f "$ROOT/.anchor/export_workload.py" ]; then
+  rm -rf "$W"; mkdir -p "$W"
+  for c in large small; do
+    if echo "$WORKLOADS" | grep -q "anchor-$c"; then
+      python3 "$ROOT/.anchor/export_workload.py" $c "$W/py" --device cuda 2>&1 | tail -1
+      "$B" raster --workload anchor-$c --write-workload "$W/cpp" --repeats 1 >"$OUT/write_$c.log" 2>&1
+      python3 "$ROOT/scripts/compare_workload.py" "$W/py/$c.ply" "$W/py/${c}_cameras.json" \
+        "$W/cpp/anchor-$c.ply" "$W/cpp/anchor-${c}_cameras.json" | tee "$OUT/compare_$c.log" | tail -3
+      "$B" raster --triangles "$W/py/$c.ply" --cameras "$W/py/${c}_cameras.json" 2>&1 | tail -1
+      rm -rf "$W/cpp"
+    fi
+  done
+fi
+"$B" raster --workload $WORKLOADS --repeats ${RASTER_REPEATS:-7} --profile >"$OUT/bench_raster.log" 2>&1
+echo "== bench rc=$?"; cat "$OUT/bench_raster.log" | grep -vE "^\[" | head -60
+grep -E "per view" "$OUT/bench_raster.log"
+[ "${RASTER_NCU:-1}" = 0 ] && exit 0
 command -v ncu >/dev/null || { echo "no ncu"; exit 0; }
-for k in preprocess_kernel raster_forward_kernel raster_backward_kernel preprocess_backward_kernel; do
+first=$(echo $WORKLOADS | awk '{print $1}')
+for k in ${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel cull_kernel screen_kernel duplicate_kernel chain_kernel Onesweep}; do
   timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 \
     --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
     --section SchedulerStats --section InstructionStats --section MemoryWorkloadAnalysis \
-    "$B" raster --workload "$SIZE" --repeats 1 >"$OUT/ncu_$k.log" 2>&1
+    "$B" raster --workload $first --repeats 1 >"$OUT/ncu_$k.log" 2>&1
   echo "== $k rc=$?"
-  grep -E "Duration|Compute \(SM\) Throughput|Memory Throughput|Achieved Occupancy|Theoretical Occupancy|Registers Per|Executed Ipc Active|Issue Slots Busy|No Eligible|Warp Cycles Per Issued|Avg. Active Threads Per Warp|Avg. Not Predicated|Executed Instructions  |L1/TEX Hit|L2 Hit|DRAM Throughput|Block Limit" "$OUT/ncu_$k.log" | head -30
+  grep -E "Duration|Compute \(SM\) Throughput|Memory Throughput|Achieved Occupancy|Theoretical Occupancy|Registers Per|Executed Ipc Active|Issue Slots Busy|No Eligible|Warp Cycles Per Issued|Avg. Active Threads Per Warp|Avg. Not Predicated|L1/TEX Hit|L2 Hit|DRAM Throughput|Block Limit|Dynamic Shared|Static Shared" "$OUT/ncu_$k.log" | head -24
 done

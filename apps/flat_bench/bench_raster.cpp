@@ -1,12 +1,15 @@
 // flat_bench raster: forward and forward+backward time (median) and peak GPU
-// memory of the triangle rasterizer at the paper's sizes, on a synthetic
-// "decoded scene": for each of T frames, one camera-facing triangle per 2x2
-// pixel block on the walls of a box room (the anchor workload of the issue),
-// rendered into every other camera (--workload paper|stage1|both). Or any PLY +
-// cameras JSON. --device auto|cpu|cuda (peak memory is reported on CUDA only).
+// memory of the triangle rasterizer, with each view's load (visible
+// triangles, tile pairs, list entries per pixel) beside the times.
+// Workloads (flat/bench/raster_workload.h): anchor-large and anchor-small, the
+// benchmark of record (the triangles ../shared/bench/raster_workload.py gives
+// the public Triangle Splatting rasterizer); paper and stage1, our older room
+// scenes; or any PLY + cameras JSON. --device auto|cpu|cuda (peak memory and
+// load are reported on CUDA only).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <map>
 
 #include <ATen/cuda/CUDAContext.h>
@@ -17,74 +20,17 @@
 #include <torch/torch.h>
 
 #include "bench_registry.h"
+#include "flat/bench/raster_workload.h"
 #include "flat/camera/camera_json.h"
 #include "flat/core/cli.h"
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/export/triangle_ply.h"
+#include "flat/render/raster_load.h"
 #include "flat/render/rasterize.h"
 
 namespace flat::bench {
 namespace {
-
-struct Scene {
-  torch::Tensor vertices, colors, opacities, sigmas;
-  camera::Cameras targets;
-  int64_t height = 0, width = 0;
-};
-
-// T cameras at the room centre panning 180 degrees; each 2x2 block's centre
-// ray hits the walls of the box [-4,4] x [-1.5,1.5] x [-4,4]; a camera-facing
-// equilateral triangle of inradius ~1 px sits there. Targets: every other frame.
-Scene room_scene(int64_t frames, int64_t height, int64_t width, int64_t target_views, const torch::Device& dev) {
-  auto f = torch::TensorOptions().dtype(torch::kFloat).device(dev);
-  const double fx_n = 0.6, fy_n = 0.6 * double(width) / double(height);
-  camera::Cameras all;
-  all.intrinsics = torch::tensor({fx_n, fy_n, 0.5, 0.5}, torch::kFloat).repeat({frames, 1});
-  all.c2w = torch::eye(4).repeat({frames, 1, 1});
-  for (int64_t t = 0; t < frames; ++t) {
-    const double yaw = M_PI * double(t) / double(std::max<int64_t>(frames - 1, 1));
-    const double c = std::cos(yaw), s = std::sin(yaw);
-    all.c2w[t].narrow(0, 0, 3).narrow(1, 0, 3).copy_(torch::tensor({{c, 0.0, s}, {0.0, 1.0, 0.0}, {-s, 0.0, c}}));
-    all.c2w[t][0][3] = 0.5 * std::cos(2.0 * yaw);
-    all.c2w[t][2][3] = 0.5 * std::sin(2.0 * yaw);
-  }
-  all = all.to(dev);
-  const int64_t h = height / 2, w = width / 2;
-  // Anchor rays through 2x2 block centres, camera space (z = 1).
-  auto u = (torch::arange(w, f) * 2 + 1) / (fx_n * width) - 0.5 / fx_n;
-  auto v = (torch::arange(h, f) * 2 + 1) / (fy_n * height) - 0.5 / fy_n;
-  auto dcam = torch::stack({u.view({1, w}).expand({h, w}), v.view({h, 1}).expand({h, w}), torch::ones({h, w}, f)}, -1);
-  auto R = all.c2w.narrow(1, 0, 3).narrow(2, 0, 3);                           // (T,3,3)
-  auto o = all.c2w.narrow(1, 0, 3).select(2, 3);                              // (T,3)
-  auto d = torch::einsum("tij,hwj->thwi", {R, dcam});                         // (T,h,w,3), |d| >= 1
-  auto half = torch::tensor({4.0, 1.5, 4.0}, f);
-  auto oo = o.view({frames, 1, 1, 3});
-  // Exit distance of the ray from inside the box: min over axes of (+-half - o)/d.
-  auto tpos = (half - oo) / d, tneg = (-half - oo) / d;
-  auto texit = torch::where(d > 0, tpos, tneg).nan_to_num(1e9, 1e9, 1e9).clamp_min(0).amin(-1);  // (T,h,w)
-  auto centre = oo + texit.unsqueeze(-1) * d;                                  // world
-  // Camera-facing frame: axes = camera x / y rotated to world; size from the pixel footprint.
-  const double px_size = 1.0 / (fx_n * width);                                 // camera-plane size of a pixel at z = 1
-  auto r_in = (texit * px_size).unsqueeze(-1);                                 // inradius ~ 1 px (z = texit for z-component 1)
-  auto ex = R.select(2, 0).view({frames, 1, 1, 3}), ey = R.select(2, 1).view({frames, 1, 1, 3});
-  std::vector<torch::Tensor> verts;
-  for (int k = 0; k < 3; ++k) {
-    const double ang = -M_PI / 2 + 2.0 * M_PI * k / 3.0;
-    verts.push_back(centre + 2.0 * r_in * (std::cos(ang) * ex + std::sin(ang) * ey));  // circumradius 2 r_in
-  }
-  Scene sc;
-  sc.vertices = torch::stack(verts, -2).reshape({-1, 3, 3}).contiguous();
-  const int64_t n = sc.vertices.size(0);
-  sc.colors = torch::rand({n, 3}, f);
-  sc.opacities = torch::rand({n}, f) * 0.6 + 0.3;
-  sc.sigmas = torch::ones({n}, f);
-  auto idx = torch::linspace(0, double(frames - 1), target_views).round().to(torch::kLong).to(dev);
-  sc.targets = all.index(idx);
-  sc.height = height;
-  sc.width = width;
-  return sc;
-}
 
 double now_ms() {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -97,7 +43,7 @@ double median(std::vector<double> v) {
 
 // One forward+backward step under the libtorch (Kineto) profiler: GPU time per
 // kernel name, summed over the step (where the time goes, without nsys).
-void profile_scene(const std::string& label, const Scene& sc, const render::RasterSettings& settings) {
+void profile_scene(const RasterWorkload& sc, const render::RasterSettings& settings) {
   namespace prof = torch::autograd::profiler;
   using torch::profiler::impl::ActivityType;
   auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
@@ -123,11 +69,33 @@ void profile_scene(const std::string& label, const Scene& sc, const render::Rast
   std::vector<std::pair<double, std::string>> rows;
   for (const auto& [name, k] : per_kernel) rows.push_back({k.first, name + " x" + std::to_string(k.second)});
   std::sort(rows.rbegin(), rows.rend());
-  std::printf("profile %s (one fwd+bwd step, GPU ms per kernel, total %.2f):\n", label.c_str(), total);
+  std::printf("profile %s (one fwd+bwd step, GPU ms per kernel, total %.2f):\n", sc.name.c_str(), total);
   for (size_t i = 0; i < rows.size() && i < 14; ++i) std::printf("  %8.2f  %s\n", rows[i].first, rows[i].second.c_str());
 }
 
-void time_scene(const std::string& label, const Scene& sc, const render::RasterSettings& settings, int repeats) {
+// Mean and maximum over views of the load counts (one forward).
+struct LoadSummary {
+  double visible = 0, pairs = 0, entries = 0;
+  int64_t visible_max = 0, pairs_max = 0;
+  double entries_max = 0;
+};
+
+LoadSummary summarise_load(const RasterWorkload& sc, const render::RasterSettings& settings) {
+  const auto load = render::measure_raster_load(sc.vertices, sc.colors, sc.opacities, sc.sigmas, sc.targets, sc.height,
+                                                sc.width, settings);
+  LoadSummary s;
+  for (const auto& l : load) {
+    s.visible += double(l.visible) / double(load.size());
+    s.pairs += double(l.tile_pairs) / double(load.size());
+    s.entries += l.entries_mean / double(load.size());
+    s.visible_max = std::max(s.visible_max, l.visible);
+    s.pairs_max = std::max(s.pairs_max, l.tile_pairs);
+    s.entries_max = std::max(s.entries_max, l.entries_mean);
+  }
+  return s;
+}
+
+void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings, int repeats) {
   const auto dev = sc.vertices.device();
   auto sync = [&] {
     if (dev.is_cuda()) torch::cuda::synchronize();
@@ -137,7 +105,7 @@ void time_scene(const std::string& label, const Scene& sc, const render::RasterS
   auto w_rgb = torch::rand({V, 3, sc.height, sc.width}, sc.vertices.options());
   std::vector<double> fwd, fwdbwd;
   double peak_fwd = 0, peak_all = 0;
-  int64_t visible = 0;
+  int64_t contributing = 0;
   for (int it = 0; it < repeats + 2; ++it) {
     {
       torch::NoGradGuard ng;
@@ -150,7 +118,7 @@ void time_scene(const std::string& label, const Scene& sc, const render::RasterS
       const double t1 = now_ms();
       if (it >= 2) fwd.push_back(t1 - t0);
       peak_fwd = std::max(peak_fwd, peak_memory_gib(dev));
-      if (it == 0) visible = (r.max_weight > 0).sum().item<int64_t>();
+      if (it == 0) contributing = (r.max_weight > 0).sum().item<int64_t>();
     }
     auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
     auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
@@ -165,57 +133,97 @@ void time_scene(const std::string& label, const Scene& sc, const render::RasterS
     if (it >= 2) fwdbwd.push_back(t1 - t0);
     peak_all = std::max(peak_all, peak_memory_gib(dev));
   }
-  const double gib = 1.0;  // peak_memory_gib is in GiB already
-  spdlog::info("raster {}: {} triangles ({} with weight > 0), {} views at {}x{}, window {}", label,
-               sc.vertices.size(0), visible, V, sc.height, sc.width, settings.window);
+  spdlog::info("raster {}: {} triangles ({} blended somewhere), {} views at {}x{}, window {}", sc.name,
+               sc.vertices.size(0), contributing, V, sc.height, sc.width, settings.window);
+  std::string load_cells = "- | - | -";
+  if (dev.is_cuda()) {
+    const LoadSummary l = summarise_load(sc, settings);
+    spdlog::info("raster {}: per view, mean (max): {:.3f} M ({:.3f} M) visible triangles, {:.3f} M ({:.3f} M) "
+                 "triangle-tile pairs, {:.0f} ({:.0f}) list entries per pixel",
+                 sc.name, l.visible * 1e-6, l.visible_max * 1e-6, l.pairs * 1e-6, l.pairs_max * 1e-6, l.entries,
+                 l.entries_max);
+    load_cells = fmt::format("{:.2f} M | {:.2f} M | {:.0f}", l.visible * 1e-6, l.pairs * 1e-6, l.entries);
+  }
   spdlog::info("raster {}: forward {:.2f} ms (median of {}), forward+backward {:.2f} ms, peak {:.2f} GiB forward, "
                "{:.2f} GiB forward+backward",
-               label, median(fwd), repeats, median(fwdbwd), peak_fwd / gib, peak_all / gib);
-  std::printf("| %s | %lld | %lld | %lldx%lld | %s | %.2f | %.2f | %.2f |\n", label.c_str(),
+               sc.name, median(fwd), repeats, median(fwdbwd), peak_fwd, peak_all);
+  std::printf("| %s | %lld | %lld | %lldx%lld | %s | %s | %.2f | %.2f | %.2f |\n", sc.name.c_str(),
               (long long)sc.vertices.size(0), (long long)V, (long long)sc.height, (long long)sc.width,
-              settings.window.c_str(), median(fwd), median(fwdbwd), peak_all / gib);
+              settings.window.c_str(), load_cells.c_str(), median(fwd), median(fwdbwd), peak_all);
+  std::fflush(stdout);
+}
+
+// The workload as a triangle PLY and a cameras JSON (the layout of
+// ../shared/bench/export_workload.py), for comparison with its files.
+void write_workload(const RasterWorkload& sc, const std::string& dir) {
+  std::filesystem::create_directories(dir);
+  primitives::TriangleSoup soup;
+  soup.vertices = sc.vertices.cpu();
+  soup.colors = sc.colors.cpu();
+  soup.opacities = sc.opacities.cpu();
+  soup.sigmas = sc.sigmas.cpu();
+  const std::string stem = dir + "/" + sc.name;
+  exporter::write_triangle_ply(stem + ".ply", soup);
+  camera::write_cameras_json(stem + "_cameras.json", {sc.targets.to(torch::kCPU), sc.width, sc.height});
+  spdlog::info("raster {}: wrote {}.ply and {}_cameras.json", sc.name, stem, stem);
 }
 
 }  // namespace
 
 void add_raster(CLI::App& app) {
-  auto* sub = app.add_subcommand("raster", "triangle rasterizer: forward, forward+backward time and peak memory");
+  auto* sub = app.add_subcommand("raster", "triangle rasterizer: forward, forward+backward time, peak memory and load");
   struct Opts {
-    std::string workload = "both", ply, cams, window = "flat", device = "auto";
+    std::vector<std::string> workloads = {"anchor-large", "anchor-small"};
+    std::string ply, cams, window = "flat", device = "auto", write_dir;
     int repeats = 5;
+    uint64_t seed = 0;
     bool profile = false;
   };
   auto opts = std::make_shared<Opts>();
-  sub->add_option("--workload", opts->workload, "paper (49x216x384 tris, 24 views 432x768) | stage1 (17x160x288, 17 "
-                                                "views 320x576) | both")
-      ->check(CLI::IsMember({"paper", "stage1", "both"}));
+  sub->add_option("--workload", opts->workloads,
+                  "anchor-large (4,064,256 triangles, 24 views 432x768) | anchor-small (783,360, 17 views 320x576): "
+                  "the anchor's own triangles (../shared/bench/raster_workload.py); paper | stage1: our older room "
+                  "scenes at the same sizes")
+      ->check(CLI::IsMember({"anchor-large", "anchor-small", "paper", "stage1"}))
+      ->capture_default_str();
   cli::add_device(*sub, opts->device);
   sub->add_option("--triangles", opts->ply, "time this triangle soup PLY instead (with --cameras)");
   sub->add_option("--cameras", opts->cams, "cameras JSON for --triangles");
-  sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}));
-  sub->add_option("--repeats", opts->repeats, "timed repeats after 2 warm-ups")->check(CLI::Range(1, 1000));
+  sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}))->capture_default_str();
+  sub->add_option("--repeats", opts->repeats, "timed repeats after 2 warm-ups")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  sub->add_option("--seed", opts->seed, "anchor workloads: generator seed (the Python file's --seed)")
+      ->capture_default_str();
+  sub->add_option("--write-workload", opts->write_dir,
+                  "write each generated workload as DIR/<name>.ply and DIR/<name>_cameras.json, then time it");
   sub->add_flag("--profile", opts->profile, "also print GPU time per kernel of one forward+backward step");
   sub->callback([opts] {
     const torch::Device dev = cli::resolve_device(opts->device);
     FLAT_CHECK(!opts->profile || dev.is_cuda(), "flat_bench raster: --profile needs --device cuda (GPU kernel times)");
     render::RasterSettings settings;
     settings.window = opts->window;
-    std::printf("| workload | triangles | views | HxW | window | forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|\n");
+    std::printf("| workload | triangles | views | HxW | window | visible / view | pairs / view | entries / px | "
+                "forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
+    auto run = [&](const RasterWorkload& sc) {
+      if (!opts->write_dir.empty()) write_workload(sc, opts->write_dir);
+      time_scene(sc, settings, opts->repeats);
+      if (opts->profile) profile_scene(sc, settings);
+    };
     if (!opts->ply.empty()) {
       FLAT_CHECK(!opts->cams.empty(), "flat_bench raster: --triangles needs --cameras");
       const auto soup = exporter::read_triangle_ply(opts->ply);
       const auto set = camera::read_cameras_json(opts->cams);
-      Scene sc{soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev), soup.sigmas.to(dev),
-               set.cameras.to(dev), set.height, set.width};
-      time_scene(opts->ply, sc, settings, opts->repeats);
+      run(RasterWorkload{opts->ply, soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev),
+                         soup.sigmas.to(dev), set.cameras.to(dev), set.height, set.width});
       return;
     }
-    auto run = [&](const std::string& label, const Scene& sc) {
-      time_scene(label, sc, settings, opts->repeats);
-      if (opts->profile) profile_scene(label, sc, settings);
-    };
-    if (opts->workload == "stage1" || opts->workload == "both") run("stage1", room_scene(17, 320, 576, 17, dev));
-    if (opts->workload == "paper" || opts->workload == "both") run("paper", room_scene(49, 432, 768, 24, dev));
+    for (const auto& w : opts->workloads) {
+      if (w == "anchor-large") run(anchor_workload("large", dev, opts->seed));
+      if (w == "anchor-small") run(anchor_workload("small", dev, opts->seed));
+      if (w == "paper") run(room_workload("paper", 49, 432, 768, 24, dev));
+      if (w == "stage1") run(room_workload("stage1", 17, 320, 576, 17, dev));
+    }
   });
 }
 

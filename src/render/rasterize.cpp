@@ -1,6 +1,7 @@
 // rasterize(): input checks, dtype/device dispatch and the autograd Function
 // with the analytic backward (CPU reference or CUDA kernels).
 #include "flat/render/rasterize.h"
+#include "flat/render/raster_load.h"
 
 #include <torch/torch.h>
 
@@ -162,11 +163,10 @@ void check_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at
   FLAT_CHECK(s[3] > 0.0, "rasterize: sigmas must be > 0, got min " + std::to_string(s[3]));
 }
 
-}  // namespace
-
-RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
-                       const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
-                       const RasterSettings& settings) {
+// Checked inputs in the back ends' dtype and layout.
+RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                            const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
+                            const RasterSettings& settings) {
   settings.check();
   check_inputs(vertices, colors, opacities, sigmas, cams, height, width);
   const auto dev = vertices.device();
@@ -174,12 +174,47 @@ RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, con
   const bool use_double = dev.is_cpu() && vertices.scalar_type() == at::kDouble;
   const auto opts = at::TensorOptions().device(dev).dtype(use_double ? at::kDouble : at::kFloat);
   auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
-  const at::Tensor w2c = camera::world_to_camera(cams.c2w.to(opts).to(at::kDouble)).to(opts).contiguous();
-  const at::Tensor K = prep(camera::pixel_intrinsics(cams.intrinsics.to(opts), height, width));
-  const at::Tensor bg = at::tensor(settings.background, at::TensorOptions().dtype(at::kDouble)).to(opts);
-  auto outs = RasterizeFunction::apply(prep(vertices), prep(colors), prep(opacities), prep(sigmas), w2c, K, bg,
-                                       height, width, to_constants(settings));
+  RasterInputs in;
+  in.vertices = prep(vertices);
+  in.colors = prep(colors);
+  in.opacities = prep(opacities);
+  in.sigmas = prep(sigmas);
+  in.w2c = camera::world_to_camera(cams.c2w.to(opts).to(at::kDouble)).to(opts).contiguous();
+  in.K = prep(camera::pixel_intrinsics(cams.intrinsics.to(opts), height, width));
+  in.background = at::tensor(settings.background, at::TensorOptions().dtype(at::kDouble)).to(opts);
+  in.height = height;
+  in.width = width;
+  in.k = to_constants(settings);
+  return in;
+}
+
+}  // namespace
+
+RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                       const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
+                       const RasterSettings& settings) {
+  const RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
+  auto outs = RasterizeFunction::apply(in.vertices, in.colors, in.opacities, in.sigmas, in.w2c, in.K, in.background,
+                                       height, width, in.k);
   return RenderOutput{outs[0], outs[1], outs[2], outs[3], outs[4], outs[5]};
+}
+
+std::vector<ViewLoad> measure_raster_load(const at::Tensor& vertices, const at::Tensor& colors,
+                                          const at::Tensor& opacities, const at::Tensor& sigmas,
+                                          const camera::Cameras& cams, int64_t height, int64_t width,
+                                          const RasterSettings& settings) {
+  FLAT_CHECK(vertices.is_cuda(), "measure_raster_load: the load counts describe the CUDA tiling; give CUDA tensors");
+  std::vector<ViewLoad> load;
+#if FLAT_WITH_CUDA
+  at::NoGradGuard no_grad;
+  RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
+  in.vertices = in.vertices.reshape({in.vertices.size(0), 9});
+  std::vector<at::Tensor> views;
+  cuda::forward(in, false, views, &load);
+#else
+  fail("measure_raster_load: this build has no CUDA kernels (FLAT_WITH_CUDA=OFF)");
+#endif
+  return load;
 }
 
 }  // namespace flat::render

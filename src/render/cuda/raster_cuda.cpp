@@ -127,9 +127,20 @@ struct ScreenData {
   int64_t bytes() const { return tris.nbytes() + rects.nbytes(); }
 };
 
+// One view's load (raster_load.h): the list lengths from the tile ranges,
+// the entries per pixel from the forward's per-pixel last blended entry.
+ViewLoad count_load(int64_t visible, int64_t pairs, const at::Tensor& ranges, const at::Tensor& last) {
+  const at::Tensor list = (ranges.select(1, 1) - ranges.select(1, 0)).to(at::kDouble);
+  const at::Tensor entries = last.to(at::kDouble);
+  const at::Tensor s = at::stack({list.mean(), list.max(), entries.mean(), entries.max()}).cpu();
+  const double* d = s.data_ptr<double>();
+  return ViewLoad{visible, pairs, d[0], (int64_t)d[1], d[2], (int64_t)d[3]};
+}
+
 }  // namespace
 
-RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at::Tensor>& views) {
+RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at::Tensor>& views,
+                      std::vector<ViewLoad>* load) {
   check_sizes(in);
   const c10::cuda::CUDAGuard guard(in.vertices.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
@@ -205,13 +216,12 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                           sd.tri_ptr(), sd.rect_ptr(), visible.data_ptr<int>(), vp, img,
                           reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward rasterization");
-    if (spdlog::should_log(spdlog::level::debug)) {  // workload statistics (host syncs: debug only)
-      const at::Tensor tile_len = (ranges.select(1, 1) - ranges.select(1, 0)).to(at::kFloat);
-      const at::Tensor last_f = last.to(at::kFloat);
+    if (load || spdlog::should_log(spdlog::level::debug)) {  // workload counts (host syncs)
+      const ViewLoad l = count_load(nv, count, ranges, last);
+      if (load) load->push_back(l);
       spdlog::debug("raster view {}: {} visible triangles, {} (triangle, tile) pairs, tile list mean {:.1f} max {}, "
-                    "entries processed per pixel mean {:.1f} max {}",
-                    v, nv, count, tile_len.mean().item<float>(), tile_len.max().item<float>(),
-                    last_f.mean().item<float>(), last_f.max().item<float>());
+                    "entries per pixel mean {:.1f} max {}",
+                    v, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
     }
     if (for_backward) {
       const bool keep = kept_bytes + sd.bytes() <= kKeepScreenBytes;

@@ -7,12 +7,15 @@
 #pragma once
 #include <vector>
 
+#include "flat/render/raster_load.h"
 #include "render/raster_buffers.h"
 
 namespace flat::render::cuda {
 
-// for_backward: keep the per-view state (else `views` stays empty).
-RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at::Tensor>& views);
+// for_backward: keep the per-view state (else `views` stays empty). load:
+// when given, each view's load is counted into it (host syncs per view).
+RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at::Tensor>& views,
+                      std::vector<ViewLoad>* load = nullptr);
 RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
                      const at::Tensor& grad_alpha, const at::Tensor& grad_depth, const at::Tensor& grad_normal);
 
