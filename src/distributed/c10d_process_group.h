@@ -1,7 +1,9 @@
 // A ProcessGroup over one of c10d's own backends (ProcessGroupGloo,
 // ProcessGroupNCCL): the collectives are c10d's; this only waits for them and
-// names the rank when a peer died or hangs (the backend's own timeout).
+// names the ranks when a peer died or hangs (the backend's own timeout, then
+// the heartbeats' verdict: ProcessGroup::diagnose_peers).
 #pragma once
+#include <memory>
 #include <string>
 #include <utility>
 
@@ -16,33 +18,68 @@ class C10dProcessGroup : public ProcessGroup {
  public:
   C10dProcessGroup(c10::intrusive_ptr<c10d::Backend> backend, std::string name, int64_t rank, int64_t world_size)
       : ProcessGroup(rank, world_size), backend_(std::move(backend)), name_(std::move(name)) {}
+  // After a failure the backend is left alive: tearing it down may wait on
+  // the dead peer, and the process is about to end anyway.
+  ~C10dProcessGroup() override {
+    if (failed_) (void)backend_.release();
+  }
   std::string backend() const override { return name_; }
 
-  void allreduce_sum(at::Tensor& tensor) override {
-    std::vector<at::Tensor> v{tensor};
-    c10d::AllreduceOptions o;
-    o.reduceOp = c10d::ReduceOp::SUM;
-    wait([&] { return backend_->allreduce(v, o); }, "allreduce");
-  }
+  void allreduce_sum(at::Tensor& tensor) override { allreduce_sum_async(tensor)->wait(); }
   void broadcast(at::Tensor& tensor, int64_t root) override {
     std::vector<at::Tensor> v{tensor};
     c10d::BroadcastOptions o;
     o.rootRank = root;
-    wait([&] { return backend_->broadcast(v, o); }, "broadcast");
+    Pending(this, "broadcast", [&] { return backend_->broadcast(v, o); }).wait();
+  }
+  std::unique_ptr<Work> allreduce_sum_async(at::Tensor& tensor) override {
+    std::vector<at::Tensor> v{tensor};
+    c10d::AllreduceOptions o;
+    o.reduceOp = c10d::ReduceOp::SUM;
+    return std::make_unique<Pending>(this, "allreduce", [&] { return backend_->allreduce(v, o); });
   }
 
  private:
+  // A started c10d collective; starting it may already fail (a closed connection).
+  class Pending : public Work {
+   public:
+    template <class F>
+    Pending(C10dProcessGroup* group, const char* what, const F& start) : group_(group), what_(what) {
+      try {
+        work_ = start();
+      } catch (const c10::Error& e) {
+        group_->failed(what_, e.what_without_backtrace());
+      } catch (const std::exception& e) {
+        group_->failed(what_, e.what());
+      }
+    }
+    void wait() override {
+      try {
+        work_->wait();
+      } catch (const c10::Error& e) {
+        group_->failed(what_, e.what_without_backtrace());
+      } catch (const std::exception& e) {
+        group_->failed(what_, e.what());
+      }
+    }
+
+   private:
+    C10dProcessGroup* group_;
+    const char* what_;
+    c10::intrusive_ptr<c10d::Work> work_;
+  };
+
+  [[noreturn]] void failed(const char* what, const std::string& error) {
+    failed_ = true;
+    const std::string peers = diagnose_peers();
+    fail("distributed (" + name_ + "): rank " + std::to_string(rank()) + " of " + std::to_string(world_size()) +
+         ": " + what + " failed: " + (peers.empty() ? "a peer died, hangs or is unreachable" : peers) + " [" +
+         error.substr(0, 300) + "]");
+  }
+
   c10::intrusive_ptr<c10d::Backend> backend_;
   std::string name_;
-  template <class F>
-  void wait(const F& start, const char* what) {
-    try {
-      start()->wait();
-    } catch (const std::exception& e) {
-      fail("distributed (" + name_ + "): rank " + std::to_string(rank()) + " of " + std::to_string(world_size()) +
-           ": " + what + " failed (a peer died, hangs or is unreachable): " + e.what());
-    }
-  }
+  bool failed_ = false;
 };
 
 }  // namespace flat::distributed::detail

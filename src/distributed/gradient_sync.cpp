@@ -30,20 +30,27 @@ GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, 
     buckets_.back().params.push_back(i);
     buckets_.back().numel += p.numel();
   }
+  pending_.resize(buckets_.size());
 }
 
 void GradientSync::all_reduce_gradients() {
-  for (size_t b = 0; b < buckets_.size(); ++b) reduce_bucket(b);
+  for (size_t b = 0; b < buckets_.size(); ++b) start_bucket(b);
+  for (size_t b = 0; b < buckets_.size(); ++b) finish_bucket(b);
 }
 
 void GradientSync::reduce_bucket(size_t b) {
+  start_bucket(b);
+  finish_bucket(b);
+}
+
+void GradientSync::start_bucket(size_t b) {
   FLAT_CHECK(b < buckets_.size(), "gradient sync: bucket " + std::to_string(b) + " of " +
                                       std::to_string(buckets_.size()));
+  FLAT_CHECK(!started(b), "gradient sync: bucket " + std::to_string(b) + " started twice");
   at::NoGradGuard no_grad;
   const Bucket& bucket = buckets_[b];
   const at::Tensor& first = params_[bucket.params.front()];
   const int64_t n = static_cast<int64_t>(bucket.params.size());
-  // [gradients..., one presence count per parameter]
   at::Tensor flat = at::empty({bucket.numel + n}, first.options());
   int64_t offset = 0;
   for (int64_t k = 0; k < n; ++k) {
@@ -56,14 +63,30 @@ void GradientSync::reduce_bucket(size_t b) {
     } else {
       slot.zero_();
     }
-    flat[bucket.numel + k].fill_(g.defined() ? 1 : 0);
     offset += p.numel();
   }
-  group_.allreduce_sum(flat);
+  // The presence counts in one copy (a fill per parameter would be one kernel each on a GPU).
+  std::vector<float> present(size_t(n), 0.f);
+  for (int64_t k = 0; k < n; ++k) present[size_t(k)] = params_[bucket.params[k]].grad().defined() ? 1.f : 0.f;
+  flat.narrow(0, bucket.numel, n).copy_(at::tensor(present));
+  Pending& p = pending_[b];
+  p.flat = flat;
+  p.work = group_.allreduce_sum_async(p.flat);
+}
+
+void GradientSync::finish_bucket(size_t b) {
+  FLAT_CHECK(b < buckets_.size() && started(b), "gradient sync: bucket " + std::to_string(b) + " was not started");
+  at::NoGradGuard no_grad;
+  Pending pending = std::move(pending_[b]);
+  pending_[b] = Pending{};
+  pending.work->wait();
+  const Bucket& bucket = buckets_[b];
+  const int64_t n = static_cast<int64_t>(bucket.params.size());
+  at::Tensor flat = pending.flat;
   const at::Tensor counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
   const auto* count = counts.data_ptr<float>();
   flat.narrow(0, 0, bucket.numel).div_(static_cast<double>(group_.world_size()));
-  offset = 0;
+  int64_t offset = 0;
   for (int64_t k = 0; k < n; ++k) {
     at::Tensor p = params_[bucket.params[k]];
     at::Tensor mean = flat.narrow(0, offset, p.numel()).view(p.sizes());

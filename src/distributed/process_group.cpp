@@ -4,13 +4,50 @@
 
 #include "distributed/gloo_process_group.h"
 #include "distributed/nccl_process_group.h"
+#include "distributed/peer_watch.h"
 #include "distributed/store_process_group.h"
 #include "flat/core/error.h"
 
 namespace flat::distributed {
 
+namespace {
+
+// A collective that finished when it was started (backends without async ones).
+class DoneWork : public Work {
+ public:
+  void wait() override {}
+};
+
+}  // namespace
+
+ProcessGroup::ProcessGroup(int64_t rank, int64_t world_size) : rank_(rank), world_size_(world_size) {}
+
+ProcessGroup::~ProcessGroup() = default;  // the watch stops with it
+
+std::unique_ptr<Work> ProcessGroup::allreduce_sum_async(at::Tensor& tensor) {
+  allreduce_sum(tensor);
+  return std::make_unique<DoneWork>();
+}
+
+std::string ProcessGroup::diagnose_peers() { return watch_ ? watch_->diagnose() : std::string(); }
+
+void ProcessGroup::shutdown() {
+  if (watch_) watch_->finish();
+}
+
+void ProcessGroup::set_peer_watch(std::unique_ptr<detail::PeerWatch> watch) { watch_ = std::move(watch); }
+
+std::vector<double> sum_over_ranks(ProcessGroup& group, const std::vector<double>& values, const at::Device& device) {
+  if (values.empty()) return {};
+  at::Tensor t = at::tensor(values, at::TensorOptions().dtype(at::kDouble)).to(device);
+  group.allreduce_sum(t);
+  t = t.cpu();
+  const double* p = t.data_ptr<double>();
+  return std::vector<double>(p, p + t.numel());
+}
+
 std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, const std::string& backend,
-                                                 std::chrono::milliseconds timeout) {
+                                                 std::chrono::milliseconds timeout, bool watch_peers) {
   FLAT_CHECK(backend == "gloo" || backend == "store" || backend == "nccl",
              "distributed: unknown backend '" + backend + "' (expected gloo, nccl or store)");
   FLAT_CHECK(env.world_size >= 1 && env.rank >= 0 && env.rank < env.world_size,
@@ -32,9 +69,17 @@ std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, cons
          std::to_string(timeout.count()) + " ms (" + (env.rank == 0 ? "not every rank arrived" : "rank 0 unreachable") +
          "): " + e.what_without_backtrace());
   }
-  if (backend == "nccl") return detail::make_nccl_process_group(store, env.rank, env.world_size, timeout);
-  if (backend == "gloo") return detail::make_gloo_process_group(store, env.rank, env.world_size, timeout);
-  return detail::make_store_process_group(store, env.rank, env.world_size, timeout);
+  std::unique_ptr<ProcessGroup> group;
+  if (backend == "nccl") {
+    group = detail::make_nccl_process_group(store, env.rank, env.world_size, timeout);
+  } else if (backend == "gloo") {
+    group = detail::make_gloo_process_group(store, env.rank, env.world_size, timeout);
+  } else {
+    group = detail::make_store_process_group(store, env.rank, env.world_size, timeout);
+  }
+  if (watch_peers && env.world_size > 1)
+    group->set_peer_watch(std::make_unique<detail::PeerWatch>(store->clone(), env.rank, env.world_size, timeout));
+  return group;
 }
 
 bool gloo_backend_available() { return detail::gloo_available(); }

@@ -9,6 +9,7 @@
 #include "flat/core/error.h"
 #include "flat/core/tensor_io.h"
 #include "flat/distributed/gradient_sync.h"
+#include "flat/distributed/overlapped_reducer.h"
 #include "flat/distributed/process_group.h"
 #include "free_port.h"
 #include "test_support.h"
@@ -21,22 +22,8 @@ namespace {
 
 constexpr int64_t kSteps = 5;
 
-// Waits up to `seconds` for `c`; the exit code (128 + signal when killed), or
-// -2 after killing a child that overran (so that a hang fails, not blocks, the test).
-int wait_bounded(const flat::test::Child& c, double seconds) {
-  int status = 0;
-  const bool exited = flat::test::wait_until([&] { return waitpid(c.pid, &status, WNOHANG) == c.pid; }, seconds);
-  if (!exited) {
-    kill(c.pid, SIGKILL);
-    waitpid(c.pid, &status, 0);
-    return -2;
-  }
-  if (WIFEXITED(status)) return WEXITSTATUS(status);
-  if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
-  return -1;
-}
-
-bool running(const flat::test::Child& c) { return waitpid(c.pid, nullptr, WNOHANG) == 0; }
+using flat::test::running;
+using flat::test::wait_bounded;
 
 // Trains a small MLP for `steps` SGD steps on rank `rank`'s share of a fixed
 // batch of 8; with `group` the gradients are averaged over the ranks. Rank 0
@@ -44,28 +31,44 @@ bool running(const flat::test::Child& c) { return waitpid(c.pid, nullptr, WNOHAN
 // that). `extra` enters only rank 0's loss: the other ranks have no gradient
 // for it, as an unused branch would. The objective of all ranks together is
 // the one-process objective: mse(whole batch) + 0.5 * |extra|^2.
+// With `overlap` the buckets (of 64 bytes: one per tensor or so) are
+// all-reduced from autograd hooks during backward (OverlappedReducer);
+// `started` then counts the buckets that started before backward returned.
 flat::TensorMap train(ProcessGroup* group, int64_t rank, int64_t world, int64_t steps,
-                      const std::function<void()>& after_first_step = nullptr) {
+                      const std::function<void()>& after_first_step = nullptr, bool overlap = false,
+                      int64_t* started = nullptr) {
   torch::manual_seed(1);
   const at::Tensor x = torch::randn({8, 6}), y = torch::randn({8, 3});
   torch::manual_seed(rank == 0 ? 0 : 100 + rank);
   torch::nn::Sequential model(torch::nn::Linear(6, 16), torch::nn::Tanh(), torch::nn::Linear(16, 3));
   at::Tensor extra = torch::randn({3}).requires_grad_(true);
-  std::vector<at::Tensor> params = model->parameters();
-  params.push_back(extra);
+  // `extra` first: it is the last bucket, so that rank 1's buckets of the
+  // model (before it in backward order) need not wait for it.
+  std::vector<at::Tensor> params = {extra};
+  for (const auto& p : model->parameters()) params.push_back(p);
   std::unique_ptr<GradientSync> sync;
+  std::unique_ptr<OverlappedReducer> reducer;
   if (group) {
     broadcast_tensors(*group, params);
-    sync = std::make_unique<GradientSync>(*group, params);
+    if (overlap) {
+      reducer = std::make_unique<OverlappedReducer>(*group, params, GradientSyncOptions{64});
+    } else {
+      sync = std::make_unique<GradientSync>(*group, params);
+    }
   }
   torch::optim::SGD opt(params, torch::optim::SGDOptions(0.1).momentum(0.9));
   const at::Tensor xs = x.chunk(world)[rank], ys = y.chunk(world)[rank];
   for (int64_t step = 0; step < steps; ++step) {
     opt.zero_grad();  // gradients become undefined: rank > 0 has none for `extra`
+    if (reducer) reducer->prepare();
     at::Tensor loss = torch::mse_loss(model->forward(xs), ys);
     if (rank == 0) loss = loss + 0.5 * static_cast<double>(world) * extra.pow(2).sum();
     loss.backward();
     if (sync) sync->all_reduce_gradients();
+    if (reducer) {
+      reducer->finish();
+      if (started) *started += reducer->started_in_backward();
+    }
     opt.step();
     if (step == 0 && after_first_step) after_first_step();
   }
@@ -81,7 +84,8 @@ struct Workers {
 };
 
 // Starts ranks 0 and 1 of this binary's worker case.
-Workers start_workers(const fs::path& dir, int64_t steps, int64_t timeout_ms, const std::string& backend = "store") {
+Workers start_workers(const fs::path& dir, int64_t steps, int64_t timeout_ms, const std::string& backend = "store",
+                      const std::vector<std::string>& extra_env = {}) {
   const std::string self = fs::read_symlink("/proc/self/exe").string();
   const std::string port = std::to_string(flat::test::free_port());
   Workers w;
@@ -89,11 +93,12 @@ Workers start_workers(const fs::path& dir, int64_t steps, int64_t timeout_ms, co
     const std::string r = std::to_string(rank);
     w.outputs.push_back((dir / ("rank" + r + ".safetensors")).string());
     w.ready.push_back((dir / ("rank" + r + ".ready")).string());
-    w.children.push_back(flat::test::spawn(
-        {self, "[dp_worker]"}, (dir / ("rank" + r + ".log")).string(),
-        {"RANK=" + r, "LOCAL_RANK=" + r, "WORLD_SIZE=2", "MASTER_ADDR=127.0.0.1", "MASTER_PORT=" + port,
-         "FLAT_DP_OUT=" + w.outputs.back(), "FLAT_DP_READY=" + w.ready.back(), "FLAT_DP_STEPS=" + std::to_string(steps), "FLAT_DP_BACKEND=" + backend,
-         "FLAT_DP_TIMEOUT_MS=" + std::to_string(timeout_ms)}));
+    std::vector<std::string> env = {"RANK=" + r, "LOCAL_RANK=" + r, "WORLD_SIZE=2", "MASTER_ADDR=127.0.0.1",
+                                    "MASTER_PORT=" + port, "FLAT_DP_OUT=" + w.outputs.back(),
+                                    "FLAT_DP_READY=" + w.ready.back(), "FLAT_DP_STEPS=" + std::to_string(steps),
+                                    "FLAT_DP_BACKEND=" + backend, "FLAT_DP_TIMEOUT_MS=" + std::to_string(timeout_ms)};
+    env.insert(env.end(), extra_env.begin(), extra_env.end());
+    w.children.push_back(flat::test::spawn({self, "[dp_worker]"}, (dir / ("rank" + r + ".log")).string(), env));
     REQUIRE(w.children.back().pid > 0);
   }
   return w;
@@ -109,10 +114,14 @@ TEST_CASE("data-parallel worker", "[.dp_worker]") {
     const DistributedEnv env = read_distributed_env();
     const auto timeout = std::chrono::milliseconds(std::stoll(std::getenv("FLAT_DP_TIMEOUT_MS")));
     const char* backend = std::getenv("FLAT_DP_BACKEND");
-    auto group = init_process_group(env, backend ? backend : "store", timeout);
+    auto group = init_process_group(env, backend ? backend : "store", timeout, std::getenv("FLAT_DP_WATCH") != nullptr);
     const std::string ready = std::getenv("FLAT_DP_READY");
+    int64_t started = 0;
     const auto params = train(group.get(), env.rank, env.world_size, std::stoll(std::getenv("FLAT_DP_STEPS")),
-                              [&] { std::ofstream(ready) << "ok\n"; });
+                              [&] { std::ofstream(ready) << "ok\n"; }, std::getenv("FLAT_DP_OVERLAP") != nullptr,
+                              &started);
+    std::printf("buckets started during backward: %lld\n", static_cast<long long>(started));
+    group->shutdown();
     flat::save_safetensors(out, params);
   } catch (const std::exception& e) {
     // What a launcher would log; _Exit: no destructor may wait on a dead peer.
@@ -126,17 +135,30 @@ TEST_CASE("data parallel: two ranks on half batches end where one process on the
           "[distributed]") {
   // c10d's Gloo (PyTorch's CPU engine) where this build has its headers, and the store backend.
   std::string backend = "store";
+  bool overlap = false;
   SECTION("store") { backend = "store"; }
   SECTION("gloo") {
     if (!gloo_backend_available()) FLAT_SKIP("this build has no gloo headers (Debian package libgloo-dev)");
     backend = "gloo";
   }
-  const fs::path dir = flat::test::scratch_dir("dp_equivalence_" + backend);
-  Workers w = start_workers(dir, kSteps, 60000, backend);
+  SECTION("gloo, buckets all-reduced during backward") {
+    if (!gloo_backend_available()) FLAT_SKIP("this build has no gloo headers (Debian package libgloo-dev)");
+    backend = "gloo";
+    overlap = true;
+  }
+  const std::string name = backend + (overlap ? "_overlap" : "");
+  const fs::path dir = flat::test::scratch_dir("dp_equivalence_" + name);
+  Workers w = start_workers(dir, kSteps, 60000, backend,
+                            overlap ? std::vector<std::string>{"FLAT_DP_OVERLAP=1", "FLAT_DP_WATCH=1"}
+                                    : std::vector<std::string>{});
   for (size_t r = 0; r < 2; ++r) {
     const int rc = wait_bounded(w.children[r], 180);
-    INFO("rank " << r << " log:\n" << flat::test::read_file(w.children[r].log));
+    const std::string log = flat::test::read_file(w.children[r].log);
+    INFO("rank " << r << " log:\n" << log);
     REQUIRE(rc == 0);
+    // Rank 1 has no gradient for `extra` (the last bucket): it starts at
+    // finish(); the model's four buckets start from the hooks on both ranks.
+    if (overlap) CHECK_THAT(log, FLAT_CONTAINS("buckets started during backward: " + std::to_string(4 * kSteps + (r == 0 ? kSteps : 0))));
   }
   const flat::TensorMap rank0 = flat::load_safetensors(w.outputs[0]);
   const flat::TensorMap rank1 = flat::load_safetensors(w.outputs[1]);
@@ -157,17 +179,32 @@ TEST_CASE("data parallel: two ranks on half batches end where one process on the
     // Training moved every tensor (the comparison is not of two untouched models).
     CHECK(flat::test::rel_error(value, start.at(name)) > 1e-3);
   }
-  std::printf("data parallel (%s): worst relative difference to one process over %zu tensors: %.3g\n", backend.c_str(),
+  std::printf("data parallel (%s): worst relative difference to one process over %zu tensors: %.3g\n", name.c_str(),
               one.size(), worst);
 }
 
 TEST_CASE("data parallel: a SIGKILLed rank makes the other fail naming it, within the timeout", "[distributed]") {
+  // store: the backend names the peer it waits for; gloo: c10d's error, then
+  // the heartbeats (peer_watch.h) name the rank that went silent.
+  std::string backend = "store";
   int victim = 1;
-  SECTION("rank 1 (a client of the store) dies") { victim = 1; }
-  SECTION("rank 0 (the store's server) dies") { victim = 0; }
+  auto victims = [&] {
+    SECTION("rank 1 (a client of the store) dies") { victim = 1; }
+    SECTION("rank 0 (the store's server) dies") { victim = 0; }
+  };
+  SECTION("store") {
+    backend = "store";
+    victims();
+  }
+  SECTION("gloo, with heartbeats") {
+    if (!gloo_backend_available()) FLAT_SKIP("this build has no gloo headers (Debian package libgloo-dev)");
+    backend = "gloo";
+    victims();
+  }
   const int survivor = 1 - victim;
-  const fs::path dir = flat::test::scratch_dir("dp_kill_rank" + std::to_string(victim));
-  Workers w = start_workers(dir, 1'000'000'000, 10000);  // trains until stopped
+  const fs::path dir = flat::test::scratch_dir("dp_kill_" + backend + "_rank" + std::to_string(victim));
+  Workers w = start_workers(dir, 1'000'000'000, 10000, backend,  // trains until stopped
+                            backend == "gloo" ? std::vector<std::string>{"FLAT_DP_WATCH=1"} : std::vector<std::string>{});
   const bool both_ready = flat::test::wait_until(
       [&] {
         return (fs::exists(w.ready[0]) && fs::exists(w.ready[1])) || !running(w.children[0]) ||
@@ -189,9 +226,15 @@ TEST_CASE("data parallel: a SIGKILLed rank makes the other fail naming it, withi
   INFO("survivor's log:\n" << log);
   CHECK(rc != 0);
   CHECK(rc != -2);  // it ended by itself
-  CHECK(seconds < 60);  // rank 1 fails at once, rank 0 after the 10 s timeout
-  CHECK_THAT(log, FLAT_CONTAINS("rank " + std::to_string(survivor) + ":"));
-  CHECK_THAT(log, FLAT_CONTAINS("rank " + std::to_string(victim) + " dead"));
-  std::printf("data parallel: rank %d noticed the death of rank %d after %.1f s (exit %d)\n", survivor, victim, seconds,
-              rc);
+  CHECK(seconds < 60);  // store: rank 1 fails at once, rank 0 after the 10 s timeout; gloo: a few seconds
+  CHECK_THAT(log, FLAT_CONTAINS("rank " + std::to_string(survivor)));
+  if (backend == "store") {
+    CHECK_THAT(log, FLAT_CONTAINS("rank " + std::to_string(victim) + " dead"));
+  } else if (victim == 1) {
+    CHECK_THAT(log, FLAT_CONTAINS("rank 1 sent no heartbeat"));
+  } else {
+    CHECK_THAT(log, FLAT_CONTAINS("rank 0, which serves the store, is unreachable"));
+  }
+  std::printf("data parallel (%s): rank %d noticed the death of rank %d after %.1f s (exit %d)\n", backend.c_str(),
+              survivor, victim, seconds, rc);
 }

@@ -1,8 +1,10 @@
-// GradientSync's bucketing and its handling of missing gradients, in one
-// process against a scripted group that plays the other rank.
+// GradientSync's bucketing and its handling of missing gradients, and
+// OverlappedReducer's hooks, in one process against a scripted group that
+// plays the other rank.
 #include <functional>
 
 #include "flat/distributed/gradient_sync.h"
+#include "flat/distributed/overlapped_reducer.h"
 #include "test_support.h"
 
 using namespace flat::distributed;
@@ -79,4 +81,57 @@ TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[dist
   CHECK(torch::equal(lin->weight, torch::full({2, 3}, 7.f)));
   CHECK(torch::equal(lin->bias, torch::full({2}, 7.f)));
   CHECK(lin->weight.requires_grad());
+}
+
+TEST_CASE("overlapped reducer: buckets start from autograd hooks during backward, in order; the rest at finish",
+          "[distributed]") {
+  // The other rank sends what this one sends: the means are this rank's gradients.
+  ScriptedGroup group([](const at::Tensor& t) { return t.clone(); });
+  torch::manual_seed(0);
+  torch::nn::Linear a(4, 8), b(8, 2);
+  at::Tensor unused = torch::zeros({3}).requires_grad_(true);  // no gradient on this rank
+  std::vector<at::Tensor> params = {unused, a->weight, a->bias, b->weight, b->bias};
+  const at::Tensor x = torch::randn({5, 4});
+  auto loss_of = [&] { return b->forward(torch::tanh(a->forward(x))).pow(2).sum(); };
+  const auto expected = torch::autograd::grad({loss_of()}, {a->weight, a->bias, b->weight, b->bias});
+  {
+    // Buckets of <= 64 bytes in reverse order: b.bias | b.weight | a.bias | a.weight | unused.
+    OverlappedReducer reducer(group, params, GradientSyncOptions{64});
+    REQUIRE(reducer.sync().buckets().size() == 5);
+    for (int step = 0; step < 2; ++step) {
+      for (auto& p : params) p.mutable_grad() = at::Tensor();
+      group.sizes.clear();
+      reducer.prepare();
+      loss_of().backward();
+      // The model's four buckets went out while backward ran; `unused`'s waits.
+      CHECK(group.sizes == std::vector<int64_t>{3, 17, 9, 33});
+      CHECK(reducer.started_in_backward() == 4);
+      reducer.finish();
+      CHECK(group.sizes == std::vector<int64_t>{3, 17, 9, 33, 4});
+      CHECK_FALSE(unused.grad().defined());
+      CHECK(torch::allclose(a->weight.grad(), expected[0]));
+      CHECK(torch::allclose(a->bias.grad(), expected[1]));
+      CHECK(torch::allclose(b->weight.grad(), expected[2]));
+      CHECK(torch::allclose(b->bias.grad(), expected[3]));
+    }
+    // Outside prepare()..finish() the hooks do nothing.
+    group.sizes.clear();
+    loss_of().backward();
+    CHECK(group.sizes.empty());
+  }
+  // The reducer's hooks left with it.
+  loss_of().backward();
+  CHECK(group.sizes.empty());
+}
+
+TEST_CASE("overlapped reducer: with overlap off, everything is reduced at finish", "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t.clone(); });
+  torch::nn::Linear a(4, 3);
+  OverlappedReducer reducer(group, a->parameters(), GradientSyncOptions{16}, /*overlap=*/false);
+  reducer.prepare();
+  a->forward(torch::ones({2, 4})).sum().backward();
+  CHECK(group.sizes.empty());
+  reducer.finish();
+  CHECK(group.sizes.size() == reducer.sync().buckets().size());
+  CHECK(reducer.started_in_backward() == 0);
 }

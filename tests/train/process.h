@@ -59,6 +59,16 @@ inline int wait_for(const Child& c) {
   return -1;
 }
 
+// Waits up to `seconds` for `c`; the exit code (128 + signal when killed), or
+// -2 after killing a child that overran (so that a hang fails, not blocks, the test).
+inline int wait_bounded(const Child& c, double seconds);
+
+// True while `c` has not exited (does not reap it).
+inline bool running(const Child& c) {
+  siginfo_t info{};
+  return waitid(P_PID, id_t(c.pid), &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == 0;
+}
+
 inline int run(const std::vector<std::string>& argv, const std::string& log,
                const std::vector<std::string>& extra_env = {}) {
   return wait_for(spawn(argv, log, extra_env));
@@ -86,6 +96,19 @@ inline bool wait_until(const std::function<bool()>& ready, double seconds) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   return ready();
+}
+
+inline int wait_bounded(const Child& c, double seconds) {
+  int status = 0;
+  const bool exited = wait_until([&] { return waitpid(c.pid, &status, WNOHANG) == c.pid; }, seconds);
+  if (!exited) {
+    kill(c.pid, SIGKILL);
+    waitpid(c.pid, &status, 0);
+    return -2;
+  }
+  if (WIFEXITED(status)) return WEXITSTATUS(status);
+  if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
+  return -1;
 }
 
 }  // namespace flat::test

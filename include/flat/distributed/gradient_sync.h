@@ -3,10 +3,12 @@
 // gradients the mean over the ranks, so the optimiser steps agree.
 //
 // The parameters are grouped into buckets of about bucket_bytes of one dtype
-// and device each, in reverse parameter order (the order backward produces
-// them, for the overlapped reducer to come); a bucket is one flat tensor and
-// one all-reduce. reduce_bucket(b) is public so that a later reducer can
-// launch a bucket from autograd hooks as soon as its gradients are ready.
+// and device each, in reverse parameter order (about the order backward
+// produces them); a bucket is one flat tensor and one all-reduce.
+// start_bucket(b) copies the bucket's gradients in and starts its all-reduce
+// without waiting; finish_bucket(b) waits and writes the means back.
+// OverlappedReducer (overlapped_reducer.h) starts buckets from autograd hooks
+// while backward still runs.
 //
 // A parameter without a gradient on a rank (unused in its forward)
 // contributes zeros, so every rank still makes the same collectives. Each
@@ -16,6 +18,7 @@
 // mean, zeros included.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -42,16 +45,29 @@ class GradientSync {
   // `params`: the trainable parameters, in the same order on every rank.
   GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options = {});
 
-  // After backward: every bucket, in order.
+  // After backward: every bucket started in order, then every one finished
+  // (the all-reduces of later buckets overlap the copies of earlier ones).
   void all_reduce_gradients();
-  void reduce_bucket(size_t b);
+  void reduce_bucket(size_t b);  // start_bucket(b), finish_bucket(b)
+
+  // Every rank must start the buckets in the same order; the gradients of a
+  // started bucket must not change until it is finished.
+  void start_bucket(size_t b);
+  void finish_bucket(size_t b);
+  bool started(size_t b) const { return pending_.at(b).work != nullptr; }
 
   const std::vector<Bucket>& buckets() const { return buckets_; }
+  const std::vector<at::Tensor>& params() const { return params_; }
 
  private:
+  struct Pending {
+    at::Tensor flat;  // [gradients..., presence counts]
+    std::unique_ptr<Work> work;
+  };
   ProcessGroup& group_;
   std::vector<at::Tensor> params_;
   std::vector<Bucket> buckets_;
+  std::vector<Pending> pending_;
 };
 
 }  // namespace flat::distributed
