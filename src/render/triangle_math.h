@@ -352,13 +352,14 @@ FLAT_HD void window_backward(const T u[3], T sigma, T eps, int kind, T I, T gI, 
   gsigma = T(0);
   if (!(I > T(0))) return;
   if (kind == kWindowFlat) {
-    T logsum = T(0);
+    // dI/dsigma = I log(prod r_i): one log of the product, not three.
+    T prod = T(1);
     for (int i = 0; i < 3; ++i) {
       const T r = tmin(u[i] + eps, T(1));  // > 0 since I > 0
-      logsum += window_log(r);
+      prod *= r;
       if (u[i] + eps < T(1)) gu[i] = fast_div(gI * sigma * I, r);  // clamp is flat above 1
     }
-    gsigma = gI * I * logsum;
+    gsigma = gI * I * window_log(prod);
     return;
   }
   int am = 0;  // the single minimal edge receives the gradient (as the reference)

@@ -16,7 +16,7 @@ namespace flat::render::cuda {
 namespace {
 
 constexpr int kThreads = 128;
-constexpr int kGradStride = kTriGradSize;  // 21, odd already
+constexpr int kGradStride = kTriGradStride + 1;  // odd: thread r reads its own row without bank conflicts
 
 __global__ void __launch_bounds__(kThreads)
     chain_kernel(const float* __restrict__ vertices, const int32_t* __restrict__ visible, int64_t nv,
@@ -28,9 +28,9 @@ __global__ void __launch_bounds__(kThreads)
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((nv - base) < kThreads ? (nv - base) : kThreads);
   load_rows<9, 9, kThreads>(vertices, visible, base, rows, sh_v);
-  load_rows<kTriGradSize, kGradStride, kThreads>(tri_grads, nullptr, base, rows, sh_g);
+  load_rows<kTriGradStride, kGradStride, kThreads>(tri_grads, nullptr, base, rows, sh_g);
   __syncthreads();
-  zero_rows<kTriGradSize, kThreads>(tri_grads, base, rows);  // ready for the next view
+  zero_rows<kTriGradStride, kThreads>(tri_grads, base, rows);  // ready for the next view
   if ((int)threadIdx.x < rows) {
     const int64_t k = base + threadIdx.x, i = visible[k];
     TriGrad<float> g;

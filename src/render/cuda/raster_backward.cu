@@ -1,20 +1,25 @@
 // Backward compositing: one block per 8x8 tile, one thread per pixel; the
 // tile's triangles are staged back to front in batches of 32, each batch in
 // three phases (as the forward, render/cuda/raster_forward.cu):
-//   coverage  two threads per staged triangle (even / odd rows) evaluate it
-//             on its pixels of the tile and mark each pixel's 32-bit mask
-//             where it contributed in the forward (alpha >= alpha_min, before
-//             the pixel's last contributor);
+//   coverage  the batch's (triangle, pixel) candidates, flattened over the
+//             block (render/cuda/tile_candidates.cuh), evaluate the window
+//             once where the fragment lies before the pixel's last blended
+//             entry; where it contributed in the forward (alpha >= alpha_min)
+//             they mark the pixel's 32-bit mask and the triangle's 64-bit
+//             pixel mask, and keep the window value in shared memory;
 //   replay    each pixel walks its marked triangles back to front with the
 //             3DGS-style recurrence (as render/cpu/raster_cpu.cpp) and leaves
 //             each fragment's blending weight and dL/dalpha in shared memory;
-//   gradients the two threads of a triangle sum its screen gradients
-//             (TriGrad, 21 fields) over its marked pixels in registers, and
-//             add them to global memory once per (triangle, tile).
-// No warp-wide reduction and no lane idles on a triangle that misses its pixel.
+//   gradients two threads per triangle take alternate pixels of its mask and
+//             sum its screen gradients (TriGrad, 21 fields) in registers, then
+//             add them to global memory once per (triangle, tile) with 16-byte
+//             atomics (rows padded to kTriGradStride floats).
+// The window is evaluated once per fragment; the replay and the gradients
+// reuse its value (recomputing only the cheap affine u_i and the depth).
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
+#include "render/cuda/tile_candidates.cuh"
 
 namespace flat::render::cuda {
 namespace {
@@ -63,19 +68,41 @@ __device__ __forceinline__ void add_fragment_grads(const PixelTri<float>& t, con
   }
 }
 
+// The fragment of staged triangle t at pixel centre (px, py) with ray (rx, ry),
+// from its kept window value I (bit-identical to shade() + fragment_depth()).
+__device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& t, float I, float px, float py,
+                                                         float rx, float ry, const RasterConstants& k) {
+  Fragment<float> f;
+  const float dx = px - t.sx, dy = py - t.sy;
+#pragma unroll
+  for (int i = 0; i < 3; ++i) f.u[i] = 1.f + t.nx[i] * dx + t.ny[i] * dy;
+  f.I = I;
+  f.alpha = tmin(k.alpha_max, t.opacity * I);
+  fragment_depth(t, rx, ry, f);
+  return f;
+}
+
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
                            const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
   __shared__ SharedTris<kBatch> sh_tri;
-  __shared__ TriRect sh_rect[kBatch];
-  __shared__ int32_t sh_k[kBatch];              // visible-list index (row of tri_grads)
-  __shared__ unsigned int sh_hits[kBlockSize];  // per pixel: staged triangles it blends
-  __shared__ int sh_last[kBlockSize];           // per pixel: number of list entries it blended through
-  __shared__ float sh_G[kCh][kBlockSize];       // per pixel: upstream gradients
-  __shared__ float sh_w[kBatch][kBlockSize];    // per (triangle, pixel) fragment: alpha T
-  __shared__ float sh_ga[kBatch][kBlockSize];   //   and dL/dalpha
-  __shared__ float sh_part[kBatch][kTriGradSize];  // odd-row partial sums
+  __shared__ TileBox sh_box[kBatch];
+  __shared__ int sh_count[kBatch];                   // candidates of staged triangle j
+  __shared__ int sh_start[kBatch + 1];               // candidates of triangle j: [sh_start[j], sh_start[j + 1])
+  __shared__ int32_t sh_k[kBatch];                   // visible-list index (row of tri_grads)
+  __shared__ unsigned long long sh_tri_hits[kBatch];  // per staged triangle: tile pixels it blends
+  __shared__ unsigned int sh_hits[kBlockSize];       // per pixel: staged triangles it blends
+  __shared__ int sh_last[kBlockSize];                // per pixel: number of list entries it blended through
+  __shared__ float sh_G[kCh][kBlockSize];            // per pixel: upstream gradients
+  __shared__ float sh_w[kBatch][kBlockSize];         // per (triangle, pixel) fragment: alpha T
+  __shared__ float sh_ga[kBatch][kBlockSize];        //   and dL/dalpha
+  // The window value of each marked fragment; after the gradient loop the
+  // same memory takes the odd-half partial sums.
+  __shared__ union {
+    float I[kBatch][kBlockSize];
+    float part[kBatch][kTriGradSize];
+  } sh_u;
   __shared__ int sh_end;
   const TilePixel pix = tile_pixel(vp);
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
@@ -101,35 +128,39 @@ __global__ void __launch_bounds__(kBlockSize)
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float last_alpha = 0.f;
-  const int j_own = pix.tid % kBatch, row_parity = pix.tid / kBatch;  // this thread's triangle and rows in phases 1 and 3
+  const int j_own = pix.tid % kBatch, half = pix.tid / kBatch;  // this thread's triangle and share in phase 3
   for (int top = end; top > 0; top -= kBatch) {
     const int lo = max(0, top - kBatch), batch = top - lo;  // stage entries [lo, top)
     __syncthreads();
+    int count = 0;
     if (pix.tid < batch) {
       const int32_t k = ids[range.x + lo + pix.tid];
       sh_k[pix.tid] = k;
       sh_tri.put(pix.tid, tris[k]);
-      sh_rect[pix.tid] = rects[k];
+      sh_box[pix.tid] = tile_box(rects[k], pix.tx0, pix.ty0, count);  // rects are clipped to the image
+      sh_tri_hits[pix.tid] = 0ull;
+    }
+    if (pix.tid < 32) {  // warp 0 wrote the counts: a warp barrier suffices
+      sh_count[pix.tid] = count;
+      __syncwarp();
+      scan_candidate_counts<kBatch>(pix.tid, sh_count, sh_start);
     }
     sh_hits[pix.tid] = 0u;
     __syncthreads();
     // Phase 1, coverage.
-    const bool own = j_own < batch;
-    int xa = 0, xb = 0, ya = 0, yb = 0;
-    if (own) {
-      const TriRect r = sh_rect[j_own];  // already clipped to the image
-      xa = max(r.x0, pix.tx0), xb = min(r.x1, pix.tx0 + kTileSize);
-      ya = max(r.y0, pix.ty0), yb = min(r.y1, pix.ty0 + kTileSize);
-      ya += (ya - pix.ty0 + row_parity) & 1;  // first row of this thread's parity
-      const PixelTri<float> t = sh_tri.get(j_own);
-      for (int yy = ya; yy < yb; yy += 2)
-        for (int xx = xa; xx < xb; ++xx) {
-          const int q = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
-          if (lo + j_own >= sh_last[q]) continue;  // after the pixel's last blended entry
-          Fragment<float> f;
-          shade(t, xx + 0.5f, yy + 0.5f, 0.f, 0.f, vp.k, f);  // alpha only: the ray is not used
-          if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[q], 1u << j_own);
-        }
+    const int candidates = sh_start[kBatch];
+    for (int i = pix.tid; i < candidates; i += kBlockSize) {
+      int j, q;
+      candidate<kBatch>(i, sh_start, sh_box, j, q);
+      if (lo + j >= sh_last[q]) continue;  // after the pixel's last blended entry
+      const PixelTri<float> t = sh_tri.get(j);
+      Fragment<float> f;
+      shade(t, pix.tx0 + (q % kTileSize) + 0.5f, pix.ty0 + (q / kTileSize) + 0.5f, 0.f, 0.f, vp.k, f);
+      if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
+        sh_u.I[j][q] = f.I;
+        atomicOr(&sh_hits[q], 1u << j);
+        atomicOr(&sh_tri_hits[j], 1ull << q);
+      }
     }
     __syncthreads();
     // Phase 2, replay back to front (highest bit first).
@@ -137,9 +168,7 @@ __global__ void __launch_bounds__(kBlockSize)
       const int j = 31 - __clz(m);
       m &= ~(1u << j);
       const PixelTri<float> t = sh_tri.get(j);
-      Fragment<float> f;
-      shade(t, pix.px, pix.py, pix.rx, pix.ry, vp.k, f);
-      fragment_depth(t, pix.rx, pix.ry, f);
+      const Fragment<float> f = kept_fragment(t, sh_u.I[j][pix.tid], pix.px, pix.py, pix.rx, pix.ry, vp.k);
       const float inv_keep = __fdividef(1.f, 1.f - f.alpha);
       T = T * inv_keep;
       const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
@@ -155,46 +184,48 @@ __global__ void __launch_bounds__(kBlockSize)
       sh_ga[j][pix.tid] = g_alpha * T - t_final * inv_keep * bgdot;
     }
     __syncthreads();
-    // Phase 3, per-triangle gradients over its marked pixels.
-    float g[kTriGradSize];
+    // Phase 3, per-triangle gradients: the two threads of triangle j_own take
+    // alternate pixels of its mask.
+    float g[kTriGradStride];  // TriGrad's fields, then zeros up to the padded row
 #pragma unroll
-    for (int c = 0; c < kTriGradSize; ++c) g[c] = 0.f;
-    bool any = false;
+    for (int c = 0; c < kTriGradStride; ++c) g[c] = 0.f;
+    const bool own = j_own < batch;
+    const unsigned long long mine = own ? sh_tri_hits[j_own] : 0ull;
+    int n = 0;
     if (own) {
       const PixelTri<float> t = sh_tri.get(j_own);
-      for (int yy = ya; yy < yb; yy += 2)
-        for (int xx = xa; xx < xb; ++xx) {
-          const int q = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
-          if (!((sh_hits[q] >> j_own) & 1u)) continue;
-          any = true;
-          const float qx = xx + 0.5f, qy = yy + 0.5f;
-          const float2 qr = pixel_ray(vp, qx, qy);  // bit-identical to that pixel's own ray in phase 2
-          Fragment<float> f;
-          shade(t, qx, qy, qr.x, qr.y, vp.k, f);
-          fragment_depth(t, qr.x, qr.y, f);
-          float Gq[kCh];
+      for (unsigned long long m = mine; m != 0ull; m &= m - 1ull, ++n) {
+        if ((n & 1) != half) continue;
+        const int q = __ffsll((long long)m) - 1;
+        const float qx = pix.tx0 + (q % kTileSize) + 0.5f, qy = pix.ty0 + (q / kTileSize) + 0.5f;
+        const float2 qr = pixel_ray(vp, qx, qy);  // bit-identical to that pixel's own ray in phase 2
+        const Fragment<float> f = kept_fragment(t, sh_u.I[j_own][q], qx, qy, qr.x, qr.y, vp.k);
+        float Gq[kCh];
 #pragma unroll
-          for (int c = 0; c < kCh; ++c) Gq[c] = sh_G[c][q];
-          add_fragment_grads(t, f, qx, qy, qr.x, qr.y, sh_w[j_own][q], sh_ga[j_own][q], Gq, vp.k, g);
-        }
+        for (int c = 0; c < kCh; ++c) Gq[c] = sh_G[c][q];
+        add_fragment_grads(t, f, qx, qy, qr.x, qr.y, sh_w[j_own][q], sh_ga[j_own][q], Gq, vp.k, g);
+      }
     }
-    // Odd rows hand their sums to the even-row thread of the same triangle,
-    // which adds them to global memory (one reduction per field).
-    const bool odd_any = __syncthreads_or(row_parity == 1 && any);
-    if (row_parity == 1 && own && odd_any) {
+    // The second half hands its sums to the first, which adds them to global
+    // memory: 16-byte atomics over the padded row.
+    const bool second_any = __syncthreads_or(half == 1 && n > 1);
+    if (half == 1 && own && second_any) {
 #pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c) sh_part[j_own][c] = g[c];
+      for (int c = 0; c < kTriGradSize; ++c) sh_u.part[j_own][c] = g[c];
     }
     __syncthreads();
-    if (row_parity == 0 && own) {
-      if (odd_any) {
+    if (half == 0 && own && mine != 0ull) {
+      if (second_any) {
 #pragma unroll
-        for (int c = 0; c < kTriGradSize; ++c) g[c] += sh_part[j_own][c];
+        for (int c = 0; c < kTriGradSize; ++c) g[c] += sh_u.part[j_own][c];
       }
-      float* dst = tri_grads + (int64_t)kTriGradSize * sh_k[j_own];
+      float4* dst = reinterpret_cast<float4*>(tri_grads + (int64_t)kTriGradStride * sh_k[j_own]);
 #pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c)
-        if (g[c] != 0.f) atomicAdd(dst + c, g[c]);
+      for (int v = 0; v < kTriGradStride / 4; ++v) {
+        const int c = 4 * v;
+        const float4 a = make_float4(g[c], g[c + 1], g[c + 2], g[c + 3]);
+        if (a.x != 0.f || a.y != 0.f || a.z != 0.f || a.w != 0.f) atomicAdd(dst + v, a);
+      }
     }
   }
 }

@@ -7,6 +7,7 @@
 // screen data (one cheap kernel) instead of storing it.
 #include "render/cuda/raster_cuda.h"
 
+#include <algorithm>
 #include <limits>
 
 #include <ATen/cuda/CUDAContext.h>
@@ -127,6 +128,43 @@ struct ScreenData {
   int64_t bytes() const { return tris.nbytes() + rects.nbytes(); }
 };
 
+// Sorts one view's visible triangles by depth, writes their (tile, triangle)
+// pairs in that order and sorts those by tile (binning.cu): returns the pairs'
+// visible-list indices, tile by tile, front to back, and fills ranges.
+// depth_bits and order (nv each) are consumed.
+at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd, int64_t count, const ViewParams& vp,
+                       at::Tensor& ranges, cudaStream_t stream) {
+  const int64_t nv = order.size(0);
+  const int num_tiles = vp.tiles_x * vp.tiles_y;
+  const auto i32 = order.options();
+  auto u32 = [](at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); };
+  at::Tensor depth_sorted = at::empty({nv}, i32), order_sorted = at::empty({nv}, i32);
+  at::Tensor counts = at::empty({nv}, i32), offsets = at::empty({nv}, i32);
+  at::Tensor tiles = at::empty({count}, i32), tiles_sorted = at::empty({count}, i32);
+  at::Tensor ids = at::empty({count}, i32), ids_sorted = at::empty({count}, i32);
+  size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
+  sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, nv, stream);
+  scan_ordered_counts(nullptr, scan_bytes, nullptr, nullptr, nv, stream);
+  sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, count, num_tiles, stream);
+  size_t temp_bytes = std::max(depth_bytes, std::max(scan_bytes, tile_bytes));
+  at::Tensor temp = at::empty({(int64_t)temp_bytes + 1}, i32.dtype(at::kByte));
+  sort_by_depth(temp.data_ptr(), depth_bytes, u32(depth_bits), u32(depth_sorted), order.data_ptr<int>(),
+                order_sorted.data_ptr<int>(), nv, stream);
+  check_launch("depth sort");
+  launch_ordered_counts(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), counts.data_ptr<int>(), stream);
+  scan_ordered_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), offsets.data_ptr<int>(), nv, stream);
+  check_launch("tile count scan (depth order)");
+  launch_duplicate(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), offsets.data_ptr<int>(), vp.tiles_x, u32(tiles),
+                   ids.data_ptr<int>(), stream);
+  check_launch("duplicate");
+  sort_by_tile(temp.data_ptr(), tile_bytes, u32(tiles), u32(tiles_sorted), ids.data_ptr<int>(),
+               ids_sorted.data_ptr<int>(), count, num_tiles, stream);
+  check_launch("tile sort");
+  launch_tile_ranges(u32(tiles_sorted), count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+  check_launch("tile ranges");
+  return ids_sorted;
+}
+
 // One view's load (raster_load.h): the list lengths from the tile ranges,
 // the entries per pixel from the forward's per-pixel last blended entry.
 ViewLoad count_load(int64_t visible, int64_t pairs, const at::Tensor& ranges, const at::Tensor& last) {
@@ -181,32 +219,20 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                    " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
     const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
     ScreenData sd(in, visible, vp, s.rect_ptr(), stream);
-    at::Tensor keys = at::empty({count}, f.dtype(at::kLong)), keys_sorted = at::empty({count}, f.dtype(at::kLong));
-    at::Tensor ids = at::empty({count}, f.dtype(at::kInt)), ids_sorted = at::empty({count}, f.dtype(at::kInt));
-    at::Tensor ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
-    auto* kin = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
-    auto* kout = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
-    if (count > 0) {
-      launch_duplicate(visible.data_ptr<int>(), nv, sd.rect_ptr(), s.offsets.data_ptr<int64_t>(),
-                       s.keys.data_ptr<float>(), vp.tiles_x, kin, ids.data_ptr<int>(), stream);
-      check_launch("duplicate");
-    }
-    s.released.record(at::cuda::getCurrentCUDAStream());  // duplicate was the scratch's last reader
+    at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
+    at::Tensor depth_bits = at::empty({nv}, f.dtype(at::kInt)), order = at::empty({nv}, f.dtype(at::kInt));
+    launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(),
+                      reinterpret_cast<uint32_t*>(depth_bits.data_ptr<int>()), order.data_ptr<int>(), stream);
+    check_launch("depth keys");
+    s.released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
     if (N > 0 && v + 1 < V) scratch[(v + 1) % 2].cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, v + 1), side);
     if (count > 0) {
-      size_t sort_bytes = 0;
-      sort_pairs(nullptr, sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count, num_tiles,
-                 stream);
-      at::Tensor sort_temp = at::empty({(int64_t)sort_bytes + 1}, f.dtype(at::kByte));
-      sort_pairs(sort_temp.data_ptr(), sort_bytes, kin, kout, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), count,
-                 num_tiles, stream);
-      check_launch("radix sort");
-      launch_tile_ranges(kout, count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
-      check_launch("tile ranges");
+      ids_sorted = bin_by_tile(depth_bits, order, sd, count, vp, ranges, stream);
+    } else {
+      ids_sorted = at::empty({0}, f.dtype(at::kInt));
     }
-    keys = at::Tensor();
-    keys_sorted = at::Tensor();
-    ids = at::Tensor();
+    depth_bits = at::Tensor();
+    order = at::Tensor();
     at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
     ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,
                       out.depth.data_ptr<float>() + v * HW,      out.normal.data_ptr<float>() + v * 3 * HW,
@@ -252,7 +278,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   // Per-triangle screen gradients of one view (visible-list rows); the chain
   // kernel re-zeroes the rows it consumed, so one zeroing serves every view.
-  const at::Tensor tri_grads = at::zeros({N * kTriGradSize}, f);
+  const at::Tensor tri_grads = at::zeros({N * kTriGradStride}, f);
   for (int64_t v = 0; v < V; ++v) {
     const at::Tensor& visible = views[kViewState * v + 4];
     const int64_t nv = visible.size(0);

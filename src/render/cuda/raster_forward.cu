@@ -1,69 +1,74 @@
 // Forward compositing: one block per 8x8 tile, one thread per pixel. The
 // tile's depth-sorted triangles are staged in shared memory in batches of 64,
 // and each batch runs in two phases:
-//   coverage  thread j takes staged triangle j and evaluates the window only
-//             on the tile pixels inside its support rectangle (FLAT triangles
-//             cover ~3x3 pixels of the 64), marking in each pixel's 64-bit
-//             mask the triangles whose alpha reaches alpha_min;
+//   coverage  the batch's (triangle, pixel) candidates, flattened over the
+//             block (render/cuda/tile_candidates.cuh), mark in each pixel's
+//             64-bit mask the triangles whose alpha reaches alpha_min;
 //   composite each pixel walks its own marked triangles front to back.
-// Walking every staged triangle with every pixel instead leaves ~2/3 of the
-// lanes idle on small triangles. Same per-pixel semantics as
-// render/cpu/raster_cpu.cpp.
+// Batches of 64, not 32: the staging (a gather of the batch's records from
+// global memory) is latency the block waits through once per batch, and
+// halving the batches outweighed keeping alphas in shared memory for the
+// composite (which costs occupancy); measured on the anchor workload.
+// Same per-pixel semantics as render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
-#include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
+#include "render/cuda/tile_candidates.cuh"
+#include "render/cuda/tile_pixel.cuh"
 
 namespace flat::render::cuda {
 namespace {
 
-static_assert(kBlockSize == 64, "one 64-bit coverage mask per pixel");
+constexpr int kBatch = kBlockSize;  // one 64-bit mask per pixel
+static_assert(kBatch == 64, "one 64-bit coverage mask per pixel");
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
-  __shared__ SharedTris<kBlockSize> sh_tri;
-  __shared__ TriRect sh_rect[kBlockSize];
-  __shared__ int32_t sh_id[kBlockSize];                 // triangle id (for max_weight)
-  __shared__ unsigned int sh_wmax[kBlockSize];          // per staged triangle: max weight bits in this tile
-  __shared__ unsigned long long sh_hits[kBlockSize];    // per pixel: staged triangles with alpha >= alpha_min
-  __shared__ int sh_done[kBlockSize];                   // per pixel: compositing finished
+  __shared__ SharedTris<kBatch> sh_tri;
+  __shared__ TileBox sh_box[kBatch];
+  __shared__ int sh_count[kBatch];              // candidates of staged triangle j
+  __shared__ int sh_start[kBatch + 1];          // candidates of triangle j: [sh_start[j], sh_start[j + 1])
+  __shared__ int32_t sh_id[kBatch];             // triangle id (for max_weight)
+  __shared__ unsigned int sh_wmax[kBatch];      // per staged triangle: max weight bits in this tile
+  __shared__ unsigned long long sh_hits[kBlockSize];  // per pixel: staged triangles with alpha >= alpha_min
+  __shared__ int sh_done[kBlockSize];           // per pixel: compositing finished
   const TilePixel pix = tile_pixel(vp);
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
   const int total = range.y - range.x;
   bool done = !pix.inside;
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int last = 0;
-  for (int base = 0; base < total; base += kBlockSize) {
+  for (int base = 0; base < total; base += kBatch) {
     if (__syncthreads_count(done) == kBlockSize) break;
-    const int batch = min(kBlockSize, total - base);
+    const int batch = min(kBatch, total - base);
+    int count = 0;
     if (pix.tid < batch) {
       const int32_t k = ids[range.x + base + pix.tid];
       sh_id[pix.tid] = visible[k];
       sh_tri.put(pix.tid, tris[k]);
-      sh_rect[pix.tid] = rects[k];
+      sh_box[pix.tid] = tile_box(rects[k], pix.tx0, pix.ty0, count);  // rects are clipped to the image
       sh_wmax[pix.tid] = 0u;
     }
+    sh_count[pix.tid] = count;
     sh_hits[pix.tid] = 0ull;
     sh_done[pix.tid] = done;
     __syncthreads();
-    if (pix.tid < batch) {  // coverage: staged triangle pix.tid over its pixels of this tile
-      const PixelTri<float> t = sh_tri.get(pix.tid);
-      const TriRect r = sh_rect[pix.tid];  // already clipped to the image
-      const int xa = max(r.x0, pix.tx0), xb = min(r.x1, pix.tx0 + kTileSize);
-      const int ya = max(r.y0, pix.ty0), yb = min(r.y1, pix.ty0 + kTileSize);
-      for (int yy = ya; yy < yb; ++yy)
-        for (int xx = xa; xx < xb; ++xx) {
-          const int p = (yy - pix.ty0) * kTileSize + (xx - pix.tx0);
-          if (sh_done[p]) continue;
-          Fragment<float> f;
-          shade(t, xx + 0.5f, yy + 0.5f, 0.f, 0.f, vp.k, f);  // alpha only: the ray is not used
-          if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << pix.tid);
-        }
+    if (pix.tid < 32) scan_candidate_counts<kBatch>(pix.tid, sh_count, sh_start);
+    __syncthreads();
+    const int candidates = sh_start[kBatch];
+    for (int i = pix.tid; i < candidates; i += kBlockSize) {  // coverage
+      int j, p;
+      candidate<kBatch>(i, sh_start, sh_box, j, p);
+      if (sh_done[p]) continue;
+      const PixelTri<float> t = sh_tri.get(j);
+      Fragment<float> f;
+      shade(t, pix.tx0 + (p % kTileSize) + 0.5f, pix.ty0 + (p / kTileSize) + 0.5f, 0.f, 0.f, vp.k, f);
+      if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << j);
     }
     __syncthreads();
-    for (unsigned long long m = done ? 0ull : sh_hits[pix.tid]; m != 0ull; m &= m - 1) {  // front to back
+    for (unsigned long long m = done ? 0ull : sh_hits[pix.tid]; m != 0ull; m &= m - 1ull) {  // composite, front to back
       const int j = __ffsll((long long)m) - 1;
       const PixelTri<float> t = sh_tri.get(j);
       Fragment<float> f;

@@ -56,17 +56,27 @@ void launch_screen(const float* vertices, const float* colors, const float* opac
 void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t* offsets, int64_t n,
                       cudaStream_t stream);
 
-// One (tile | depth) key and visible-list index k per touched tile; rects are
-// the visible list's (launch_screen), offsets and keys those of all triangles.
-void launch_duplicate(const int32_t* visible, int64_t nv, const TriRect* rects, const int64_t* offsets,
-                      const float* keys, int tiles_x, uint64_t* pair_keys, int32_t* pair_ids, cudaStream_t stream);
-
-// Stable radix sort of the pairs by key (cub), over the bits the keys use.
-void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* ids_in,
-                int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
-
+// Binning of one view (render/cuda/binning.cu), in this order:
+// depth_bits[k] = the sort key of visible[k], order[k] = k;
+void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, uint32_t* depth_bits, int32_t* order,
+                       cudaStream_t stream);
+// stable radix sort of order by depth (cub; temp sized with temp == nullptr);
+void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
+                   const int32_t* order_in, int32_t* order_out, int64_t nv, cudaStream_t stream);
+// tiles touched by each triangle in depth order, and their exclusive prefix sum;
+void launch_ordered_counts(const int32_t* order, int64_t nv, const TriRect* rects, int32_t* counts,
+                           cudaStream_t stream);
+void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* offsets, int64_t nv,
+                         cudaStream_t stream);
+// one (tile id, visible-list index) pair per touched tile, in depth order;
+void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const int32_t* offsets, int tiles_x,
+                      uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream);
+// stable radix sort of the pairs by tile id (the bits num_tiles needs): each
+// tile's pairs stay front to back;
+void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
+                  const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
 // ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
-void launch_tile_ranges(const uint64_t* sorted_keys, int64_t count, int2* ranges, cudaStream_t stream);
+void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
 
 struct ForwardImages {  // one view, channel-major (C,H,W)
   float* rgb;
@@ -83,6 +93,9 @@ void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTr
                            const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
                            unsigned int* max_weight_bits, cudaStream_t stream);
 
+constexpr int kTriGradStride = 24;
+static_assert(kTriGradStride >= kTriGradSize && kTriGradStride % 4 == 0, "padded TriGrad rows");
+
 struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state
   const float* g_rgb;
   const float* g_alpha;
@@ -92,12 +105,14 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
   const int32_t* last;
 };
 
-// Accumulates TriGrad<float> (kTriGradSize floats per visible-list entry) into tri_grads.
+// Accumulates TriGrad<float> into tri_grads: one row of kTriGradStride floats
+// per visible-list entry (the kTriGradSize fields, then zeros: rows of whole
+// 16-byte vectors, added with vector atomics).
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
                             const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
                             cudaStream_t stream);
 
-// Chains one view's per-triangle gradients (tri_grads, visible-list order) to
+// Chains one view's per-triangle gradients (tri_grads rows, visible-list order) to
 // the inputs of the triangles visible[0..nv) (adds into the grads), and zeroes
 // the tri_grads rows it read (the buffer is zeroed once per backward).
 void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, float* tri_grads,
