@@ -4,10 +4,16 @@
 //   flat_train --config configs/tiny/stage1.yaml            a new run
 //   flat_train --config configs/stage2.yaml --set steps=500  keys overridden
 //   flat_train --resume runs/tiny-stage1                    continue after a kill
+//   flat_train --config configs/stage1.yaml --nproc 8       data-parallel, one process per GPU
 //   flat_train --help-config                                every key, default, meaning
 //
-// Exit codes: 0 finished, 1 runtime error (message names the file or key),
-// 2 usage error, 128 + signal when stopped by SIGINT/SIGTERM (checkpoint written).
+// Under torchrun or SLURM (RANK, WORLD_SIZE, ... set) each process is one
+// rank; --nproc N starts N such processes itself (distributed/local_launcher.h).
+//
+// Exit codes: 0 finished, 1 runtime error (message names the file or key; a
+// failed rank), 2 usage error, 128 + signal when stopped by SIGINT/SIGTERM
+// (checkpoint written).
+#include <cstdlib>
 #include <iostream>
 
 #include <CLI/CLI.hpp>
@@ -16,6 +22,8 @@
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
+#include "flat/distributed/distributed_env.h"
+#include "flat/distributed/local_launcher.h"
 #include "flat/train/trainer.h"
 
 int main(int argc, char** argv) {
@@ -24,6 +32,7 @@ int main(int argc, char** argv) {
   std::string config_file, resume_dir, log_level, device, precision;
   std::vector<std::string> overrides;
   bool overwrite = false, print_config = false, help_config = false;
+  int nproc = 1;
   app.add_option("--config", config_file, "stage config (YAML), layered over the defaults (--help-config)")
       ->check(CLI::ExistingFile);
   app.add_option("--resume", resume_dir, "continue the run in this folder from its newest checkpoint");
@@ -35,6 +44,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
   app.add_option("--precision", precision, "fp32 | bf16: overrides the config's precision")
       ->check(CLI::IsMember({"fp32", "bf16"}));
+  app.add_option("--nproc", nproc, "data-parallel: start N worker processes on this host (one per GPU)")
+      ->check(CLI::Range(1, 1024));
   app.add_flag("--print-config", print_config, "print the effective config and exit");
   app.add_flag("--help-config", help_config, "print every config key with its default and meaning");
   app.set_version_flag("--version", std::string("flat_train ") + flat::cli::kVersion);
@@ -76,7 +87,20 @@ int main(int argc, char** argv) {
       std::cout << yaml;
       return 0;
     }
-    return flat::train::run_training(cfg, yaml, mode).exit_code;
+    if (nproc > 1) {
+      if (std::getenv("RANK") || std::getenv("WORLD_SIZE")) {
+        std::cerr << "flat_train: --nproc starts its own ranks; under torchrun or SLURM (RANK/WORLD_SIZE set) "
+                     "leave it out\n";
+        return 2;
+      }
+      flat::distributed::LaunchOptions launch;
+      launch.nproc = nproc;
+      launch.args = flat::distributed::drop_option(std::vector<std::string>(argv + 1, argv + argc), "--nproc");
+      // Past a failure the others get the timeout to notice and report it themselves.
+      launch.grace = std::chrono::milliseconds(int64_t(cfg.distributed.timeout_seconds * 1000) + 5000);
+      return flat::distributed::launch_local_workers(launch);
+    }
+    return flat::train::run_training(cfg, yaml, mode, flat::distributed::read_distributed_env()).exit_code;
   } catch (...) {
     return flat::report_current_error();
   }

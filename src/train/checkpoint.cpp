@@ -67,6 +67,10 @@ std::string read_text(const std::string& path) {
 
 }  // namespace
 
+std::string checkpoint_folder(const std::string& checkpoints_dir, int64_t step) {
+  return (fs::path(checkpoints_dir) / step_name(step)).string();
+}
+
 std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir) {
   std::vector<std::pair<int64_t, std::string>> found;
   std::error_code ec;

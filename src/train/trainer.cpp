@@ -5,6 +5,10 @@
 #include <cmath>
 #include <csignal>
 #include <filesystem>
+#include <optional>
+
+#include <c10/core/impl/DeviceGuardImplInterface.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
 
 #include <torch/torch.h>
 
@@ -15,6 +19,7 @@
 #include "flat/model/weights.h"
 #include "flat/train/adamw.h"
 #include "flat/train/checkpoint.h"
+#include "flat/train/data_parallel.h"
 #include "flat/train/lr_schedule.h"
 #include "flat/train/metrics_log.h"
 #include "flat/train/train_step.h"
@@ -51,6 +56,25 @@ struct StopSignals {
 };
 
 // ---- helpers -------------------------------------------------------------------
+
+// Ranks other than 0 write nothing in the run folder: their warnings and
+// errors go to stderr, each line naming the rank.
+void setup_rank_logging(const std::string& level, const distributed::DistributedEnv& env) {
+  setup_logging(level);  // checks the level's name
+  auto logger = std::make_shared<spdlog::logger>("flat", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+  logger->set_level(std::max(spdlog::level::from_str(level), spdlog::level::warn));
+  logger->set_pattern("[%Y-%m-%d %H:%M:%S.%e] [rank " + std::to_string(env.rank) + "/" +
+                      std::to_string(env.world_size) + "] [%^%l%$] %v");
+  logger->flush_on(spdlog::level::warn);
+  spdlog::set_default_logger(logger);
+}
+
+// checkpoints/step_00000040 -> 40.
+int64_t ckpt_step(const std::string& dir) {
+  const std::string name = fs::path(dir).filename().string();
+  return std::stoll(name.substr(name.find('_') + 1));
+}
+
 
 bool holds_a_run(const std::string& dir) {
   std::error_code ec;
@@ -89,9 +113,18 @@ TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::s
   return cfg;
 }
 
-TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode) {
-  prepare_run_folder(cfg.run_dir, mode);
-  setup_logging(cfg.log.level);
+TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode,
+                          const distributed::DistributedEnv& env) {
+  // Data parallelism: rank 0 alone touches the run folder (logs, metrics,
+  // TensorBoard, checkpoints, validation grids, the final model); the other
+  // ranks log warnings and errors to stderr with their rank.
+  const bool root = env.rank == 0;
+  if (root) {
+    prepare_run_folder(cfg.run_dir, mode);
+    setup_logging(cfg.log.level);
+  } else {
+    setup_rank_logging(cfg.log.level, env);
+  }
   TrainSummary summary;
   summary.run_dir = cfg.run_dir;
   const RunDir run{cfg.run_dir};  // paths only: created once everything below has loaded
@@ -99,8 +132,23 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   if (cfg.threads > 0) at::set_num_threads(int(cfg.threads));
   torch::manual_seed(uint64_t(cfg.seed));
 
+  // ---- ranks ---------------------------------------------------------------------
+  // One GPU per rank: cuda:LOCAL_RANK, the current device before NCCL starts
+  // (kernels launched without a device of their own go there too).
+  at::Device device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
+  if (device.is_cuda() && env.distributed()) {
+    device = at::Device(at::kCUDA, static_cast<c10::DeviceIndex>(env.local_rank));
+    c10::impl::getDeviceGuardImpl(at::kCUDA)->setDevice(device);
+  }
+  std::unique_ptr<DataParallel> dp;
+  if (env.distributed()) {
+    dp = std::make_unique<DataParallel>(cfg.distributed, env, device);
+    spdlog::info("distributed: rank {} of {} on {}, backend {}, timeout {} s", env.rank, env.world_size,
+                 device.str(), dp->backend(), cfg.distributed.timeout_seconds);
+  }
+
   // ---- model, objective, optimiser ------------------------------------------------
-  TrainingSession session(cfg);
+  TrainingSession session(cfg, device);
   auto& decoder = session.decoder;
   auto& optimiser = *session.optimiser;
   auto& pipe = *session.pipeline;
@@ -113,7 +161,12 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   state.stage = cfg.stage;
   state.config_yaml = config_yaml;
   if (mode == StartMode::resume) {
-    const std::string latest = latest_checkpoint(run.checkpoints());
+    // Rank 0 picks the checkpoint (and clears a half-written one); every rank loads it.
+    std::string latest = root ? latest_checkpoint(run.checkpoints()) : std::string();
+    if (dp) {
+      const int64_t step = dp->broadcast(latest.empty() ? -1 : ckpt_step(latest));
+      latest = step < 0 ? std::string() : checkpoint_folder(run.checkpoints(), step);
+    }
     if (latest.empty()) {
       spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run.root);
     } else {
@@ -129,10 +182,25 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     }
   }
   summary.first_step = state.step;
-
+  if (dp) {
+    // Every rank starts from rank 0's weights (the same seed and checkpoint
+    // give them already; this makes sure), then averages its gradients.
+    dp->share_weights(*decoder);
+    session.use_data_parallel(dp.get());
+  }
 
   // ---- data --------------------------------------------------------------------
-  data::Loader loader(cfg.data, state.step);
+  // data.batch_size is the global batch: rank r of W loads B/W of each, the
+  // samples (b*W + r)*B/W ... of the stream, so the W shares together are the
+  // batch one process would load (loader.h).
+  data::LoaderConfig train_data = cfg.data;
+  if (dp) {
+    FLAT_CHECK(cfg.data.batch_size % env.world_size == 0,
+               "data.batch_size " + std::to_string(cfg.data.batch_size) + " is the global batch and must be a "
+               "multiple of the " + std::to_string(env.world_size) + " ranks");
+    train_data.batch_size = cfg.data.batch_size / env.world_size;
+  }
+  data::Loader loader(train_data, state.step, env.rank, env.world_size);
   std::unique_ptr<data::Loader> val_loader;
   if (!cfg.validation.datasets.empty()) {
     data::LoaderConfig v = cfg.data;
@@ -147,30 +215,39 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   }
   // Everything that reads user files has succeeded: only now does a new run
   // folder appear (a run that fails to start leaves nothing behind).
-  RunDir::create(run.root);
-  setup_logging(cfg.log.level, run.logs() + "/train.log");
-  config::save_text(run.config_file(), config_yaml);
+  std::unique_ptr<MetricsLog> metrics;
+  if (root) {
+    RunDir::create(run.root);
+    setup_logging(cfg.log.level, run.logs() + "/train.log");
+    config::save_text(run.config_file(), config_yaml);
+    metrics = std::make_unique<MetricsLog>(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
+  }
   const int64_t params = model::count_parameters(*decoder);
   spdlog::info("flat_train: stage '{}', steps {} to {}, run folder {}{}", cfg.stage, state.step, cfg.steps, run.root,
                summary.last_checkpoint.empty() ? "" : " (resumed from " + summary.last_checkpoint + ")");
   spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
                cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
-  MetricsLog metrics(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
+  if (dp)
+    spdlog::info("data parallel: {} ranks, global batch {} ({} per rank), {} gradient bucket(s) of <= {} MB{}",
+                 env.world_size, cfg.data.batch_size, train_data.batch_size, dp->buckets(),
+                 cfg.distributed.bucket_mb, cfg.distributed.overlap ? ", all-reduced during backward" : "");
 
   auto run_validation = [&](int64_t step) {
     if (!val_loader) return;
     const auto t0 = std::chrono::steady_clock::now();
-    auto r = validate(pipe, *val_loader, cfg.validation.scenes, objective.lpips_network(), cfg.validation.grid_views);
-    metrics.write("val", step, r.scalars());
+    auto r = validate(pipe, *val_loader, cfg.validation.scenes, objective.lpips_network(), cfg.validation.grid_views,
+                      dp ? &dp->group() : nullptr);
+    if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
+    summary.last_val_psnr = r.psnr;
+    summary.mean_colour_psnr = r.mean_colour_psnr;
+    if (!root) return;
+    metrics->write("val", step, r.scalars());
     std::string grid;
     if (r.grid.defined()) {
       char name[64];
       std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
       grid = write_validation_grid(r.grid, run.renders() + name);
     }
-    if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
-    summary.last_val_psnr = r.psnr;
-    summary.mean_colour_psnr = r.mean_colour_psnr;
     spdlog::info("validation @ step {}: PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, LPIPS {}, normal "
                  "cosine {:.3f} over {} views of {} held-out samples ({:.1f} s){}",
                  step, r.psnr, r.mean_colour_psnr, r.ssim, std::isnan(r.lpips) ? "n/a" : std::to_string(r.lpips),
@@ -179,21 +256,28 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
                  grid.empty() ? "" : "; grid " + grid);
   };
   auto write_checkpoint = [&] {
+    if (!root) return;
     summary.last_checkpoint =
         save_checkpoint(run.checkpoints(), state, *decoder, signature, optimiser, cfg.checkpoint.keep);
     spdlog::info("checkpoint: {}", summary.last_checkpoint);
+  };
+  // The clean end on every rank (not after an error: a peer may be gone).
+  auto finish = [&] {
+    if (dp) dp->finish();
+    return summary;
   };
 
   if (state.step >= cfg.steps) {
     spdlog::info("flat_train: the run already finished its {} steps; nothing to do", cfg.steps);
     summary.steps_done = state.step;
-    return summary;
+    return finish();
   }
   if (state.step == 0) run_validation(0);
 
   // ---- the loop ------------------------------------------------------------------
   StopSignals signals;
-  Progress progress(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
+  std::optional<Progress> progress;
+  if (root) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
   while (state.step < cfg.steps) {
     const int64_t step = state.step;
     const auto t0 = std::chrono::steady_clock::now();
@@ -202,10 +286,14 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
       batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
 
-    StepOutcome out = session.step(batch, step);
+    // With data parallelism every rank learns here whether any rank was asked to stop.
+    StepOutcome out = session.step(batch, step, nullptr, g_stop_signal.load());
     const StepResult& res = out.result;
     const double lr = out.lr, grad_norm = out.grad_norm;
     const bool ok = out.applied;
+    if (dp && step == summary.first_step)
+      spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
+                   dp->started_in_backward(), dp->buckets());
     if (ok) {
       state.consecutive_skips = 0;
     } else {
@@ -215,7 +303,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
                    res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(grad_norm) : res.nonfinite,
                    state.consecutive_skips, state.skipped_steps);
       if (state.consecutive_skips >= cfg.nan_guard.max_consecutive) {
-        progress.abandon();
+        if (progress) progress->abandon();
         fail("stopping: " + std::to_string(state.consecutive_skips) +
              " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
              "). Check the data and the learning rate; the last good checkpoint is " +
@@ -226,40 +314,43 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     state.step = step + 1;
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
-    Scalars row = {{"loss", res.loss}};
-    for (const auto& [name, value] : res.terms)
-      if (name != "total") row.push_back({name, value});
-    row.push_back({"lr", lr});
-    row.push_back({"grad_norm", grad_norm});
-    row.push_back({"skipped", ok ? 0.0 : 1.0});
-    row.push_back({"triangles", double(res.triangles)});
-    row.push_back({"step_seconds", seconds});
-    metrics.write("train", step, row);
-    progress.step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
+    if (root) {
+      Scalars row = {{"loss", res.loss}};
+      for (const auto& [name, value] : res.terms)
+        if (name != "total") row.push_back({name, value});
+      row.push_back({"lr", lr});
+      row.push_back({"grad_norm", grad_norm});
+      row.push_back({"skipped", ok ? 0.0 : 1.0});
+      row.push_back({"triangles", double(res.triangles)});
+      row.push_back({"step_seconds", seconds});
+      metrics->write("train", step, row);
+      progress->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
+    }
 
     const bool last = state.step == cfg.steps;
-    const int stop = g_stop_signal.load();
+    const int stop = out.stop_signal;
     if (state.step % cfg.checkpoint.every == 0 || last || stop) write_checkpoint();
     if (stop) {
-      progress.abandon();
+      if (progress) progress->abandon();
       spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
                    state.step, run.root);
       summary.exit_code = 128 + stop;
       summary.steps_done = state.step;
       summary.skipped_steps = state.skipped_steps;
-      return summary;
+      return finish();
     }
     if (state.step % cfg.validation.every == 0 || last) run_validation(state.step);
   }
-  progress.finish();
+  if (progress) progress->finish();
 
   // ---- the end -------------------------------------------------------------------
+  summary.steps_done = state.step;
+  summary.skipped_steps = state.skipped_steps;
+  if (!root) return finish();
   summary.model_file = run.root + "/model.safetensors";
   auto meta = pipeline::signature_metadata(signature);
   meta.insert({{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)}});
   model::save_weights(*decoder, summary.model_file, model::WeightNaming::wan, meta);
-  summary.steps_done = state.step;
-  summary.skipped_steps = state.skipped_steps;
   spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg.stage, state.step,
                state.skipped_steps);
   if (!std::isnan(summary.last_val_psnr))
@@ -268,7 +359,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
                "model.safetensors)",
                run.root);
-  return summary;
+  return finish();
 }
 
 }  // namespace flat::train

@@ -8,6 +8,7 @@
 
 #include "flat/core/error.h"
 #include "flat/model/weights.h"
+#include "flat/train/data_parallel.h"
 
 namespace flat::train {
 
@@ -22,10 +23,16 @@ double total_norm(const std::vector<at::Tensor>& grads) {
 }  // namespace
 
 TrainingSession::TrainingSession(const TrainConfig& cfg)
+    : TrainingSession(cfg, at::Device(cfg.device == "cuda" ? at::kCUDA : at::kCPU)) {}
+
+TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on)
     : decoder(cfg.pipeline.model, cfg.pipeline.triangles.channels()), grad_clip_(cfg.optim.grad_clip) {
-  device = at::Device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
+  device = on;
   if (device.is_cuda() && !torch::cuda::is_available())
     fail("device: cuda requested but no CUDA device is available (set device: cpu)");
+  if (device.is_cuda() && device.has_index() && device.index() >= torch::cuda::device_count())
+    fail("device: " + device.str() + " requested but only " + std::to_string(torch::cuda::device_count()) +
+         " CUDA device(s) are visible");
   bf16 = cfg.precision == "bf16" && device.is_cuda();
   signature = pipeline::model_signature(cfg.pipeline);
   if (cfg.init.from == "wan_vae") {
@@ -49,10 +56,27 @@ TrainingSession::TrainingSession(const TrainConfig& cfg)
   schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
 }
 
-StepOutcome TrainingSession::step(const data::Batch& batch, int64_t step, StepTimes* times) {
+void TrainingSession::use_data_parallel(DataParallel* dp) {
+  dp_ = dp;
+  if (!dp_) return;
+  std::vector<at::Tensor> params;
+  for (const auto& p : decoder->parameters())
+    if (p.requires_grad()) params.push_back(p);
+  dp_->reduce_gradients_of(params);
+}
+
+StepOutcome TrainingSession::step(const data::Batch& batch, int64_t step, StepTimes* times, int stop_signal) {
   StepOutcome out;
   optimiser->zero_grad();
+  if (dp_) dp_->before_backward();
   out.result = forward_backward(*pipeline, *objective, batch, bf16, times);
+  out.stop_signal = stop_signal;
+  if (dp_) {
+    // Every rank comes here, also one whose loss was not finite (no backward):
+    // it sends no gradient, and all ranks skip the step together.
+    dp_->after_backward();
+    out.stop_signal = dp_->agree(out.result, stop_signal);
+  }
   const auto t0 = std::chrono::steady_clock::now();
   out.lr = schedule.at(step);
   bool ok = out.result.finite;

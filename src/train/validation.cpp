@@ -77,13 +77,14 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 }
 
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
-                          loss::Lpips lpips, int64_t grid_views) {
+                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group) {
   torch::NoGradGuard no_grad;
   ValidationResult r;
   double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0;
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
-  for (int64_t i = 0; i < samples; ++i) {
+  const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
+  for (int64_t i = first; i < samples; i += stride) {
     data::Batch batch = loader.batch(i);
     pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
     auto soup = pipeline.decode(in);
@@ -109,6 +110,14 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
       if (i == 0 && b == 0 && grid_views > 0) r.grid = validation_grid(views, batch, b, grid_views);
     }
     r.samples += soup.batch();
+  }
+  if (group) {
+    auto sums = distributed::sum_over_ranks(
+        *group, {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples)}, device);
+    psnr = sums[0], ssim = sums[1], lp = sums[2], base = sums[3], cosine = sums[4];
+    normal_pixels = int64_t(std::llround(sums[5]));
+    r.views = int64_t(std::llround(sums[6]));
+    r.samples = int64_t(std::llround(sums[7]));
   }
   const double v = double(std::max<int64_t>(r.views, 1));
   r.psnr = psnr / v;

@@ -11,71 +11,12 @@
 #include "data/data_test_dirs.h"
 #include "process.h"
 #include "test_support.h"
+#include "train_fixtures.h"
 
 namespace fs = std::filesystem;
 using namespace flat::test;
 
 namespace {
-
-// Two training rooms and one held-out room, 9 frames of 32x48, latents of a
-// random dim-4 encoder over windows of 5 frames. Made once per test process.
-const std::string& tiny_data() {
-  static std::string dir = [] {
-    const std::string d = fresh_dir("train_data").string();
-    const std::string log = d + "/make.log";
-    for (auto [name, scenes, seed] : {std::tuple{"train", "2", "3"}, std::tuple{"val", "1", "99"}}) {
-      const std::string out = d + "/" + name;
-      REQUIRE(run({binary("flat_synth"), "--out", out, "--scenes", scenes, "--seed", seed, "--family", "room",
-                   "--frames", "9", "--size", "32x48", "--motion", "mixed"},
-                  log) == 0);
-      REQUIRE(run({binary("flat_latents"), "--scenes", out, "--random-weights", "--seed", "0", "--dim", "4",
-                   "--window", "5", "--step", "4"},
-                  log) == 0);
-    }
-    return d;
-  }();
-  return dir;
-}
-
-// A tiny CPU config in `dir`/config.yaml; `extra` is appended (YAML keys at
-// the top level override nothing: use --set for overrides).
-std::string write_config(const std::string& dir, int steps, const std::string& extra = "") {
-  const std::string& data = tiny_data();
-  const std::string path = dir + "/config.yaml";
-  std::ofstream(path) << "run_dir: " << dir << "/run\n"
-                      << "stage: tiny\nsteps: " << steps << "\ndevice: cpu\nprecision: fp32\nseed: 0\nthreads: 1\n"
-                      << "optim: {lr: 0.003, warmup_steps: 0, schedule: constant, weight_decay: 0}\n"
-                      << "checkpoint: {every: 2, keep: 2}\n"
-                      << "validation: {datasets: [{root: " << data << "/val}], every: 4, scenes: 1, grid_views: 2}\n"
-                      << "log: {progress_seconds: 1}\n"
-                      << "data: {datasets: [{root: " << data << "/train}], height: 32, width: 48, input_frames: 5, "
-                      << "target_views: 2, workers: 1, latents: true}\n"
-                      << "pipeline: {model: {vae: {dim: 4}}}\n"
-                      << "loss: {lambda_perc: 0}\n"
-                      << extra;
-  return path;
-}
-
-std::vector<nlohmann::json> rows(const std::string& run_dir, const std::string& stream = "train") {
-  std::vector<nlohmann::json> out;
-  std::ifstream in(run_dir + "/metrics/" + stream + ".jsonl");
-  for (std::string line; std::getline(in, line);)
-    if (!line.empty()) out.push_back(nlohmann::json::parse(line));
-  return out;
-}
-
-// The losses of a run as exact text (nlohmann prints doubles round-trip exactly).
-std::vector<std::string> losses(const std::string& run_dir) {
-  std::vector<std::string> out;
-  for (const auto& r : rows(run_dir)) out.push_back(r.at("loss").dump());
-  return out;
-}
-
-int train(const std::vector<std::string>& args, const std::string& log, const std::vector<std::string>& env = {}) {
-  std::vector<std::string> argv = {binary("flat_train")};
-  argv.insert(argv.end(), args.begin(), args.end());
-  return run(argv, log, env);
-}
 
 // A python3 with the tensorboard package ($FLAT_PYTHON, else the venv that
 // scripts/install_deps.sh makes), or "" when there is none.

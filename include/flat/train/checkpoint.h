@@ -46,6 +46,8 @@ std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerSta
 // The newest complete checkpoint folder under checkpoints_dir, "" if none.
 // Leftover ".incomplete-*" folders of a crashed write are removed (logged).
 std::string latest_checkpoint(const std::string& checkpoints_dir);
+// Where save_checkpoint puts step `step`: <checkpoints_dir>/step_<8 digits>.
+std::string checkpoint_folder(const std::string& checkpoints_dir, int64_t step);
 // Complete checkpoint folders, oldest first.
 std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir);
 

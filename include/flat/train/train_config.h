@@ -101,6 +101,24 @@ struct LogConfig {
   }
 };
 
+// Data-parallel training (flat_train --nproc N, or RANK/WORLD_SIZE/... from
+// torchrun or SLURM; docs/training.md, Multi-GPU). Unused in one process.
+struct DistributedConfig {
+  std::string backend = "auto";  // auto: nccl on CUDA, gloo on the CPU (store where gloo is missing)
+  double timeout_seconds = 60;   // a collective, or a peer's heartbeat, waited for longer than this fails
+  double bucket_mb = 25;         // gradient all-reduce bucket size (PyTorch DDP's default)
+  bool overlap = true;           // start a bucket's all-reduce from autograd hooks while backward runs
+  template <class V>
+  void visit(V& v) {
+    v.field("backend", backend, config::one_of({"auto", "nccl", "gloo", "store"}),
+            "auto (nccl on CUDA, gloo on the CPU) | nccl | gloo | store");
+    v.field("timeout_seconds", timeout_seconds, config::positive(),
+            "a collective or a silent peer fails after this long, naming the rank");
+    v.field("bucket_mb", bucket_mb, config::positive(), "gradient all-reduce bucket size (MB)");
+    v.field("overlap", overlap, "all-reduce gradient buckets during backward (false: after it)");
+  }
+};
+
 struct NanGuardConfig {
   int64_t max_consecutive = 20;  // this many non-finite steps in a row stop the run
   template <class V>
@@ -131,6 +149,7 @@ struct TrainConfig {
   ValidationConfig validation;
   LogConfig log;
   NanGuardConfig nan_guard;
+  DistributedConfig distributed;
   data::LoaderConfig data;
   pipeline::PipelineConfig pipeline;
   loss::LossConfig loss;
@@ -151,6 +170,7 @@ struct TrainConfig {
     v.section("validation", validation);
     v.section("log", log);
     v.section("nan_guard", nan_guard);
+    v.section("distributed", distributed);
     v.section("data", data);
     v.section("pipeline", pipeline);
     v.section("loss", loss);

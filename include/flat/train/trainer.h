@@ -12,7 +12,8 @@
 //     model.safetensors    the final weights (Wan key names), for flat_infer
 //
 // Checkpoints are written every checkpoint.every steps, at the end, and when
-// SIGINT or SIGTERM arrives (the run then stops with exit code 128 + signal).
+// SIGINT or SIGTERM arrives (the run then stops with exit code 128 + signal;
+// with several ranks, when any rank got one: they agree every step).
 // A resumed run continues exactly: on the CPU its losses equal an
 // uninterrupted run's bit for bit. A step whose loss or gradient is not finite
 // is skipped and counted; nan_guard.max_consecutive in a row stop the run with
@@ -21,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "flat/distributed/distributed_env.h"
 #include "flat/train/train_config.h"
 
 namespace flat::train {
@@ -41,7 +43,11 @@ struct TrainSummary {
 
 // Runs (or resumes) the stage. `config_yaml` is the effective config saved in
 // the run folder. Throws flat::Error on bad input, naming the file or key.
-TrainSummary run_training(const TrainConfig& config, const std::string& config_yaml, StartMode mode);
+// `env` (distributed::read_distributed_env()): with more than one rank every
+// rank calls this with the same config and trains its share of each batch;
+// rank 0 alone writes in the run folder (data_parallel.h, docs/training.md).
+TrainSummary run_training(const TrainConfig& config, const std::string& config_yaml, StartMode mode,
+                          const distributed::DistributedEnv& env = {});
 
 // The run folder's saved config (for --resume), with overrides applied.
 TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,

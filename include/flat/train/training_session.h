@@ -16,8 +16,11 @@
 
 namespace flat::train {
 
+class DataParallel;
+
 struct StepOutcome {
-  StepResult result;
+  StepResult result;       // with data parallelism: over all ranks (data_parallel.h)
+  int stop_signal = 0;     // the stop request of step(), agreed by all ranks
   double lr = 0;
   double grad_norm = NAN;
   bool applied = false;  // false: non-finite loss or gradient, the update was skipped
@@ -26,13 +29,22 @@ struct StepOutcome {
 
 class TrainingSession {
  public:
-  // Builds the model on cfg.device and initialises it as cfg.init says.
+  // Builds the model on cfg.device (or on `device`: cuda:LOCAL_RANK for a
+  // rank of a data-parallel run) and initialises it as cfg.init says.
   explicit TrainingSession(const TrainConfig& cfg);
+  TrainingSession(const TrainConfig& cfg, const at::Device& device);
 
   // zero grads -> forward/backward -> global grad norm -> skip if not finite,
   // else clip and update with the schedule's lr at `step`. times: per-phase
-  // timing with device synchronisation (flat_bench train).
-  StepOutcome step(const data::Batch& batch, int64_t step, StepTimes* times = nullptr);
+  // timing with device synchronisation (flat_bench train). stop_signal: a
+  // pending SIGINT/SIGTERM (0: none), returned as StepOutcome::stop_signal.
+  // With data parallelism the gradients are averaged over the ranks before
+  // the norm, and the ranks agree on the skip and the stop.
+  StepOutcome step(const data::Batch& batch, int64_t step, StepTimes* times = nullptr, int stop_signal = 0);
+
+  // From now on step() averages gradients over `dp`'s ranks (dp outlives this
+  // session's steps); call after the weights are final (init, resume, shared).
+  void use_data_parallel(DataParallel* dp);
 
   model::SceneDecoder decoder;
   std::unique_ptr<pipeline::ScenePipeline> pipeline;
@@ -45,6 +57,7 @@ class TrainingSession {
 
  private:
   double grad_clip_ = 0;
+  DataParallel* dp_ = nullptr;
 };
 
 using pipeline::model_signature;

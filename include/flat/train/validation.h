@@ -11,6 +11,7 @@
 #include <ATen/ATen.h>
 
 #include "flat/data/loader.h"
+#include "flat/distributed/process_group.h"
 #include "flat/loss/lpips.h"
 #include "flat/pipeline/scene_pipeline.h"
 #include "flat/train/metrics_log.h"
@@ -34,9 +35,12 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
                            int64_t max_views);
 
 // Scores `samples` batches 0.. of `loader` (batch size 1, fixed seed: the same
-// views every time). lpips: an empty holder skips LPIPS.
+// views every time). lpips: an empty holder skips LPIPS. With `group` (every
+// rank calls it) rank r scores batches r, r + W, ... and the sums are added
+// over the ranks: every rank gets the scores of all samples, rank 0 the grid
+// (of batch 0).
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
-                          loss::Lpips lpips, int64_t grid_views);
+                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group = nullptr);
 
 // Writes the grid as PNG (or safetensors when built without OpenImageIO);
 // returns the path written.
