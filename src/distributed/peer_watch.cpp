@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include <c10/util/Exception.h>
 #include <spdlog/spdlog.h>
 
 namespace flat::distributed::detail {
@@ -16,6 +17,13 @@ std::string seconds(Clock::duration d) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.1f s", std::chrono::duration<double>(d).count());
   return text;
+}
+
+// The message of a c10::Error without its backtrace, one line.
+std::string first_line(const std::exception& e) {
+  const auto* c10_error = dynamic_cast<const c10::Error*>(&e);
+  std::string text = c10_error ? c10_error->what_without_backtrace() : e.what();
+  return text.substr(0, std::min(text.find('\n'), size_t(300)));
 }
 
 // Logged from the watch thread, then the process ends: the main thread may be
@@ -71,8 +79,7 @@ void PeerWatch::finish() {
     if (s.store->add("flat/finished", 1) == s.world_size) s.store->set("flat/all_finished", std::vector<uint8_t>{1});
     if (s.rank == 0) s.store->wait({"flat/all_finished"}, s.timeout);
   } catch (const std::exception& e) {
-    spdlog::warn("distributed: rank {}: not every rank reached the end of the job: {}", s.rank,
-                 std::string(e.what()).substr(0, 200));
+    spdlog::warn("distributed: rank {}: not every rank reached the end of the job: {}", s.rank, first_line(e));
   }
 }
 
@@ -96,10 +103,8 @@ void PeerWatch::run(std::shared_ptr<State> state) {
     } catch (const std::exception& e) {
       std::lock_guard<std::mutex> lock(s.mutex);
       s.store_lost = true;
-      s.store_error = e.what();
-      if (!s.stop)
-        lost = "rank 0, which serves the store, is unreachable (dead, or its host is gone): " +
-               std::string(e.what()).substr(0, 200);
+      s.store_error = first_line(e);
+      if (!s.stop) lost = "rank 0, which serves the store, is unreachable (dead, or its host is gone): " + s.store_error;
     }
     if (!lost.empty())
       end_process("distributed: rank " + std::to_string(s.rank) + " of " + std::to_string(s.world_size) + ": " +
