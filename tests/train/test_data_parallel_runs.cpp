@@ -184,6 +184,17 @@ TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one proc
   CHECK(train_log.find("[rank 1") == std::string::npos);
   CHECK_THAT(train_log, FLAT_CONTAINS("data parallel: 2 ranks, global batch 2 (1 per rank)"));
   CHECK(rows(two, "val").size() == rows(one, "val").size());
+
+  // All-reduced after backward in one bucket instead: the same sums, the same weights bit for bit.
+  const std::string after = d + "/after";
+  fs::create_directories(after);
+  const int rc = train(args(args({"--config", write_config(after, 8), "--nproc", "2"}, kBatch2),
+                            {"--set", "distributed.overlap=false", "--set", "distributed.bucket_mb=25"}),
+                       after + "/log.txt");
+  INFO(read_file(after + "/log.txt"));
+  REQUIRE(rc == 0);
+  CHECK_THAT(read_file(after + "/log.txt"), FLAT_CONTAINS("1 gradient bucket(s) of <= 25 MB\n"));
+  CHECK(worst_difference(two + "/model.safetensors", after + "/run/model.safetensors") == 0);
 }
 
 TEST_CASE("flat_train under torchrun-style variables: rank 1 writes nothing in the run folder",
