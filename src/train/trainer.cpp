@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <ctime>
 #include <filesystem>
 #include <optional>
 
@@ -34,18 +35,42 @@ namespace {
 // ---- stop signals ------------------------------------------------------------
 // The first SIGINT/SIGTERM asks the loop to stop after the current step and
 // write a checkpoint; a second one ends the process at once (default action).
+// A rank of a multi-rank job often gets one request twice: directly (a
+// scheduler signals every process, a terminal its process group) and
+// forwarded by its launcher (flat_train --nproc, torchrun). There a repeat
+// within a second is the same request; a later one still ends the rank.
 std::atomic<int> g_stop_signal{0};
+std::atomic<bool> g_merge_repeats{false};
+std::atomic<int64_t> g_first_signal_ms{0};
+
+int64_t monotonic_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);  // async-signal-safe
+  return int64_t(ts.tv_sec) * 1000 + ts.tv_nsec / 1000000;
+}
 
 extern "C" void on_stop_signal(int sig) {
-  g_stop_signal.store(sig);
+  if (!g_merge_repeats.load()) {
+    g_stop_signal.store(sig);
+    std::signal(sig, SIG_DFL);
+    return;
+  }
+  if (g_stop_signal.load() == 0) {
+    g_first_signal_ms.store(monotonic_ms());
+    g_stop_signal.store(sig);
+    return;
+  }
+  if (monotonic_ms() - g_first_signal_ms.load() < 1000) return;
   std::signal(sig, SIG_DFL);
+  std::raise(sig);
 }
 
 struct StopSignals {
   using Handler = void (*)(int);
   Handler old_int, old_term;
-  StopSignals() {
+  explicit StopSignals(bool merge_repeats) {
     g_stop_signal.store(0);
+    g_merge_repeats.store(merge_repeats);
     old_int = std::signal(SIGINT, on_stop_signal);
     old_term = std::signal(SIGTERM, on_stop_signal);
   }
@@ -275,7 +300,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   if (state.step == 0) run_validation(0);
 
   // ---- the loop ------------------------------------------------------------------
-  StopSignals signals;
+  StopSignals signals(env.distributed());
   std::optional<Progress> progress;
   if (root) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
   while (state.step < cfg.steps) {

@@ -263,11 +263,16 @@ TEST_CASE("flat_train --nproc 2: a SIGKILLed rank ends the run naming it; --resu
   CHECK(worst_difference(d + "/run/model.safetensors", two_rank_reference() + "/model.safetensors") == 0);
 }
 
-TEST_CASE("flat_train --nproc 2: SIGTERM to the launcher checkpoints on rank 0 and stops both ranks",
+TEST_CASE("flat_train --nproc 2: SIGTERM checkpoints on rank 0 and stops both ranks",
           "[train][distributed]") {
   skip_without_gloo();
+  bool direct = false;
+  SECTION("to the launcher, which forwards it") { direct = false; }
+  SECTION("to the launcher and to every worker (as a scheduler does): one request, not two") { direct = true; }
   const std::string d = fresh_dir("dp_sigterm").string();
   Child launcher = start_two_ranks(d, 3);
+  if (direct)
+    for (const auto& [rank, pid] : workers_of(launcher.pid)) REQUIRE(kill(pid, SIGTERM) == 0);
   REQUIRE(kill(launcher.pid, SIGTERM) == 0);
   const int rc = wait_bounded(launcher, 120);
   const std::string log = read_file(d + "/log1.txt");
@@ -283,7 +288,8 @@ TEST_CASE("flat_train --nproc 2: SIGTERM to the launcher checkpoints on rank 0 a
   CHECK(fs::exists(d + "/run/checkpoints/" + name + "/trainer.json"));
   CHECK_THAT(log, FLAT_CONTAINS("forwarded to the 2 running worker(s)"));
   CHECK_THAT(log, FLAT_CONTAINS("--resume"));
-  std::printf("flat_train --nproc 2: SIGTERM to the launcher after 3 steps: exit %d, checkpoint %s\n", rc, name);
+  std::printf("flat_train --nproc 2: SIGTERM (%s) after 3 steps: exit %d, checkpoint %s\n",
+              direct ? "to the launcher and the workers" : "to the launcher", rc, name);
   REQUIRE(train({"--resume", d + "/run", "--nproc", "2"}, d + "/log2.txt") == 0);
   CHECK(losses(d + "/run") == losses(two_rank_reference()));
 }
