@@ -149,7 +149,10 @@ TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one proc
     worst_loss = std::max(worst_loss, std::abs(a - b) / std::abs(a));
     CHECK(r1[i].at("triangles") == r2[i].at("triangles"));  // summed over the ranks' scenes
   }
-  CHECK(r1[0].at("loss") == r2[0].at("loss"));  // the same weights and scenes: the same forward, bit for bit
+  // The same weights and scenes: the same forward (bit for bit on our CPUs;
+  // another conv kernel for a batch of 1 than of 2 could round differently).
+  const double first = r1[0].at("loss").get<double>();
+  CHECK(std::abs(r2[0].at("loss").get<double>() - first) <= 1e-6 * first);
   CHECK(worst_loss < 1e-4);
   // The weights after 8 steps: the same up to fp32 sums in another order (the
   // same gap as one process on 1 and on 2 threads: docs/training.md).
