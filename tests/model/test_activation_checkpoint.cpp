@@ -1,5 +1,7 @@
 // Activation checkpointing: the same outputs and gradients as the plain
 // forward and backward, for the decoder's blocks and for a toy block.
+#include <cmath>
+
 #include "flat/model/activation_checkpoint.h"
 #include "flat/model/scene_decoder.h"
 #include "flat/primitives/triangle_channels.h"
@@ -58,8 +60,12 @@ TEST_CASE("scene decoder with activation checkpointing: identical gradients", "[
   auto cams = torch::randn({1, 32, 2, 4, 6});
   auto weights = torch::randn({1, 12, 5, 16, 24});
   auto loss_of = [&](model::SceneDecoder& m) { return (m->forward(latent, cams) * weights).sum(); };
+  // The checkpointed blocks run their first forward without grad mode, where
+  // the CPU convolution library may pick other kernels: bit-identical on the
+  // 2-core CI machine, 6e-7 apart in the loss and up to 1.4e-6 in gradients
+  // on the GPU machine's 16 cores. A wrong recompute differs by O(1).
   auto l0 = loss_of(plain), l1 = loss_of(ckpt);
-  CHECK(l0.item<double>() == l1.item<double>());
+  CHECK(std::abs(l0.item<double>() - l1.item<double>()) <= 1e-6 * std::abs(l0.item<double>()));
   l0.backward();
   l1.backward();
   auto g0 = plain->named_parameters(), g1 = ckpt->named_parameters();
@@ -70,10 +76,10 @@ TEST_CASE("scene decoder with activation checkpointing: identical gradients", "[
     REQUIRE(a.defined() == b.defined());
     if (!a.defined()) continue;
     ++with_grad;
-    CHECK(test::rel_error(b, a) < 1e-6);
+    CHECK(test::rel_error(b, a) < 1e-5);
     compared += at::equal(a, b) ? 1 : 0;
   }
   CHECK(with_grad > 30);
   std::cout << "activation checkpointing: " << compared << " of " << with_grad
-            << " parameter gradients bit-identical, the rest within 1e-6\n";
+            << " parameter gradients bit-identical, the rest within 1e-5\n";
 }
