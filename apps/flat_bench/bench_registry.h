@@ -10,6 +10,7 @@ namespace flat::bench {
 
 using AddSubcommand = std::function<void(CLI::App&)>;
 
+void add_adamw8bit(CLI::App& app);  // bench_adamw8bit.cpp
 void add_decoder(CLI::App& app);  // bench_decoder.cpp
 void add_loader(CLI::App& app);   // bench_loader.cpp
 void add_raster(CLI::App& app);   // bench_raster.cpp
@@ -17,7 +18,7 @@ void add_train(CLI::App& app);    // bench_train.cpp
 
 // One declaration and one list entry per bench file; add yours in both places.
 inline std::vector<AddSubcommand> registry() {
-  return {add_decoder, add_loader, add_raster, add_train};
+  return {add_adamw8bit, add_decoder, add_loader, add_raster, add_train};
 }
 
 }  // namespace flat::bench

@@ -6,6 +6,13 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 
+#if FLAT_WITH_CUDA
+#include <ATen/cuda/CUDAContext.h>
+#include <c10/cuda/CUDAGuard.h>
+
+#include "train/cuda/adamw8bit_step.h"
+#endif
+
 namespace flat::train {
 
 AdamW::AdamW(std::vector<std::pair<std::string, at::Tensor>> params, AdamWOptions options) : options_(options) {
@@ -27,6 +34,7 @@ bool AdamW::quantised(const Slot& s) const {
 void AdamW::ensure_state(Slot& s) {
   if (s.has_state()) return;
   s.step = at::zeros({}, s.param.options().dtype(at::kFloat));
+  s.steps = 0;
   if (quantised(s)) {
     auto zeros = at::zeros({s.param.numel()}, s.param.options().dtype(at::kFloat));
     s.exp_avg_q8 = quantise_blockwise(zeros, /*is_signed=*/true);
@@ -45,6 +53,7 @@ void AdamW::update_8bit(Slot& s, const at::Tensor& grad, double lr) {
   auto v = dequantise_blockwise(s.exp_avg_sq_q8, s.param.sizes());
   s.step.add_(1);
   const double t = s.step.item<double>();
+  s.steps = t;
   s.param.mul_(1 - lr * o.weight_decay);
   m.lerp_(g, 1 - o.beta1);
   v.mul_(o.beta2).addcmul_(g, g, 1 - o.beta2);
@@ -53,6 +62,70 @@ void AdamW::update_8bit(Slot& s, const at::Tensor& grad, double lr) {
   s.param.addcdiv_(m.to(s.param.scalar_type()), denom.to(s.param.scalar_type()), -lr / bias1);
   s.exp_avg_q8 = quantise_blockwise(m, true);
   s.exp_avg_sq_q8 = quantise_blockwise(v, false);
+}
+
+bool AdamW::fused_8bit_available() { return FLAT_WITH_CUDA; }
+
+bool AdamW::fused_8bit(const Slot& s, const at::Tensor& grad) const {
+  // The kernel walks parameter, gradient and codes as flat arrays.
+  auto dtype_ok = [](const at::Tensor& x) {
+    return x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16;
+  };
+  auto state_ok = [&](const QuantisedTensor& q) {
+    return q.codes.device() == s.param.device() && q.codes.is_contiguous() && q.absmax.is_contiguous() &&
+           q.absmax.scalar_type() == at::kFloat && reinterpret_cast<uintptr_t>(q.codes.data_ptr()) % 8 == 0;
+  };
+  return fused_8bit_available() && options_.fused && s.param.is_cuda() && grad.device() == s.param.device() &&
+         dtype_ok(s.param) && dtype_ok(grad) && s.param.is_contiguous() && grad.is_contiguous() &&
+         grad.numel() == s.param.numel() && state_ok(s.exp_avg_q8) && state_ok(s.exp_avg_sq_q8);
+}
+
+void AdamW::update_8bit_fused(Slot& s, const at::Tensor& grad, double lr) {
+#if FLAT_WITH_CUDA
+  // The scalars of update_8bit, rounded to float where ATen rounds them.
+  const auto& o = options_;
+  const double t = s.steps + 1;
+  const double bias1 = 1 - std::pow(o.beta1, t), bias2 = 1 - std::pow(o.beta2, t);
+  const auto& signed_map = dynamic_map_tables(true, s.param.device());
+  const auto& unsigned_map = dynamic_map_tables(false, s.param.device());
+  cuda::AdamW8bitArgs a;
+  a.param = s.param.data_ptr();
+  a.grad = grad.data_ptr();
+  a.param_bf16 = s.param.scalar_type() == at::kBFloat16;
+  a.grad_bf16 = grad.scalar_type() == at::kBFloat16;
+  a.m_codes = s.exp_avg_q8.codes.data_ptr<uint8_t>();
+  a.v_codes = s.exp_avg_sq_q8.codes.data_ptr<uint8_t>();
+  a.m_absmax = s.exp_avg_q8.absmax.data_ptr<float>();
+  a.v_absmax = s.exp_avg_sq_q8.absmax.data_ptr<float>();
+  a.m_map = signed_map.values.data_ptr<float>();
+  a.m_midpoints = signed_map.midpoints.data_ptr<float>();
+  a.v_map = unsigned_map.values.data_ptr<float>();
+  a.v_midpoints = unsigned_map.midpoints.data_ptr<float>();
+  a.step = s.step.data_ptr<float>();
+  a.numel = s.param.numel();
+  a.t = float(t);
+  a.decay = float(1 - lr * o.weight_decay);
+  a.lerp_weight = float(1 - o.beta1);
+  a.beta2 = float(o.beta2);
+  a.one_minus_beta2 = float(1 - o.beta2);
+  a.inv_sqrt_bias2 = 1.0f / float(std::sqrt(bias2));  // div_true's CPU-scalar divisor: a float reciprocal
+  a.eps = float(o.eps);
+  a.step_size = float(-lr / bias1);
+  const c10::cuda::CUDAGuard guard(s.param.device());
+  const cudaError_t err = cuda::launch_adamw8bit_step(a, at::cuda::getCurrentCUDAStream());
+  FLAT_CHECK(err == cudaSuccess,
+             "AdamW: the fused 8-bit step of '" + s.name + "' failed: " + std::string(cudaGetErrorString(err)));
+  // Written through raw pointers: bump the versions as the in-place ops would.
+  for (const auto* x : {&s.param, &s.step, &s.exp_avg_q8.codes, &s.exp_avg_q8.absmax, &s.exp_avg_sq_q8.codes,
+                        &s.exp_avg_sq_q8.absmax})
+    x->unsafeGetTensorImpl()->bump_version();
+  s.steps = t;
+  ++fused_8bit_updates_;
+#else
+  (void)grad;
+  (void)lr;
+  FLAT_CHECK(false, "AdamW: the fused 8-bit step of '" + s.name + "' needs a build with FLAT_WITH_CUDA");
+#endif
 }
 
 std::vector<at::Tensor> AdamW::grads() const {
@@ -75,7 +148,10 @@ void AdamW::step(double lr) {
     if (!g.defined()) continue;
     ensure_state(s);
     if (quantised(s)) {
-      update_8bit(s, g, lr);
+      if (fused_8bit(s, g))
+        update_8bit_fused(s, g, lr);
+      else
+        update_8bit(s, g, lr);
       continue;
     }
     // The fused kernel walks params, grads and moments as flat arrays: only
@@ -86,11 +162,13 @@ void AdamW::step(double lr) {
     if (fusable) {
       ps.push_back(s.param), gs.push_back(g), ms.push_back(s.exp_avg), vs.push_back(s.exp_avg_sq);
       ts.push_back(s.step);
+      s.steps += 1;
       continue;
     }
     // The reference update (CPU, or a dtype the fused kernel does not take).
     s.step.add_(1);
     const double t = s.step.item<double>();
+    s.steps = t;
     s.param.mul_(1 - lr * o.weight_decay);
     s.exp_avg.lerp_(g, 1 - o.beta1);
     s.exp_avg_sq.mul_(o.beta2).addcmul_(g, g, 1 - o.beta2);
@@ -166,8 +244,12 @@ void AdamW::load_state(const TensorMap& state, const std::string& label) {
         FLAT_CHECK(x->numel() == blocks, label + ": 8-bit optimiser state of '" + s.name + "' has " +
                                              std::to_string(x->numel()) + " block scales, expected " +
                                              std::to_string(blocks));
-      QuantisedTensor qm{mq->to(s.param.device()), ma->to(s.param.device(), at::kFloat), s.param.numel(), true};
-      QuantisedTensor qv{vq->to(s.param.device()), va->to(s.param.device(), at::kFloat), s.param.numel(), false};
+      // Copies (never the caller's tensors): the fused step updates them in place.
+      auto own = [&](const at::Tensor* x, at::ScalarType dtype) {
+        return x->to(s.param.device(), dtype, /*non_blocking=*/false, /*copy=*/true).contiguous();
+      };
+      QuantisedTensor qm{own(mq, at::kByte), own(ma, at::kFloat), s.param.numel(), true};
+      QuantisedTensor qv{own(vq, at::kByte), own(va, at::kFloat), s.param.numel(), false};
       if (quantised(s)) {  // kept as they are: no second rounding
         s.exp_avg_q8 = qm;
         s.exp_avg_sq_q8 = qv;
@@ -177,6 +259,7 @@ void AdamW::load_state(const TensorMap& state, const std::string& label) {
       }
     }
     s.step = t->reshape({}).to(s.param.device(), at::kFloat).clone();
+    s.steps = t->to(at::kFloat).item<double>();
     if (m.defined()) {
       if (quantised(s)) {
         s.exp_avg_q8 = quantise_blockwise(m, true);

@@ -31,16 +31,9 @@ at::Tensor dynamic_map(bool is_signed) {
   return at::tensor(v, at::kDouble).to(at::kFloat);
 }
 
-namespace {
-
-struct Maps {
-  at::Tensor values, midpoints;  // (256), (255) on one device
-};
-
-// The map and the midpoints between its neighbours, cached per device.
-const Maps& maps(bool is_signed, const at::Device& device) {
+const DynamicMapTables& dynamic_map_tables(bool is_signed, const at::Device& device) {
   static std::mutex mutex;
-  static std::map<std::pair<bool, std::string>, Maps> cache;
+  static std::map<std::pair<bool, std::string>, DynamicMapTables> cache;
   std::lock_guard<std::mutex> lock(mutex);
   auto& m = cache[{is_signed, device.str()}];
   if (!m.values.defined()) {
@@ -50,8 +43,6 @@ const Maps& maps(bool is_signed, const at::Device& device) {
   }
   return m;
 }
-
-}  // namespace
 
 QuantisedTensor quantise_blockwise(const at::Tensor& x, bool is_signed) {
   at::NoGradGuard no_grad;
@@ -65,14 +56,14 @@ QuantisedTensor quantise_blockwise(const at::Tensor& x, bool is_signed) {
   auto safe = at::where(q.absmax > 0, q.absmax, at::ones_like(q.absmax)).unsqueeze(1);
   auto normalised = (flat / safe).clamp(is_signed ? -1.0 : 0.0, 1.0);
   // Index of the nearest map value: the number of midpoints below the value.
-  const auto& m = maps(is_signed, x.device());
+  const auto& m = dynamic_map_tables(is_signed, x.device());
   q.codes = at::bucketize(normalised, m.midpoints).to(at::kByte).reshape({-1});
   return q;
 }
 
 at::Tensor dequantise_blockwise(const QuantisedTensor& q, at::IntArrayRef shape) {
   FLAT_CHECK(q.codes.defined(), "dequantise_blockwise: empty state");
-  const auto& m = maps(q.is_signed, q.codes.device());
+  const auto& m = dynamic_map_tables(q.is_signed, q.codes.device());
   auto values = m.values.index_select(0, q.codes.to(at::kLong)).view({-1, kQuantBlock}) * q.absmax.unsqueeze(1);
   return values.reshape({-1}).slice(0, 0, q.numel).view(shape);
 }

@@ -15,7 +15,12 @@
 // (blockwise_quantisation.h: uint8 codes + one float per 256 values, about a
 // quarter of fp32 state); each step dequantises them, updates as above in
 // fp32, and quantises them again. Smaller tensors (biases, norms) keep fp32
-// state, as bitsandbytes does.
+// state, as bitsandbytes does. On CUDA (fused, a build with FLAT_WITH_CUDA,
+// contiguous fp32 or bf16 parameters and gradients) that is one fused kernel
+// per tensor updating the state in place (src/train/cuda/adamw8bit_step.cu);
+// otherwise, and with fused = false, the ATen ops of update_8bit: the CPU
+// path and the reference the kernel is tested against (same arithmetic, op
+// for op).
 #pragma once
 #include <cstdint>
 #include <string>
@@ -31,7 +36,7 @@ namespace flat::train {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
-  bool fused = true;  // CUDA: ATen's fused kernel; false: the op-by-op update everywhere
+  bool fused = true;  // CUDA: ATen's fused kernel (8-bit: ours); false: the op-by-op update everywhere
   int state_bits = 32;             // 32 | 8
   int64_t min_8bit_numel = 4096;   // smaller tensors keep fp32 state
 };
@@ -59,17 +64,27 @@ class AdamW {
   // Bytes of optimiser state held now.
   int64_t state_bytes() const;
 
+  // Whether this build has the fused 8-bit CUDA kernel (FLAT_WITH_CUDA), and
+  // how many tensor updates it has done here (tests and benchmarks: that the
+  // fused path was taken).
+  static bool fused_8bit_available();
+  int64_t fused_8bit_updates() const { return fused_8bit_updates_; }
+
  private:
   struct Slot {
     std::string name;
     at::Tensor param, exp_avg, exp_avg_sq, step;  // step: float32 scalar on the param's device
     QuantisedTensor exp_avg_q8, exp_avg_sq_q8;    // 8-bit state (exp_avg, exp_avg_sq undefined then)
+    double steps = 0;  // step's value, kept on the host: the fused 8-bit step reads no device scalar
     bool has_state() const { return step.defined(); }
   };
   bool quantised(const Slot& s) const;
   void update_8bit(Slot& s, const at::Tensor& grad, double lr);
+  bool fused_8bit(const Slot& s, const at::Tensor& grad) const;
+  void update_8bit_fused(Slot& s, const at::Tensor& grad, double lr);
   std::vector<Slot> slots_;
   AdamWOptions options_;
+  int64_t fused_8bit_updates_ = 0;
   void ensure_state(Slot& s);
 };
 

@@ -24,6 +24,15 @@ inline constexpr int64_t kQuantBlock = 256;
 // the negatives too.
 at::Tensor dynamic_map(bool is_signed);
 
+// The map and the 255 midpoints between its neighbours (the quantiser's
+// decision boundaries: a value gets the code of the number of midpoints below
+// it), float32 on `device`, built once per device. The fused CUDA step
+// (src/train/cuda/adamw8bit_step.cu) reads these same tensors.
+struct DynamicMapTables {
+  at::Tensor values, midpoints;  // (256), (255)
+};
+const DynamicMapTables& dynamic_map_tables(bool is_signed, const at::Device& device);
+
 struct QuantisedTensor {
   at::Tensor codes;   // (blocks * 256) uint8
   at::Tensor absmax;  // (blocks) float32
