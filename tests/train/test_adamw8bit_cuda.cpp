@@ -87,8 +87,14 @@ void compare(const at::Tensor& p, const at::Tensor& p_ref, const AdamW& fused, c
   const auto pd = p.to(at::kDouble).cpu(), rd = p_ref.to(at::kDouble).cpu();
   const auto diff = (pd - rd).abs();
   const bool bf16 = p.scalar_type() == at::kBFloat16;
-  const auto bound = bf16 ? rd.abs() * std::ldexp(1.0, -7) + 1e-30 : rd.abs() * 1e-6 + 1e-9;
+  // fp32: relative to the value, plus 1e-5 of the step size for values near
+  // zero, where the update (~lr) is the value: on the H100 one of 3,000,123
+  // values at steps 3 and 4 was over an absolute 1e-9 with every code
+  // identical. A wrong kernel is off by O(lr).
+  const auto bound = bf16 ? rd.abs() * std::ldexp(1.0, -7) + 1e-30 : rd.abs() * 1e-6 + 1e-5 * kLr;
   const int64_t over = (diff > bound).sum().item<int64_t>();
+  INFO("largest difference " << diff.max().item<double>() << ", largest over the bound "
+                             << (diff - bound).max().item<double>());
   const int64_t unequal = (pd != rd).sum().item<int64_t>();
   CHECK(over == 0);
   if (bf16) CHECK(double(unequal) <= 1e-3 * double(p.numel()));
@@ -179,7 +185,7 @@ TEST_CASE("fused 8-bit AdamW CUDA step runs free alongside the reference", "[tra
     }
     const auto pd = p.to(at::kDouble).cpu(), rd = p_ref.to(at::kDouble).cpu();
     const bool bf16 = dtype == at::kBFloat16;
-    const auto bound = bf16 ? rd.abs() * std::ldexp(1.0, -7) + 1e-30 : rd.abs() * 1e-6 + 1e-9;
+    const auto bound = bf16 ? rd.abs() * std::ldexp(1.0, -7) + 1e-30 : rd.abs() * 1e-6 + 1e-5 * kLr;
     const int64_t off = ((pd - rd).abs() > bound).sum().item<int64_t>();
     std::printf("fused 8-bit AdamW vs ATen, %s, %d steps free: %lld of %lld codes differ, %lld of %lld parameters "
                 "outside one step's tolerance, max |dp| %.3g\n",
