@@ -59,25 +59,39 @@ TEST_CASE("block-wise quantisation picks the nearest map value of each block-sca
 namespace {
 
 // Least squares with AdamW: ||A w - b||^2 over a 64x4096 weight (8-bit eligible).
-std::vector<double> fit(int state_bits, int steps, torch::Tensor* final_w = nullptr) {
-  torch::manual_seed(11);
-  auto A = torch::randn({256, 64});
-  auto target = torch::randn({64, 4096}) * 0.5;
-  auto b = A.matmul(target);
-  auto w = torch::zeros({64, 4096}).requires_grad_(true);
-  AdamWOptions o;
-  o.weight_decay = 0.0;
-  o.state_bits = state_bits;
-  AdamW opt({{"w", w}}, o);
-  std::vector<double> losses;
-  for (int i = 0; i < steps; ++i) {
-    opt.zero_grad();
-    auto loss = (A.matmul(w) - b).square().mean();
-    loss.backward();
-    opt.step(0.02);
-    losses.push_back(loss.item<double>());
+struct LeastSquares {
+  torch::Tensor A, b, w;
+  LeastSquares() {
+    torch::manual_seed(11);
+    A = torch::randn({256, 64});
+    b = A.matmul(torch::randn({64, 4096}) * 0.5);
+    w = torch::zeros({64, 4096}).requires_grad_(true);
   }
-  if (final_w) *final_w = w.detach().clone();
+  static AdamWOptions options(int state_bits) {
+    AdamWOptions o;
+    o.weight_decay = 0.0;
+    o.state_bits = state_bits;
+    return o;
+  }
+  // `steps` AdamW steps; the losses before each.
+  std::vector<double> run(AdamW& opt, int steps) {
+    std::vector<double> losses;
+    for (int i = 0; i < steps; ++i) {
+      opt.zero_grad();
+      auto loss = (A.matmul(w) - b).square().mean();
+      loss.backward();
+      opt.step(0.02);
+      losses.push_back(loss.item<double>());
+    }
+    return losses;
+  }
+};
+
+std::vector<double> fit(int state_bits, int steps, torch::Tensor* final_w = nullptr) {
+  LeastSquares problem;
+  AdamW opt({{"w", problem.w}}, LeastSquares::options(state_bits));
+  auto losses = problem.run(opt, steps);
+  if (final_w) *final_w = problem.w.detach().clone();
   return losses;
 }
 
@@ -132,36 +146,22 @@ TEST_CASE("8-bit AdamW state: a quarter of fp32 on the scene decoder, saved and 
   torch::Tensor w_ref, w_resumed;
   fit(8, 10, &w_ref);
   {
-    torch::manual_seed(11);
-    auto A = torch::randn({256, 64});
-    auto target = torch::randn({64, 4096}) * 0.5;
-    auto b = A.matmul(target);
-    auto w = torch::zeros({64, 4096}).requires_grad_(true);
-    AdamWOptions o;
-    o.weight_decay = 0.0;
-    o.state_bits = 8;
+    LeastSquares problem;
+    auto& w = problem.w;
+    const AdamWOptions o = LeastSquares::options(8);
     TensorMap saved;
-    auto run = [&](AdamW& opt, int steps) {
-      for (int i = 0; i < steps; ++i) {
-        opt.zero_grad();
-        (A.matmul(w) - b).square().mean().backward();
-        opt.step(0.02);
-      }
-    };
     {
       AdamW opt({{"w", w}}, o);
-      run(opt, 5);
+      problem.run(opt, 5);
       saved = opt.state();
     }
     CHECK(saved.at("exp_avg.q8.w").scalar_type() == at::kByte);
     AdamW opt({{"w", w}}, o);
     opt.load_state(saved, "saved");
-    run(opt, 5);
+    problem.run(opt, 5);
     w_resumed = w.detach().clone();
     // fp32 state converts to 8-bit on load, and a truncated state is refused.
-    AdamWOptions o32b;
-    o32b.weight_decay = 0.0;
-    AdamW as32({{"w", w}}, o32b);
+    AdamW as32({{"w", w}}, LeastSquares::options(32));
     as32.load_state(saved, "saved");
     CHECK(as32.state().count("exp_avg.w") == 1);
     auto partial = saved;
