@@ -71,6 +71,27 @@ endif()
 find_package(Torch REQUIRED)
 message(STATUS "libtorch ${Torch_VERSION} from ${Torch_DIR}")
 
+# NCCL's header, which c10d's ProcessGroupNCCL.hpp includes (the "nccl"
+# backend, src/distributed/nccl_process_group.cpp). The torch wheel's own
+# nvidia-nccl wheel goes first: its header matches the libnccl that
+# libtorch_cuda loads. Without it the backend fails at run time, by name.
+set(FLAT_NCCL_INCLUDE_DIR "")
+if(FLAT_WITH_CUDA)
+  if(_py)
+    execute_process(COMMAND "${_py}" -c "import nvidia.nccl as m; print(list(m.__path__)[0])"
+                    OUTPUT_VARIABLE _nccl_wheel OUTPUT_STRIP_TRAILING_WHITESPACE ERROR_QUIET)
+  endif()
+  find_path(FLAT_NCCL_HEADER_DIR nccl.h HINTS "${_nccl_wheel}/include" ${CUDAToolkit_INCLUDE_DIRS}
+            NO_CACHE)
+  if(FLAT_NCCL_HEADER_DIR)
+    set(FLAT_NCCL_INCLUDE_DIR "${FLAT_NCCL_HEADER_DIR}")
+    message(STATUS "NCCL header from ${FLAT_NCCL_INCLUDE_DIR} (distributed.backend nccl)")
+  else()
+    message(WARNING "nccl.h not found (torch's nvidia-nccl wheel, CUDA toolkit): distributed.backend nccl "
+                    "will fail at run time")
+  endif()
+endif()
+
 # CUTLASS (header-only, NVIDIA): the Hopper implicit-GEMM convs of
 # src/model/cuda_sm90. Looked up in FLAT_CUTLASS_DIR, then .deps/cutlass (what
 # scripts/prepare_device_carry.sh extracts), then the nvidia-cutlass wheel that

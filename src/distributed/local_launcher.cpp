@@ -74,7 +74,8 @@ std::vector<std::string> drop_option(const std::vector<std::string>& args, const
 
 int launch_local_workers(const LaunchOptions& o) {
   FLAT_CHECK(o.nproc >= 1, "launcher: --nproc must be at least 1, got " + std::to_string(o.nproc));
-  const std::string exe = std::filesystem::read_symlink("/proc/self/exe").string();
+  const std::string exe =
+      o.program.empty() ? std::filesystem::read_symlink("/proc/self/exe").string() : o.program;
   int port = o.port;
   if (port == 0) {
     const char* p = std::getenv("MASTER_PORT");
@@ -160,7 +161,7 @@ int launch_local_workers(const LaunchOptions& o) {
   std::vector<bool> done(size_t(o.nproc), false);
   int running = o.nproc, forwarded = 0, failed_rank = -1;
   bool stopped = false;  // a worker ended with 128 + the forwarded signal
-  Clock::time_point kill_at = Clock::time_point::max();
+  Clock::time_point kill_at = Clock::time_point::max(), term_again_at = Clock::time_point::max();
   auto signal_running = [&](int sig) {
     for (int r = 0; r < o.nproc; ++r)
       if (!done[size_t(r)]) kill(pids[size_t(r)], sig);
@@ -168,6 +169,18 @@ int launch_local_workers(const LaunchOptions& o) {
   while (running > 0) {
     const auto now = Clock::now();
     auto wait_for = std::chrono::milliseconds(500);
+    if (term_again_at != Clock::time_point::max()) {
+      if (now >= term_again_at) {
+        spdlog::error("launcher: {} worker(s) still running {} s after rank {} failed (blocked in a collective with "
+                      "it); ending them", running,
+                      std::chrono::duration_cast<std::chrono::seconds>(o.failure_grace).count(), failed_rank);
+        signal_running(SIGTERM);  // the second: the default action
+        term_again_at = Clock::time_point::max();
+      } else {
+        wait_for = std::min(wait_for, std::chrono::duration_cast<std::chrono::milliseconds>(term_again_at - now) +
+                                          std::chrono::milliseconds(1));
+      }
+    }
     if (kill_at != Clock::time_point::max()) {
       if (now >= kill_at) {
         spdlog::error("launcher: {} worker(s) still running {} s after SIGTERM; sending SIGKILL", running,
@@ -207,7 +220,10 @@ int launch_local_workers(const LaunchOptions& o) {
       spdlog::error("launcher: rank {} (pid {}) {}; stopping the other {} worker(s)", r, pid, describe(st), running);
       signal_running(SIGTERM);
       signal_running(SIGCONT);  // a stopped worker must run to see it
-      if (running > 0) kill_at = Clock::now() + o.grace;
+      if (running > 0) {
+        term_again_at = Clock::now() + std::min(o.failure_grace, o.grace);
+        kill_at = Clock::now() + o.grace;
+      }
     }
   }
   sigprocmask(SIG_SETMASK, &old_mask, nullptr);

@@ -13,6 +13,7 @@
 
 #include <torch/torch.h>
 
+#include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/progress.h"
@@ -287,7 +288,17 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     spdlog::info("checkpoint: {}", summary.last_checkpoint);
   };
   // The clean end on every rank (not after an error: a peer may be gone).
+  // The peak GPU memory of every rank is logged by rank 0 (what a cluster job
+  // must fit in per GPU).
   auto finish = [&] {
+    if (device.is_cuda()) {
+      std::vector<double> peaks(size_t(env.world_size), 0.0);
+      peaks[size_t(env.rank)] = peak_memory_gib(device);
+      if (dp) peaks = dp->sum(peaks);
+      std::string list;
+      for (size_t r = 0; r < peaks.size(); ++r) list += fmt::format("{}{:.2f}", r ? ", " : "", peaks[r]);
+      spdlog::info("peak GPU memory (GiB, caching allocator) of rank 0..{}: {}", peaks.size() - 1, list);
+    }
     if (dp) dp->finish();
     return summary;
   };
@@ -348,6 +359,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       row.push_back({"skipped", ok ? 0.0 : 1.0});
       row.push_back({"triangles", double(res.triangles)});
       row.push_back({"step_seconds", seconds});
+      if (device.is_cuda()) row.push_back({"peak_memory_gib", peak_memory_gib(device)});
       metrics->write("train", step, row);
       progress->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
     }

@@ -8,7 +8,9 @@
 //     reaches them once, through the launcher);
 //   - the first worker to fail (nonzero exit or a signal) is named with its
 //     exit status or signal; the others get SIGTERM (and SIGCONT, should they
-//     be stopped), and SIGKILL after `grace`;
+//     be stopped), a second SIGTERM after `failure_grace` (it ends a rank at
+//     once: one blocked in a collective with the failed rank, say a GPU
+//     stream waiting on NCCL, never sees the first), and SIGKILL after `grace`;
 //   - a worker whose launcher dies gets SIGTERM from the kernel
 //     (PR_SET_PDEATHSIG): it checkpoints and stops as if asked.
 //
@@ -23,10 +25,12 @@ namespace flat::distributed {
 
 struct LaunchOptions {
   int nproc = 1;
+  std::string program;            // the workers' binary; "": this one (/proc/self/exe)
   std::vector<std::string> args;  // the workers' arguments (argv[1..], without --nproc)
   std::string master_addr = "127.0.0.1";
   int port = 0;  // 0: MASTER_PORT when set, else a free port picked here
-  std::chrono::milliseconds grace{30000};  // SIGTERM -> SIGKILL for the other workers after a failure
+  std::chrono::milliseconds failure_grace{10000};  // first -> second SIGTERM for the others after a failure
+  std::chrono::milliseconds grace{30000};          // SIGTERM -> SIGKILL for the other workers after a failure
 };
 
 int launch_local_workers(const LaunchOptions& options);

@@ -1,0 +1,119 @@
+#!/usr/bin/env bash
+# Data-parallel training over NCCL on a multi-GPU machine (docs/benchmarks.md,
+# "Data-parallel training over NCCL"). Run on the GPU machine from the repo
+# root, after a build (scripts/gpu_check.sh or GPU_BUILD_DIR):
+#
+#   bash scripts/gpu_data_parallel.sh
+#
+# For each stage in DP_STAGES (default 1), on synthetic rooms with random-weight
+# dim-96 latents, from scratch weights with random LPIPS weights:
+#   1. scaling: flat_train with 1 sample per GPU on 1, 2, ... GPUs (DP_NPROCS,
+#      default "1 <all GPUs>"), DP_STEPS steps each: median step time after the
+#      first DP_SKIP steps, samples/s, scaling efficiency, peak memory per rank;
+#   2. equivalence: one GPU with the combined batch, twice (its run-to-run
+#      spread is the noise floor), against the W-GPU run: the losses of the
+#      first steps;
+#   3. (stage 1 only) a W-rank run with rank 1 SIGKILLed mid-run: seconds until
+#      the launcher exits and its message; then --resume on all ranks.
+# Everything goes to $OUT (dp_*.log, dp_summary.txt).
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+NGPU=$(nvidia-smi -L | wc -l)
+NPROCS="${DP_NPROCS:-1 $NGPU}"
+STEPS="${DP_STEPS:-30}"
+SKIP="${DP_SKIP:-5}"
+W="${NPROCS##* }"               # the largest count: the equivalence and kill runs
+WORK="${DP_WORK:-/tmp/flat_dp}"; rm -rf "$WORK"; mkdir -p "$WORK"
+SUM="$OUT/dp_summary.txt"; : >"$SUM"
+say() { echo "$*" | tee -a "$SUM"; }
+# NVLink multicast stays off on shared hosts (the device notes); inherited by the workers.
+export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1
+
+say "== data-parallel runs: $(nvidia-smi --query-gpu=name --format=csv,noheader | sort | uniq -c | xargs), commit ${FLAT_COMMIT:-$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null)}, $(date -u +%F)"
+
+# Median of step_seconds after the first $SKIP steps of a run folder's metrics.
+median_step() {
+  python3 - "$1/metrics/train.jsonl" "$SKIP" <<'EOF'
+import json, statistics, sys
+rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
+s = [r["step_seconds"] for r in rows if r["step"] >= int(sys.argv[2])]
+print(f"{statistics.median(s):.4f}")
+EOF
+}
+peaks() { grep -oE "peak GPU memory.*" "$1" | tail -1 | sed 's/.*: //'; }
+
+LPIPS="$WORK/random_lpips.safetensors"
+for stage in ${DP_STAGES:-1}; do
+  case $stage in
+    1) size=176x320; frames=17 ;;
+    2) size=176x320; frames=49 ;;
+    3) size=360x640; frames=49 ;;
+    4) size=432x768; frames=49 ;;
+  esac
+  D="$WORK/data$stage"
+  { "$BUILD/flat_synth" --out "$D" --scenes 8 --seed $stage --family room --frames $frames --size $size --motion mixed &&
+    "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda --precision bf16 &&
+    # The random LPIPS file (flat_bench train writes it; 1 timed step).
+    "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 1 --steps 1 \
+      --set "data.datasets=[{root: $D}]" --set validation.datasets=[] && cp /tmp/flat_bench_random_lpips.safetensors "$LPIPS"; } \
+    >"$OUT/dp_data_$stage.log" 2>&1 || { say "stage $stage: data preparation failed"; tail -20 "$OUT/dp_data_$stage.log"; continue; }
+  # One flat_train run: name, ranks, global batch, steps, extra --set args.
+  train() {
+    local name=$1 n=$2 batch=$3 steps=$4; shift 4
+    local nproc=(); [ "$n" -gt 1 ] && nproc=(--nproc "$n")
+    rm -rf "$WORK/$name"
+    "$BUILD/flat_train" --config configs/stage$stage.yaml "${nproc[@]}" --set run_dir="$WORK/$name" \
+      --set steps=$steps --set data.batch_size=$batch --set init.from=scratch --set "init.path=''" \
+      --set loss.lpips_weights="$LPIPS" --set "data.datasets=[{root: $D}]" --set validation.datasets=[] \
+      --set optim.warmup_steps=0 --set checkpoint.every=1000000 --set log.progress_seconds=30 "$@" \
+      >"$OUT/dp_${name}.log" 2>&1
+  }
+  say "-- stage $stage ($size, $frames frames), $STEPS steps, median step time after step $SKIP"
+  declare -A sps=()
+  for n in $NPROCS; do
+    train s${stage}_w$n $n $n $STEPS; rc=$?
+    t=$(median_step "$WORK/s${stage}_w$n" 2>/dev/null)
+    [ -n "$t" ] && sps[$n]=$(python3 -c "print(f'{$n/$t:.3f}')")
+    eff=""; [ -n "${sps[1]:-}" ] && [ -n "${sps[$n]:-}" ] && eff=$(python3 -c "print(f'{100*${sps[$n]}/($n*${sps[1]}):.1f}%')")
+    say "$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_s${stage}_w$n.log")"
+  done
+  if [ "$W" -gt 1 ]; then
+    train s${stage}_one_a 1 $W 10
+    train s${stage}_one_b 1 $W 10
+    python3 - "$WORK/s${stage}_one_a" "$WORK/s${stage}_one_b" "$WORK/s${stage}_w$W" "$W" <<'EOF' | tee -a "$SUM"
+import json, sys
+def losses(d):
+    return {json.loads(l)["step"]: json.loads(l)["loss"] for l in open(d + "/metrics/train.jsonl") if l.strip()}
+a, b, w = (losses(d) for d in sys.argv[1:4])
+print(f"losses of the first steps, global batch {sys.argv[4]}: 1 GPU (run a), 1 GPU (run b), {sys.argv[4]} GPUs; rel. gaps")
+for s in sorted(a)[:10]:
+    if s in b and s in w:
+        print(f"  step {s:2d}: {a[s]:.6f} {b[s]:.6f} {w[s]:.6f}   a-b {abs(a[s]-b[s])/abs(a[s]):.2e}   a-W {abs(a[s]-w[s])/abs(a[s]):.2e}")
+EOF
+  fi
+  if [ "$stage" = 1 ] && [ "$W" -gt 1 ]; then
+    # Kill rank 1 once the run has checkpointed (checkpoint.every 10) and gone on.
+    name=s1_kill; rm -rf "$WORK/$name"
+    train $name $W $W 100000 --set checkpoint.every=10 &
+    launcher=$!
+    for i in $(seq 1 240); do
+      n=$(wc -l <"$WORK/$name/metrics/train.jsonl" 2>/dev/null || echo 0)
+      [ "$n" -ge 25 ] && break; sleep 0.5
+    done
+    victim=""
+    for p in $(pgrep -f "run_dir=$WORK/$name"); do
+      tr '\0' '\n' <"/proc/$p/environ" 2>/dev/null | grep -qx "RANK=1" && victim=$p
+    done
+    t0=$(date +%s.%N); kill -9 "$victim"; wait $launcher; rc=$?; t1=$(date +%s.%N)
+    say "kill: rank 1 (pid $victim) SIGKILLed after $(wc -l <"$WORK/$name/metrics/train.jsonl") logged steps; launcher exit $rc after $(python3 -c "print(f'{$t1-$t0:.1f}')") s"
+    grep -E "rank 1|error|killed" "$OUT/dp_$name.log" | tail -4 | sed 's/^/  /' | tee -a "$SUM"
+    ls "$WORK/$name/checkpoints" | sed 's/^/  checkpoint: /' | tee -a "$SUM"
+    last=$(ls "$WORK/$name/checkpoints" | grep -oE '[0-9]+' | sort -n | tail -1); last=$((10#$last))
+    "$BUILD/flat_train" --resume "$WORK/$name" --nproc $W --set steps=$((last + 10)) >"$OUT/dp_${name}_resume.log" 2>&1
+    say "resume --nproc $W rc=$?: $(grep -oE 'resume: .*' "$OUT/dp_${name}_resume.log" | head -1); $(grep -oE "finished: .*" "$OUT/dp_${name}_resume.log" | tail -1)"
+  fi
+  unset sps
+done
+say "== end"
