@@ -15,6 +15,9 @@
 #      first steps;
 #   3. (stage 1 only) a W-rank run with rank 1 SIGKILLed mid-run: seconds until
 #      the launcher exits and its message; then --resume on all ranks.
+# Knobs: DP_STAGES, DP_NPROCS, DP_STEPS, DP_SKIP, DP_SCENES (synthetic rooms,
+# default 8), DP_PARTS (default "scaling equivalence kill"), DP_SETS (extra
+# flat_train overrides for every run, e.g. "precision=fp32"), DP_TAG (log name suffix).
 # Everything goes to $OUT (dp_*.log, dp_summary.txt).
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -25,8 +28,11 @@ NPROCS="${DP_NPROCS:-1 $NGPU}"
 STEPS="${DP_STEPS:-30}"
 SKIP="${DP_SKIP:-5}"
 W="${NPROCS##* }"               # the largest count: the equivalence and kill runs
-WORK="${DP_WORK:-/tmp/flat_dp}"; rm -rf "$WORK"; mkdir -p "$WORK"
-SUM="$OUT/dp_summary.txt"; : >"$SUM"
+WORK="${DP_WORK:-/tmp/flat_dp}"; mkdir -p "$WORK"   # the data of an earlier call are reused
+PARTS="${DP_PARTS:-scaling equivalence kill}"
+TAG="${DP_TAG:-}"
+SETS=(); for kv in ${DP_SETS:-}; do SETS+=(--set "$kv"); done
+SUM="$OUT/dp_summary$TAG.txt"; : >"$SUM"
 say() { echo "$*" | tee -a "$SUM"; }
 # NVLink multicast stays off on shared hosts (the device notes); inherited by the workers.
 export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1
@@ -52,13 +58,13 @@ for stage in ${DP_STAGES:-1}; do
     3) size=360x640; frames=49 ;;
     4) size=432x768; frames=49 ;;
   esac
-  D="$WORK/data$stage"
-  { "$BUILD/flat_synth" --out "$D" --scenes 8 --seed $stage --family room --frames $frames --size $size --motion mixed &&
+  D="$WORK/data${stage}_${DP_SCENES:-8}"
+  [ -e "$D/.ready" ] || { rm -rf "$D" && "$BUILD/flat_synth" --out "$D" --scenes ${DP_SCENES:-8} --seed $stage --family room --frames $frames --size $size --motion mixed &&
     "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda --precision bf16 &&
     # The random LPIPS file (flat_bench train writes it; 1 timed step).
     "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 1 --steps 1 \
-      --set "data.datasets=[{root: $D}]" --set validation.datasets=[] && cp /tmp/flat_bench_random_lpips.safetensors "$LPIPS"; } \
-    >"$OUT/dp_data_$stage.log" 2>&1 || { say "stage $stage: data preparation failed"; tail -20 "$OUT/dp_data_$stage.log"; continue; }
+      --set "data.datasets=[{root: $D}]" --set validation.datasets=[] "${SETS[@]}" && cp /tmp/flat_bench_random_lpips.safetensors "$LPIPS" && touch "$D/.ready"; } \
+    >"$OUT/dp_data_$stage$TAG.log" 2>&1 || { say "stage $stage: data preparation failed"; tail -20 "$OUT/dp_data_$stage$TAG.log"; continue; }
   # One flat_train run: name, ranks, global batch, steps, extra --set args.
   train() {
     local name=$1 n=$2 batch=$3 steps=$4; shift 4
@@ -67,19 +73,22 @@ for stage in ${DP_STAGES:-1}; do
     "$BUILD/flat_train" --config configs/stage$stage.yaml "${nproc[@]}" --set run_dir="$WORK/$name" \
       --set steps=$steps --set data.batch_size=$batch --set init.from=scratch --set "init.path=''" \
       --set loss.lpips_weights="$LPIPS" --set "data.datasets=[{root: $D}]" --set validation.datasets=[] \
-      --set optim.warmup_steps=0 --set checkpoint.every=1000000 --set log.progress_seconds=30 "$@" \
-      >"$OUT/dp_${name}.log" 2>&1
+      --set optim.warmup_steps=0 --set checkpoint.every=1000000 --set log.progress_seconds=30 "${SETS[@]}" "$@" \
+      >"$OUT/dp_${name}$TAG.log" 2>&1
   }
-  say "-- stage $stage ($size, $frames frames), $STEPS steps, median step time after step $SKIP"
+  say "-- stage $stage ($size, $frames frames${DP_SETS:+, $DP_SETS})"
   declare -A sps=()
+  [[ " $PARTS " == *" scaling "* ]] && say "scaling: $STEPS steps, median step time after step $SKIP"
   for n in $NPROCS; do
+    [[ " $PARTS " == *" scaling "* ]] || break
     train s${stage}_w$n $n $n $STEPS; rc=$?
     t=$(median_step "$WORK/s${stage}_w$n" 2>/dev/null)
     [ -n "$t" ] && sps[$n]=$(python3 -c "print(f'{$n/$t:.3f}')")
     eff=""; [ -n "${sps[1]:-}" ] && [ -n "${sps[$n]:-}" ] && eff=$(python3 -c "print(f'{100*${sps[$n]}/($n*${sps[1]}):.1f}%')")
-    say "$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_s${stage}_w$n.log")"
+    say "$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_s${stage}_w$n$TAG.log")"
   done
-  if [ "$W" -gt 1 ]; then
+  if [ "$W" -gt 1 ] && [[ " $PARTS " == *" equivalence "* ]]; then
+    [[ " $PARTS " == *" scaling "* ]] || train s${stage}_w$W $W $W 10
     train s${stage}_one_a 1 $W 10
     train s${stage}_one_b 1 $W 10
     python3 - "$WORK/s${stage}_one_a" "$WORK/s${stage}_one_b" "$WORK/s${stage}_w$W" "$W" <<'EOF' | tee -a "$SUM"
@@ -93,14 +102,15 @@ for s in sorted(a)[:10]:
         print(f"  step {s:2d}: {a[s]:.6f} {b[s]:.6f} {w[s]:.6f}   a-b {abs(a[s]-b[s])/abs(a[s]):.2e}   a-W {abs(a[s]-w[s])/abs(a[s]):.2e}")
 EOF
   fi
-  if [ "$stage" = 1 ] && [ "$W" -gt 1 ]; then
-    # Kill rank 1 once the run has checkpointed (checkpoint.every 10) and gone on.
-    name=s1_kill; rm -rf "$WORK/$name"
-    train $name $W $W 100000 --set checkpoint.every=10 &
+  if [ "$W" -gt 1 ] && [[ " $PARTS " == *" kill "* ]]; then
+    # Kill rank 1 once the run has checkpointed twice and gone on.
+    every=${DP_KILL_EVERY:-10}
+    name=s${stage}_kill; rm -rf "$WORK/$name"
+    train $name $W $W 100000 --set checkpoint.every=$every &
     launcher=$!
-    for i in $(seq 1 240); do
-      n=$(wc -l <"$WORK/$name/metrics/train.jsonl" 2>/dev/null || echo 0)
-      [ "$n" -ge 25 ] && break; sleep 0.5
+    for i in $(seq 1 1200); do
+      n=$(cat "$WORK/$name/metrics/train.jsonl" 2>/dev/null | wc -l)
+      [ "$n" -ge $((2 * every + 5)) ] && break; sleep 0.5
     done
     victim=""
     for p in $(pgrep -f "run_dir=$WORK/$name"); do
@@ -108,11 +118,11 @@ EOF
     done
     t0=$(date +%s.%N); kill -9 "$victim"; wait $launcher; rc=$?; t1=$(date +%s.%N)
     say "kill: rank 1 (pid $victim) SIGKILLed after $(wc -l <"$WORK/$name/metrics/train.jsonl") logged steps; launcher exit $rc after $(python3 -c "print(f'{$t1-$t0:.1f}')") s"
-    grep -E "rank 1|error|killed" "$OUT/dp_$name.log" | tail -4 | sed 's/^/  /' | tee -a "$SUM"
+    grep -E "rank 1|error|killed" "$OUT/dp_$name$TAG.log" | tail -4 | sed 's/^/  /' | tee -a "$SUM"
     ls "$WORK/$name/checkpoints" | sed 's/^/  checkpoint: /' | tee -a "$SUM"
     last=$(ls "$WORK/$name/checkpoints" | grep -oE '[0-9]+' | sort -n | tail -1); last=$((10#$last))
-    "$BUILD/flat_train" --resume "$WORK/$name" --nproc $W --set steps=$((last + 10)) >"$OUT/dp_${name}_resume.log" 2>&1
-    say "resume --nproc $W rc=$?: $(grep -oE 'resume: .*' "$OUT/dp_${name}_resume.log" | head -1); $(grep -oE "finished: .*" "$OUT/dp_${name}_resume.log" | tail -1)"
+    "$BUILD/flat_train" --resume "$WORK/$name" --nproc $W --set steps=$((last + every)) >"$OUT/dp_${name}_resume$TAG.log" 2>&1
+    say "resume --nproc $W rc=$?: $(grep -oE 'resume: .*' "$OUT/dp_${name}_resume$TAG.log" | head -1); $(grep -oE "finished: .*" "$OUT/dp_${name}_resume$TAG.log" | tail -1)"
   fi
   unset sps
 done
