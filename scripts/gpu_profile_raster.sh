@@ -9,7 +9,10 @@
 #   4. Nsight Compute counters of one launch (middle view) of each kernel.
 # Usage there (repo root, .deps and .anchor carried):
 #   bash scripts/gpu_profile_raster.sh            RASTER_WORKLOADS="anchor-large anchor-small"
-#   RASTER_NCU=0 skips step 4; RASTER_NCU_KERNELS picks the kernels (regexes).
+#   RASTER_NCU=0 skips step 4; RASTER_NCU_KERNELS picks the kernels (regexes);
+#   RASTER_BENCH=0 skips step 3; RASTER_NCU_SOURCE=1 makes step 4 a stall
+#   sampling report per source line instead (built with -lineinfo):
+#   $OUT/ncu_source.tgz holds, per kernel, the SASS + CUDA source page as CSV.
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
@@ -21,7 +24,8 @@ t0=$(date +%s)
 targets="flat_bench"
 [ "${RASTER_TESTS:-0}" = 1 ] && targets="$targets flat_test_render flat_test_bench"
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
+  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
+  ${RASTER_NCU_SOURCE:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
 ninja -C "$BUILD" $targets >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
 echo "== built $targets in $(( $(date +%s) - t0 )) s"
@@ -44,12 +48,28 @@ if [ -f "$ROOT/.anchor/export_workload.py" ]; then
     fi
   done
 fi
-"$B" raster --workload $WORKLOADS --repeats ${RASTER_REPEATS:-7} --profile >"$OUT/bench_raster.log" 2>&1
-echo "== bench rc=$?"; cat "$OUT/bench_raster.log" | grep -vE "^\[" | head -60
-grep -E "per view" "$OUT/bench_raster.log"
+if [ "${RASTER_BENCH:-1}" = 1 ]; then
+  "$B" raster --workload $WORKLOADS --repeats ${RASTER_REPEATS:-7} --profile >"$OUT/bench_raster.log" 2>&1
+  echo "== bench rc=$?"; cat "$OUT/bench_raster.log" | grep -vE "^\[" | head -60
+  grep -E "per view" "$OUT/bench_raster.log"
+fi
 [ "${RASTER_NCU:-1}" = 0 ] && exit 0
 command -v ncu >/dev/null || { echo "no ncu"; exit 0; }
 first=$(echo $WORKLOADS | awk '{print $1}')
+if [ -n "${RASTER_NCU_SOURCE:-}" ]; then
+  S=/tmp/ncu_source; rm -rf "$S"; mkdir -p "$S"
+  for k in ${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel}; do
+    timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 --import-source yes \
+      --section SourceCounters --section WarpStateStats --section LaunchStats --section Occupancy \
+      -o "$S/$k" "$B" raster --workload $first --repeats 1 >"$S/$k.log" 2>&1
+    echo "== $k rc=$?"
+    ncu -i "$S/$k.ncu-rep" --page details >"$S/$k.details.txt" 2>&1
+    ncu -i "$S/$k.ncu-rep" --page source --csv --print-source cuda,sass >"$S/$k.source.csv" 2>&1
+    grep -E "Duration|Warp Cycles Per Issued|Stall|Registers Per|Achieved Occupancy" "$S/$k.details.txt" | head -20
+  done
+  tar czf "$OUT/ncu_source.tgz" -C "$S" . ; ls -la "$OUT/ncu_source.tgz"
+  exit 0
+fi
 for k in ${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel cull_kernel screen_kernel duplicate_kernel chain_kernel Onesweep}; do
   timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 \
     --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \

@@ -7,6 +7,7 @@
 #include <string>
 #include <utility>
 
+#include <spdlog/spdlog.h>
 #include <torch/csrc/distributed/c10d/Backend.hpp>
 
 #include "flat/core/error.h"
@@ -31,6 +32,14 @@ class C10dProcessGroup : public ProcessGroup {
     c10d::BroadcastOptions o;
     o.rootRank = root;
     Pending(this, "broadcast", [&] { return backend_->broadcast(v, o); }).wait();
+  }
+  void close_backend() override {
+    try {
+      backend_->shutdown();
+    } catch (const std::exception& e) {
+      failed_ = true;  // leave it alone in the destructor too
+      spdlog::warn("distributed ({}): rank {}: shutting the backend down failed: {}", name_, rank(), e.what());
+    }
   }
   std::unique_ptr<Work> allreduce_sum_async(at::Tensor& tensor) override {
     std::vector<at::Tensor> v{tensor};

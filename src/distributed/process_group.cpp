@@ -32,6 +32,7 @@ std::unique_ptr<Work> ProcessGroup::allreduce_sum_async(at::Tensor& tensor) {
 std::string ProcessGroup::diagnose_peers() { return watch_ ? watch_->diagnose() : std::string(); }
 
 void ProcessGroup::shutdown() {
+  close_backend();
   if (watch_) watch_->finish();
 }
 

@@ -79,6 +79,11 @@ class ProcessGroup {
   // Used by init_process_group.
   void set_peer_watch(std::unique_ptr<detail::PeerWatch> watch);
 
+ protected:
+  // The backend's own clean end, first thing in shutdown() (NCCL frees its
+  // communicators; without it c10d warns at exit that none was destroyed).
+  virtual void close_backend() {}
+
  private:
   int64_t rank_, world_size_;
   std::unique_ptr<detail::PeerWatch> watch_;
