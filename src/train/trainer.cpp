@@ -164,6 +164,11 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   at::Device device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
   if (device.is_cuda() && env.distributed()) {
     device = at::Device(at::kCUDA, static_cast<c10::DeviceIndex>(env.local_rank));
+    const int64_t gpus = torch::cuda::is_available() ? int64_t(torch::cuda::device_count()) : 0;
+    FLAT_CHECK(env.local_rank < gpus, "distributed: rank " + std::to_string(env.rank) + " has LOCAL_RANK " +
+                                          std::to_string(env.local_rank) + " but this host shows " +
+                                          std::to_string(gpus) + " CUDA device(s): start at most that many ranks "
+                                          "per host (--nproc, --nproc-per-node) or check CUDA_VISIBLE_DEVICES");
     c10::impl::getDeviceGuardImpl(at::kCUDA)->setDevice(device);
   }
   std::unique_ptr<DataParallel> dp;

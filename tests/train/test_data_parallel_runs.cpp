@@ -316,3 +316,22 @@ TEST_CASE("flat_train --nproc 2: a stopped (hung) rank is named by the other wit
   CHECK(all_gone(workers));
   std::printf("flat_train --nproc 2: rank 1 SIGSTOPped, the run ended after %.1f s (timeout 5 s)\n", seconds);
 }
+
+TEST_CASE("flat_train: a LOCAL_RANK beyond this host's GPUs fails at once, naming the rank and the count",
+          "[train][distributed]") {
+  // Rank 100 of 101 on a host that shows fewer than 101 GPUs: it must
+  // fail before the rendezvous (rank 0 never comes), not wait for the timeout
+  // or die in a CUDA call.
+  const std::string d = fresh_dir("dp_local_rank").string();
+  const auto t0 = std::chrono::steady_clock::now();
+  const int rc = run({binary("flat_train"), "--config", write_config(d, 2), "--set", "device=cuda"}, d + "/log.txt",
+                     {"RANK=100", "LOCAL_RANK=100", "WORLD_SIZE=101", "MASTER_ADDR=127.0.0.1",
+                      "MASTER_PORT=" + std::to_string(flat::test::free_port())});
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const std::string log = read_file(d + "/log.txt");
+  INFO(log);
+  CHECK(rc != 0);
+  CHECK(log.find("rank 100 has LOCAL_RANK 100 but this host shows") != std::string::npos);
+  CHECK(seconds < 30.0);  // the rendezvous timeout is 60 s
+  CHECK_FALSE(fs::exists(d + "/run"));
+}
