@@ -127,6 +127,19 @@ Child start_two_ranks(const std::string& d, int64_t rows, const std::vector<std:
   return launcher;
 }
 
+// Sends `sig` to the worker of rank `rank` and waits (up to 120 s) for the
+// launcher: its exit code and the seconds from the signal to its end.
+struct LauncherEnd {
+  int rc;
+  double seconds;
+};
+LauncherEnd signal_worker(const Child& launcher, const std::map<int, pid_t>& workers, int rank, int sig) {
+  REQUIRE(kill(workers.at(rank), sig) == 0);
+  const auto sent = std::chrono::steady_clock::now();
+  const int rc = wait_bounded(launcher, 120);
+  return {rc, std::chrono::duration<double>(std::chrono::steady_clock::now() - sent).count()};
+}
+
 }  // namespace
 
 TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one process on the combined batch",
@@ -238,10 +251,7 @@ TEST_CASE("flat_train --nproc 2: a SIGKILLed rank ends the run naming it; --resu
   Child launcher = start_two_ranks(d, 3);  // a checkpoint at step 2 exists
   const auto workers = workers_of(launcher.pid);
   REQUIRE(workers.size() == 2);
-  REQUIRE(kill(workers.at(victim), SIGKILL) == 0);
-  const auto killed = std::chrono::steady_clock::now();
-  const int rc = wait_bounded(launcher, 120);
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();
+  const auto [rc, seconds] = signal_worker(launcher, workers, victim, SIGKILL);
   const std::string log = read_file(d + "/log1.txt");
   INFO(log);
   CHECK(rc == 1);
@@ -304,10 +314,7 @@ TEST_CASE("flat_train --nproc 2: a stopped (hung) rank is named by the other wit
   Child launcher = start_two_ranks(d, 3, {"--set", "distributed.timeout_seconds=5"});
   const auto workers = workers_of(launcher.pid);
   REQUIRE(workers.size() == 2);
-  REQUIRE(kill(workers.at(1), SIGSTOP) == 0);
-  const auto stopped = std::chrono::steady_clock::now();
-  const int rc = wait_bounded(launcher, 120);
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - stopped).count();
+  const auto [rc, seconds] = signal_worker(launcher, workers, 1, SIGSTOP);
   const std::string log = read_file(d + "/log1.txt");
   INFO(log);
   CHECK(rc == 1);
