@@ -1,21 +1,27 @@
-// Backward compositing: one block per 8x8 tile, one thread per pixel; the
-// tile's triangles are staged back to front in batches of 32, each batch in
-// three phases (as the forward, render/cuda/raster_forward.cu):
-//   coverage  the batch's (triangle, pixel) candidates, flattened over the
-//             block (render/cuda/tile_candidates.cuh), evaluate the window
+// Backward compositing: one block per 8x8 tile, one thread per pixel, and
+// each of the block's two warps replays the tile's list for its own 8x4 half
+// (render/cuda/tile_pixel.cuh) on its own, as the forward does
+// (render/cuda/raster_forward.cu). Back to front, a round stages the last 16
+// entries of the next 32 that meet the warp's region, in three phases:
+//   coverage  the round's (triangle, pixel) candidates, flattened over the
+//             lanes (render/cuda/tile_candidates.cuh), evaluate the window
 //             once where the fragment lies before the pixel's last blended
 //             entry; where it contributed in the forward (alpha >= alpha_min)
-//             they mark the pixel's 32-bit mask and the triangle's 64-bit
-//             pixel mask, and keep the window value in shared memory;
+//             they mark the pixel's mask and the triangle's 32-bit pixel
+//             mask, and keep the window value in shared memory;
 //   replay    each pixel walks its marked triangles back to front with the
 //             3DGS-style recurrence (as render/cpu/raster_cpu.cpp) and leaves
 //             each fragment's blending weight and dL/dalpha in shared memory;
-//   gradients two threads per triangle take alternate pixels of its mask and
-//             sum its screen gradients (TriGrad, 21 fields) in registers, then
-//             add them to global memory once per (triangle, tile) with 16-byte
-//             atomics (rows padded to kTriGradStride floats).
+//   gradients two lanes per triangle take alternate pixels of its mask and
+//             sum its screen gradients (TriGrad, 21 fields) in registers, add
+//             the two halves with a shuffle and then to global memory once per
+//             (triangle, region) with 16-byte atomics (rows padded to
+//             kTriGradStride floats).
 // The window is evaluated once per fragment; the replay and the gradients
 // reuse its value (recomputing only the cheap affine u_i and the depth).
+// Rounds of 16 triangles, not 32: the per-fragment arrays (weight, dL/dalpha,
+// window value) are most of a warp's shared memory, and halving them lets
+// twice as many warps share an SM.
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
@@ -24,9 +30,10 @@
 namespace flat::render::cuda {
 namespace {
 
-constexpr int kBatch = 32;  // staged triangles per batch: one 32-bit mask per pixel
+constexpr int kBatch = 16;  // staged triangles per round: two lanes each in phase 3
 constexpr int kCh = 8;      // r, g, b, depth, nx, ny, nz, alpha
-static_assert(kBlockSize == 2 * kBatch, "two threads per staged triangle");
+constexpr int kWarps = kBlockSize / 32;
+static_assert(2 * kBatch == 32, "two lanes per staged triangle");
 // Offsets of the TriGrad fields in a flat float array (layout of TriGrad<float>).
 constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGNormal = 13, kGColor = 16, kGOpacity = 19,
               kGSigma = 20;
@@ -82,29 +89,29 @@ __device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& 
   return f;
 }
 
+struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-fragment values
+  SharedTris<kBatch> tri;
+  RegionBox box[kBatch];
+  int start[kBatch + 1];       // candidates of slot j: [start[j], start[j + 1])
+  int pos[kBatch];             // position in the tile's list
+  int32_t k[kBatch];           // visible-list index (row of tri_grads)
+  unsigned int tri_hits[kBatch];  // per slot: region pixels it blends
+  unsigned int hits[32];       // per pixel: slots it blends
+  int last[32];                // per pixel: number of list entries it blended through
+  float G[kCh][32];            // per pixel: upstream gradients
+  float I[kBatch][32];         // per (slot, pixel) fragment: window value,
+  float w[kBatch][32];         //   alpha T,
+  float ga[kBatch][32];        //   and dL/dalpha
+};
+
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
                            const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
-  __shared__ SharedTris<kBatch> sh_tri;
-  __shared__ TileBox sh_box[kBatch];
-  __shared__ int sh_count[kBatch];                   // candidates of staged triangle j
-  __shared__ int sh_start[kBatch + 1];               // candidates of triangle j: [sh_start[j], sh_start[j + 1])
-  __shared__ int32_t sh_k[kBatch];                   // visible-list index (row of tri_grads)
-  __shared__ unsigned long long sh_tri_hits[kBatch];  // per staged triangle: tile pixels it blends
-  __shared__ unsigned int sh_hits[kBlockSize];       // per pixel: staged triangles it blends
-  __shared__ int sh_last[kBlockSize];                // per pixel: number of list entries it blended through
-  __shared__ float sh_G[kCh][kBlockSize];            // per pixel: upstream gradients
-  __shared__ float sh_w[kBatch][kBlockSize];         // per (triangle, pixel) fragment: alpha T
-  __shared__ float sh_ga[kBatch][kBlockSize];        //   and dL/dalpha
-  // The window value of each marked fragment; after the gradient loop the
-  // same memory takes the odd-half partial sums.
-  __shared__ union {
-    float I[kBatch][kBlockSize];
-    float part[kBatch][kTriGradSize];
-  } sh_u;
-  __shared__ int sh_end;
+  __shared__ WarpStage stage[kWarps];
   const TilePixel pix = tile_pixel(vp);
+  WarpStage& sh = stage[pix.warp];
+  const int lane = pix.lane;
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
@@ -118,57 +125,67 @@ __global__ void __launch_bounds__(kBlockSize)
     my_last = in.last[p];
   }
 #pragma unroll
-  for (int c = 0; c < kCh; ++c) sh_G[c][pix.tid] = G[c];
-  sh_last[pix.tid] = my_last;
-  if (pix.tid == 0) sh_end = 0;
-  __syncthreads();
-  atomicMax(&sh_end, my_last);
-  __syncthreads();
-  const int end = sh_end;  // entries [0, end) of the tile list matter to some pixel of the tile
+  for (int c = 0; c < kCh; ++c) sh.G[c][lane] = G[c];
+  sh.last[lane] = my_last;
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float last_alpha = 0.f;
-  const int j_own = pix.tid % kBatch, half = pix.tid / kBatch;  // this thread's triangle and share in phase 3
-  for (int top = end; top > 0; top -= kBatch) {
-    const int lo = max(0, top - kBatch), batch = top - lo;  // stage entries [lo, top)
-    __syncthreads();
-    int count = 0;
-    if (pix.tid < batch) {
-      const int32_t k = ids[range.x + lo + pix.tid];
-      sh_k[pix.tid] = k;
-      sh_tri.put(pix.tid, tris[k]);
-      sh_box[pix.tid] = tile_box(rects[k], pix.tx0, pix.ty0, count);  // rects are clipped to the image
-      sh_tri_hits[pix.tid] = 0ull;
+  const int j_own = lane % kBatch, half = lane / kBatch;  // this lane's slot and share in phase 3
+  // List entries [0, top) remain; entries from the region's furthest last
+  // blended one on matter to none of its pixels.
+  for (int top = __reduce_max_sync(kFullWarp, my_last); top > 0;) {
+    // Stage the last kBatch entries of [top - 32, top) that meet this region.
+    const int e = top - 32 + lane;
+    int count = 0, k = 0;
+    RegionBox box{0u};
+    if (e >= 0) {
+      k = ids[range.x + e];
+      box = region_box(rects[k], pix.wx0, pix.wy0, count);  // rects are clipped to the image
     }
-    if (pix.tid < 32) {  // warp 0 wrote the counts: a warp barrier suffices
-      sh_count[pix.tid] = count;
-      __syncwarp();
-      scan_candidate_counts<kBatch>(pix.tid, sh_count, sh_start);
+    const unsigned touching = __ballot_sync(kFullWarp, count > 0);
+    const int above = __popc(touching & ~lanes_below(lane) & ~(1u << lane));  // touching entries after e
+    const bool taken = count > 0 && above < kBatch;
+    const int batch = min(__popc(touching), kBatch), slot = batch - 1 - above;
+    // The next round ends after the highest touching entry not taken (if any).
+    const int next = __reduce_max_sync(kFullWarp, count > 0 && above == kBatch ? e + 1 : 0);
+    top = __popc(touching) > kBatch ? next : top - 32;
+    if (batch == 0) continue;
+    int total;
+    const int first = warp_exclusive_scan(lane, taken ? count : 0, total);
+    if (taken) {
+      sh.tri.put(slot, tris[k]);
+      sh.box[slot] = box;
+      sh.start[slot] = first;
+      sh.pos[slot] = e;
+      sh.k[slot] = k;
+      sh.tri_hits[slot] = 0u;
     }
-    sh_hits[pix.tid] = 0u;
-    __syncthreads();
+    if (lane >= batch && lane < kBatch) sh.start[lane] = total;
+    if (lane == 0) sh.start[kBatch] = total;
+    sh.hits[lane] = 0u;
+    __syncwarp();
     // Phase 1, coverage.
-    const int candidates = sh_start[kBatch];
-    for (int i = pix.tid; i < candidates; i += kBlockSize) {
+    for (int i = lane; i < total; i += 32) {
       int j, q;
-      candidate<kBatch>(i, sh_start, sh_box, j, q);
-      if (lo + j >= sh_last[q]) continue;  // after the pixel's last blended entry
-      const PixelTri<float> t = sh_tri.get(j);
+      candidate<kBatch>(i, sh.start, sh.box, j, q);
+      if (sh.pos[j] >= sh.last[q]) continue;  // after the pixel's last blended entry
+      const PixelTri<float> t = sh.tri.get(j);
+      const float2 c = region_pixel(pix, q);
       Fragment<float> f;
-      shade(t, pix.tx0 + (q % kTileSize) + 0.5f, pix.ty0 + (q / kTileSize) + 0.5f, 0.f, 0.f, vp.k, f);
+      shade(t, c.x, c.y, 0.f, 0.f, vp.k, f);
       if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
-        sh_u.I[j][q] = f.I;
-        atomicOr(&sh_hits[q], 1u << j);
-        atomicOr(&sh_tri_hits[j], 1ull << q);
+        sh.I[j][q] = f.I;
+        atomicOr(&sh.hits[q], 1u << j);
+        atomicOr(&sh.tri_hits[j], 1u << q);
       }
     }
-    __syncthreads();
-    // Phase 2, replay back to front (highest bit first).
-    for (unsigned int m = sh_hits[pix.tid]; m != 0u;) {
+    __syncwarp();
+    // Phase 2, replay back to front (highest slot first).
+    for (unsigned m = sh.hits[lane]; m != 0u;) {
       const int j = 31 - __clz(m);
       m &= ~(1u << j);
-      const PixelTri<float> t = sh_tri.get(j);
-      const Fragment<float> f = kept_fragment(t, sh_u.I[j][pix.tid], pix.px, pix.py, pix.rx, pix.ry, vp.k);
+      const PixelTri<float> t = sh.tri.get(j);
+      const Fragment<float> f = kept_fragment(t, sh.I[j][lane], pix.px, pix.py, pix.rx, pix.ry, vp.k);
       const float inv_keep = __fdividef(1.f, 1.f - f.alpha);
       T = T * inv_keep;
       const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
@@ -180,46 +197,37 @@ __global__ void __launch_bounds__(kBlockSize)
         last_f[c] = fv[c];
       }
       last_alpha = f.alpha;
-      sh_w[j][pix.tid] = f.alpha * T;
-      sh_ga[j][pix.tid] = g_alpha * T - t_final * inv_keep * bgdot;
+      sh.w[j][lane] = f.alpha * T;
+      sh.ga[j][lane] = g_alpha * T - t_final * inv_keep * bgdot;
     }
-    __syncthreads();
-    // Phase 3, per-triangle gradients: the two threads of triangle j_own take
-    // alternate pixels of its mask.
+    __syncwarp();
+    // Phase 3, per-triangle gradients: the two lanes of slot j_own take
+    // alternate pixels of its mask, then add up through a shuffle.
     float g[kTriGradStride];  // TriGrad's fields, then zeros up to the padded row
 #pragma unroll
     for (int c = 0; c < kTriGradStride; ++c) g[c] = 0.f;
-    const bool own = j_own < batch;
-    const unsigned long long mine = own ? sh_tri_hits[j_own] : 0ull;
-    int n = 0;
-    if (own) {
-      const PixelTri<float> t = sh_tri.get(j_own);
-      for (unsigned long long m = mine; m != 0ull; m &= m - 1ull, ++n) {
+    const unsigned mine = j_own < batch ? sh.tri_hits[j_own] : 0u;
+    if (mine != 0u) {
+      const PixelTri<float> t = sh.tri.get(j_own);
+      int n = 0;
+      for (unsigned m = mine; m != 0u; m &= m - 1u, ++n) {
         if ((n & 1) != half) continue;
-        const int q = __ffsll((long long)m) - 1;
-        const float qx = pix.tx0 + (q % kTileSize) + 0.5f, qy = pix.ty0 + (q / kTileSize) + 0.5f;
-        const float2 qr = pixel_ray(vp, qx, qy);  // bit-identical to that pixel's own ray in phase 2
-        const Fragment<float> f = kept_fragment(t, sh_u.I[j_own][q], qx, qy, qr.x, qr.y, vp.k);
+        const int q = __ffs(m) - 1;
+        const float2 c = region_pixel(pix, q);
+        const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 2
+        const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], c.x, c.y, qr.x, qr.y, vp.k);
         float Gq[kCh];
 #pragma unroll
-        for (int c = 0; c < kCh; ++c) Gq[c] = sh_G[c][q];
-        add_fragment_grads(t, f, qx, qy, qr.x, qr.y, sh_w[j_own][q], sh_ga[j_own][q], Gq, vp.k, g);
+        for (int c2 = 0; c2 < kCh; ++c2) Gq[c2] = sh.G[c2][q];
+        add_fragment_grads(t, f, c.x, c.y, qr.x, qr.y, sh.w[j_own][q], sh.ga[j_own][q], Gq, vp.k, g);
       }
     }
-    // The second half hands its sums to the first, which adds them to global
-    // memory: 16-byte atomics over the padded row.
-    const bool second_any = __syncthreads_or(half == 1 && n > 1);
-    if (half == 1 && own && second_any) {
+    if (__any_sync(kFullWarp, half == 1 && __popc(mine) > 1)) {
 #pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c) sh_u.part[j_own][c] = g[c];
+      for (int c = 0; c < kTriGradSize; ++c) g[c] += __shfl_down_sync(kFullWarp, g[c], kBatch);
     }
-    __syncthreads();
-    if (half == 0 && own && mine != 0ull) {
-      if (second_any) {
-#pragma unroll
-        for (int c = 0; c < kTriGradSize; ++c) g[c] += sh_u.part[j_own][c];
-      }
-      float4* dst = reinterpret_cast<float4*>(tri_grads + (int64_t)kTriGradStride * sh_k[j_own]);
+    if (half == 0 && mine != 0u) {  // 16-byte atomics over the padded row
+      float4* dst = reinterpret_cast<float4*>(tri_grads + (int64_t)kTriGradStride * sh.k[j_own]);
 #pragma unroll
       for (int v = 0; v < kTriGradStride / 4; ++v) {
         const int c = 4 * v;
@@ -227,6 +235,7 @@ __global__ void __launch_bounds__(kBlockSize)
         if (a.x != 0.f || a.y != 0.f || a.z != 0.f || a.w != 0.f) atomicAdd(dst + v, a);
       }
     }
+    __syncwarp();  // this round's reads of the stage before the next round's writes
   }
 }
 

@@ -1,14 +1,17 @@
-// Forward compositing: one block per 8x8 tile, one thread per pixel. The
-// tile's depth-sorted triangles are staged in shared memory in batches of 64,
-// and each batch runs in two phases:
-//   coverage  the batch's (triangle, pixel) candidates, flattened over the
-//             block (render/cuda/tile_candidates.cuh), mark in each pixel's
-//             64-bit mask the triangles whose alpha reaches alpha_min;
+// Forward compositing: one block per 8x8 tile, one thread per pixel, and each
+// of the block's two warps works through the tile's depth-sorted list for its
+// own 8x4 half (render/cuda/tile_pixel.cuh), synchronising only within the
+// warp. Per round the warp reads the next 32 list entries, keeps those whose
+// support rectangle meets its half, stages them in shared memory, and runs
+// two phases:
+//   coverage  the round's (triangle, pixel) candidates, flattened over the
+//             lanes (render/cuda/tile_candidates.cuh), mark in each pixel's
+//             32-bit mask the triangles whose alpha reaches alpha_min;
 //   composite each pixel walks its own marked triangles front to back.
-// Batches of 64, not 32: the staging (a gather of the batch's records from
-// global memory) is latency the block waits through once per batch, and
-// halving the batches outweighed keeping alphas in shared memory for the
-// composite (which costs occupancy); measured on the anchor workload.
+// Why warps and not the block: with block-wide phases, warps that finished a
+// phase waited at the barrier for the busiest one (21% of stall samples,
+// Nsight Compute, docs/benchmarks.md); a warp also stops as soon as its own 32
+// pixels are opaque, and skips the entries that only touch the other half.
 // Same per-pixel semantics as render/cpu/raster_cpu.cpp.
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/shared_tris.cuh"
@@ -18,59 +21,73 @@
 namespace flat::render::cuda {
 namespace {
 
-constexpr int kBatch = kBlockSize;  // one 64-bit mask per pixel
-static_assert(kBatch == 64, "one 64-bit coverage mask per pixel");
+constexpr int kBatch = 32;  // list entries read per round: one 32-bit mask per pixel
+constexpr int kWarps = kBlockSize / 32;
+
+struct WarpStage {  // one warp's staged triangles (slot j) and per-pixel masks
+  SharedTris<kBatch> tri;
+  RegionBox box[kBatch];
+  int start[kBatch + 1];  // candidates of slot j: [start[j], start[j + 1])
+  int pos[kBatch];        // position in the tile's list
+  int32_t id[kBatch];     // triangle id (for max_weight)
+  unsigned int wmax[kBatch];  // max weight bits in this region
+  unsigned int hits[32];      // per pixel: slots with alpha >= alpha_min
+};
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
-  __shared__ SharedTris<kBatch> sh_tri;
-  __shared__ TileBox sh_box[kBatch];
-  __shared__ int sh_count[kBatch];              // candidates of staged triangle j
-  __shared__ int sh_start[kBatch + 1];          // candidates of triangle j: [sh_start[j], sh_start[j + 1])
-  __shared__ int32_t sh_id[kBatch];             // triangle id (for max_weight)
-  __shared__ unsigned int sh_wmax[kBatch];      // per staged triangle: max weight bits in this tile
-  __shared__ unsigned long long sh_hits[kBlockSize];  // per pixel: staged triangles with alpha >= alpha_min
-  __shared__ int sh_done[kBlockSize];           // per pixel: compositing finished
+  __shared__ WarpStage stage[kWarps];
   const TilePixel pix = tile_pixel(vp);
+  WarpStage& sh = stage[pix.warp];
+  const int lane = pix.lane;
   const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
-  const int total = range.y - range.x;
   bool done = !pix.inside;
+  unsigned done_bits = __ballot_sync(kFullWarp, done);
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int last = 0;
-  for (int base = 0; base < total; base += kBatch) {
-    if (__syncthreads_count(done) == kBlockSize) break;
-    const int batch = min(kBatch, total - base);
-    int count = 0;
-    if (pix.tid < batch) {
-      const int32_t k = ids[range.x + base + pix.tid];
-      sh_id[pix.tid] = visible[k];
-      sh_tri.put(pix.tid, tris[k]);
-      sh_box[pix.tid] = tile_box(rects[k], pix.tx0, pix.ty0, count);  // rects are clipped to the image
-      sh_wmax[pix.tid] = 0u;
+  for (int base = range.x; base < range.y && done_bits != kFullWarp; base += kBatch) {
+    // Stage the entries of [base, base + 32) that meet this region, in list order.
+    const int e = base + lane;
+    int count = 0, k = 0;
+    RegionBox box{0u};
+    if (e < range.y) {
+      k = ids[e];
+      box = region_box(rects[k], pix.wx0, pix.wy0, count);  // rects are clipped to the image
     }
-    sh_count[pix.tid] = count;
-    sh_hits[pix.tid] = 0ull;
-    sh_done[pix.tid] = done;
-    __syncthreads();
-    if (pix.tid < 32) scan_candidate_counts<kBatch>(pix.tid, sh_count, sh_start);
-    __syncthreads();
-    const int candidates = sh_start[kBatch];
-    for (int i = pix.tid; i < candidates; i += kBlockSize) {  // coverage
+    const unsigned touching = __ballot_sync(kFullWarp, count > 0);
+    if (touching == 0u) continue;
+    const int batch = __popc(touching), slot = __popc(touching & lanes_below(lane));
+    int total;
+    const int first = warp_exclusive_scan(lane, count, total);
+    if (count > 0) {
+      sh.tri.put(slot, tris[k]);
+      sh.box[slot] = box;
+      sh.start[slot] = first;
+      sh.pos[slot] = e - range.x;
+      sh.id[slot] = visible[k];
+      sh.wmax[slot] = 0u;
+    }
+    if (lane >= batch) sh.start[lane] = total;
+    if (lane == 0) sh.start[kBatch] = total;
+    sh.hits[lane] = 0u;
+    __syncwarp();
+    for (int i = lane; i < total; i += 32) {  // coverage
       int j, p;
-      candidate<kBatch>(i, sh_start, sh_box, j, p);
-      if (sh_done[p]) continue;
-      const PixelTri<float> t = sh_tri.get(j);
+      candidate<kBatch>(i, sh.start, sh.box, j, p);
+      if ((done_bits >> p) & 1u) continue;
+      const PixelTri<float> t = sh.tri.get(j);
+      const float2 c = region_pixel(pix, p);
       Fragment<float> f;
-      shade(t, pix.tx0 + (p % kTileSize) + 0.5f, pix.ty0 + (p / kTileSize) + 0.5f, 0.f, 0.f, vp.k, f);
-      if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh_hits[p], 1ull << j);
+      shade(t, c.x, c.y, 0.f, 0.f, vp.k, f);
+      if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh.hits[p], 1u << j);
     }
-    __syncthreads();
-    for (unsigned long long m = done ? 0ull : sh_hits[pix.tid]; m != 0ull; m &= m - 1ull) {  // composite, front to back
-      const int j = __ffsll((long long)m) - 1;
-      const PixelTri<float> t = sh_tri.get(j);
+    __syncwarp();
+    for (unsigned m = done ? 0u : sh.hits[lane]; m != 0u; m &= m - 1u) {  // composite, front to back
+      const int j = __ffs(m) - 1;
+      const PixelTri<float> t = sh.tri.get(j);
       Fragment<float> f;
       shade(t, pix.px, pix.py, pix.rx, pix.ry, vp.k, f);
       const float test_T = T * (1.f - f.alpha);
@@ -89,12 +106,14 @@ __global__ void __launch_bounds__(kBlockSize)
       acc[6] += w * t.normal[2];
       if (T > 0.5f) median = f.z;
       T = test_T;
-      last = base + j + 1;
+      last = sh.pos[j] + 1;
       // Per-triangle maximum blending weight (non-negative floats order as their bits).
-      atomicMax(&sh_wmax[j], __float_as_uint(w));
+      atomicMax(&sh.wmax[j], __float_as_uint(w));
     }
-    __syncthreads();
-    if (pix.tid < batch && sh_wmax[pix.tid] != 0u) atomicMax(&max_weight_bits[sh_id[pix.tid]], sh_wmax[pix.tid]);
+    __syncwarp();
+    if (lane < batch && sh.wmax[lane] != 0u) atomicMax(&max_weight_bits[sh.id[lane]], sh.wmax[lane]);
+    done_bits = __ballot_sync(kFullWarp, done);
+    __syncwarp();  // this round's reads of the stage before the next round's writes
   }
   if (!pix.inside) return;
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;

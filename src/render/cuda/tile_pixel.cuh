@@ -1,10 +1,17 @@
 // The pixel a compositing thread owns (render/cuda/raster_forward.cu and
 // raster_backward.cu): one 8x8-thread block per 8x8-pixel tile, thread
-// (threadIdx.x, threadIdx.y) on pixel (tile origin + threadIdx).
+// (threadIdx.x, threadIdx.y) on pixel (tile origin + threadIdx). Each of the
+// block's two warps owns one 8x4 half of the tile (its "region": rows 0-3 or
+// 4-7) and works through the tile's list on its own, with no block barrier:
+// the lane is the pixel's index in the region.
 #pragma once
 #include "render/cuda/raster_kernels.h"
 
 namespace flat::render::cuda {
+
+constexpr int kRegionW = kTileSize, kRegionH = 32 / kTileSize;  // one warp's pixels
+static_assert(kRegionW * kRegionH == 32, "a warp's region is 32 pixels");
+constexpr unsigned kFullWarp = 0xffffffffu;
 
 // Camera ray (x, y) with z = 1 through the pixel centre (px, py).
 __device__ __forceinline__ float2 pixel_ray(const ViewParams& vp, float px, float py) {
@@ -12,8 +19,9 @@ __device__ __forceinline__ float2 pixel_ray(const ViewParams& vp, float px, floa
 }
 
 struct TilePixel {
-  int tid;       // thread index in the tile, row-major
-  int tx0, ty0;  // tile origin (pixels)
+  int lane;      // pixel index in the warp's region, row-major
+  int warp;      // 0: rows 0-3 of the tile, 1: rows 4-7
+  int wx0, wy0;  // region origin (pixels)
   int x, y;
   bool inside;   // inside the image (tiles at the right and bottom edges overhang)
   float px, py;  // pixel centre
@@ -22,11 +30,13 @@ struct TilePixel {
 
 __device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp) {
   TilePixel p;
-  p.tid = threadIdx.y * kTileSize + threadIdx.x;
-  p.tx0 = blockIdx.x * kTileSize;
-  p.ty0 = blockIdx.y * kTileSize;
-  p.x = p.tx0 + threadIdx.x;
-  p.y = p.ty0 + threadIdx.y;
+  const int tid = threadIdx.y * kTileSize + threadIdx.x;
+  p.lane = tid & 31;
+  p.warp = tid >> 5;
+  p.wx0 = blockIdx.x * kTileSize;
+  p.wy0 = blockIdx.y * kTileSize + p.warp * kRegionH;
+  p.x = p.wx0 + threadIdx.x;
+  p.y = blockIdx.y * kTileSize + threadIdx.y;
   p.inside = p.x < vp.width && p.y < vp.height;
   p.px = p.x + 0.5f;
   p.py = p.y + 0.5f;
@@ -35,5 +45,12 @@ __device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp) {
   p.ry = r.y;
   return p;
 }
+
+// Centre of pixel q of the region.
+__device__ __forceinline__ float2 region_pixel(const TilePixel& pix, int q) {
+  return make_float2(pix.wx0 + (q % kRegionW) + 0.5f, pix.wy0 + (q / kRegionW) + 0.5f);
+}
+
+__device__ __forceinline__ unsigned lanes_below(int lane) { return (1u << lane) - 1u; }
 
 }  // namespace flat::render::cuda
