@@ -92,7 +92,7 @@ __device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& 
 struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-fragment values
   SharedTris<kBatch> tri;
   RegionBox box[kBatch];
-  int start[kBatch + 1];       // candidates of slot j: [start[j], start[j + 1])
+  int start[kBatch];           // candidates of slot j: [start[j], start[j] + its count)
   int pos[kBatch];             // position in the tile's list
   int32_t k[kBatch];           // visible-list index (row of tri_grads)
   unsigned int tri_hits[kBatch];  // per slot: region pixels it blends
@@ -160,15 +160,14 @@ __global__ void __launch_bounds__(kBlockSize)
       sh.k[slot] = k;
       sh.tri_hits[slot] = 0u;
     }
-    if (lane >= batch && lane < kBatch) sh.start[lane] = total;
-    if (lane == 0) sh.start[kBatch] = total;
     sh.hits[lane] = 0u;
     __syncwarp();
     // Phase 1, coverage.
-    for (int i = lane; i < total; i += 32) {
-      int j, q;
-      candidate<kBatch>(i, sh.start, sh.box, j, q);
-      if (sh.pos[j] >= sh.last[q]) continue;  // after the pixel's last blended entry
+    const int my_start = lane < batch ? sh.start[lane] : total;
+    for (int b = 0; b < total; b += 32) {
+      const WindowCandidate cand = window_candidate(lane, b, my_start, total, sh.start, sh.box);
+      const int j = cand.j, q = cand.p;
+      if (b + lane >= total || sh.pos[j] >= sh.last[q]) continue;  // after the pixel's last blended entry
       const PixelTri<float> t = sh.tri.get(j);
       const float2 c = region_pixel(pix, q);
       Fragment<float> f;

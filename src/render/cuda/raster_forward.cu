@@ -27,7 +27,7 @@ constexpr int kWarps = kBlockSize / 32;
 struct WarpStage {  // one warp's staged triangles (slot j) and per-pixel masks
   SharedTris<kBatch> tri;
   RegionBox box[kBatch];
-  int start[kBatch + 1];  // candidates of slot j: [start[j], start[j + 1])
+  int start[kBatch];      // candidates of slot j: [start[j], start[j] + its count)
   int pos[kBatch];        // position in the tile's list
   int32_t id[kBatch];     // triangle id (for max_weight)
   unsigned int wmax[kBatch];  // max weight bits in this region
@@ -70,14 +70,13 @@ __global__ void __launch_bounds__(kBlockSize)
       sh.id[slot] = visible[k];
       sh.wmax[slot] = 0u;
     }
-    if (lane >= batch) sh.start[lane] = total;
-    if (lane == 0) sh.start[kBatch] = total;
     sh.hits[lane] = 0u;
     __syncwarp();
-    for (int i = lane; i < total; i += 32) {  // coverage
-      int j, p;
-      candidate<kBatch>(i, sh.start, sh.box, j, p);
-      if ((done_bits >> p) & 1u) continue;
+    const int my_start = lane < batch ? sh.start[lane] : total;
+    for (int b = 0; b < total; b += 32) {  // coverage
+      const WindowCandidate cand = window_candidate(lane, b, my_start, total, sh.start, sh.box);
+      const int j = cand.j, p = cand.p;
+      if (b + lane >= total || ((done_bits >> p) & 1u)) continue;
       const PixelTri<float> t = sh.tri.get(j);
       const float2 c = region_pixel(pix, p);
       Fragment<float> f;

@@ -6,7 +6,7 @@
 // triangle one lane left most lanes waiting for the largest (profiled: ~9 of
 // 32 lanes active). Instead an exclusive scan of the per-triangle counts
 // numbers all candidates 0..total-1 and lane l takes candidates l, l + 32,
-// ...; a candidate finds its triangle by binary search over the scan.
+// ...; a candidate finds its triangle from warp votes over the scan.
 #pragma once
 #include "render/cuda/tile_pixel.cuh"
 
@@ -51,19 +51,28 @@ __device__ __forceinline__ int warp_exclusive_scan(int lane, int value, int& tot
   return incl - value;
 }
 
-// Candidate i: its staged triangle j (the last whose start <= i) and region
-// pixel p. start[0..Batch] is the scan in staging order, start[j] = total
-// for unused slots j (so the search never lands on them).
-template <int Batch>
-__device__ __forceinline__ void candidate(int i, const int* start, const RegionBox* boxes, int& j, int& p) {
-  j = 0;
-#pragma unroll
-  for (int step = Batch / 2; step > 0; step >>= 1)
-    if (start[j + step] <= i) j += step;
-  const RegionBox b = boxes[j];
-  const int local = i - start[j];
-  const int dy = b.row_of(local);
-  p = (b.y0() + dy) * kRegionW + b.x0() + (local - dy * b.width());
+// The candidates of one window [b, b + 32), lane l on candidate b + l: its
+// staged slot j (the last whose start <= b + l) and region pixel p. Lanes
+// 0..batch-1 hold my_start = start[lane] (the scan in staging order, slots in
+// ascending start); lanes from batch on pass total. The slot comes from warp
+// votes instead of a binary search over shared memory (five dependent loads):
+// the slots started by b, plus those whose start falls in the window at or
+// before l. Call with the whole warp; lanes whose b + l >= total get a
+// meaningless (j, p) and must not use it.
+struct WindowCandidate {
+  int j, p;
+};
+__device__ __forceinline__ WindowCandidate window_candidate(int lane, int b, int my_start, int total,
+                                                            const int* start, const RegionBox* boxes) {
+  const bool live = my_start < total;  // an unused slot holds total
+  const int before = __popc(__ballot_sync(kFullWarp, live && my_start <= b));
+  const unsigned heads =
+      __reduce_or_sync(kFullWarp, live && my_start > b && my_start < b + 32 ? 1u << (my_start - b) : 0u);
+  const int j = max(0, before - 1 + __popc(heads & ((2u << lane) - 1u)));
+  const RegionBox box = boxes[j];
+  const int local = b + lane - start[j];
+  const int dy = box.row_of(local);
+  return WindowCandidate{j, (box.y0() + dy) * kRegionW + box.x0() + (local - dy * box.width())};
 }
 
 }  // namespace flat::render::cuda
