@@ -57,15 +57,17 @@ FLAT_HD CameraView<T> make_camera_view(const T* w2c, const T* K) {
 
 // What one pixel needs of one triangle (also the shared-memory record on CUDA;
 // 16-byte aligned so that it moves with 128-bit loads: 24 floats with padding).
+// The window's inputs come first: the CUDA coverage pass reads only the first
+// three 16-byte groups.
 template <class T>
 struct alignas(16) PixelTri {
   T sx, sy;          // incenter (pixels)
   T nx[3], ny[3];    // gradient of u_i in pixels
-  T h[3];            // camera-space plane h . X = 1
+  T opacity, sigma;
   T zlo, zhi;        // vertex depth range: per-pixel depth is clamped into it
+  T h[3];            // camera-space plane h . X = 1
   T normal[3];       // camera-space unit normal facing the camera
   T color[3];
-  T opacity, sigma;
 };
 
 // Screen-space support rectangle [x0,x1) x [y0,y1) in pixels and the sort key.

@@ -34,6 +34,7 @@ constexpr int kBatch = 16;  // staged triangles per round: two lanes each in pha
 constexpr int kCh = 8;      // r, g, b, depth, nx, ny, nz, alpha
 constexpr int kWarps = kBlockSize / 32;
 static_assert(2 * kBatch == 32, "two lanes per staged triangle");
+static_assert(kCh == 8, "upstream gradients staged as two float4");
 // Offsets of the TriGrad fields in a flat float array (layout of TriGrad<float>).
 constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGNormal = 13, kGColor = 16, kGOpacity = 19,
               kGSigma = 20;
@@ -98,7 +99,7 @@ struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-f
   unsigned int tri_hits[kBatch];  // per slot: region pixels it blends
   unsigned int hits[32];       // per pixel: slots it blends
   int last[32];                // per pixel: number of list entries it blended through
-  float G[kCh][32];            // per pixel: upstream gradients
+  float4 G[kCh / 4][32];       // per pixel: upstream gradients (two 128-bit loads in phase 3)
   float I[kBatch][32];         // per (slot, pixel) fragment: window value,
   float w[kBatch][32];         //   alpha T,
   float ga[kBatch][32];        //   and dL/dalpha
@@ -125,7 +126,7 @@ __global__ void __launch_bounds__(kBlockSize)
     my_last = in.last[p];
   }
 #pragma unroll
-  for (int c = 0; c < kCh; ++c) sh.G[c][lane] = G[c];
+  for (int c = 0; c < kCh; c += 4) sh.G[c / 4][lane] = make_float4(G[c], G[c + 1], G[c + 2], G[c + 3]);
   sh.last[lane] = my_last;
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
@@ -153,7 +154,7 @@ __global__ void __launch_bounds__(kBlockSize)
     int total;
     const int first = warp_exclusive_scan(lane, taken ? count : 0, total);
     if (taken) {
-      sh.tri.put(slot, tris[k]);
+      sh.tri.put(slot, tris + k);
       sh.box[slot] = box;
       sh.start[slot] = first;
       sh.pos[slot] = e;
@@ -168,7 +169,7 @@ __global__ void __launch_bounds__(kBlockSize)
       const WindowCandidate cand = window_candidate(lane, b, my_start, total, sh.start, sh.box);
       const int j = cand.j, q = cand.p;
       if (b + lane >= total || sh.pos[j] >= sh.last[q]) continue;  // after the pixel's last blended entry
-      const PixelTri<float> t = sh.tri.get(j);
+      const PixelTri<float> t = sh.tri.get_window(j);
       const float2 c = region_pixel(pix, q);
       Fragment<float> f;
       shade(t, c.x, c.y, 0.f, 0.f, vp.k, f);
@@ -215,9 +216,8 @@ __global__ void __launch_bounds__(kBlockSize)
         const float2 c = region_pixel(pix, q);
         const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 2
         const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], c.x, c.y, qr.x, qr.y, vp.k);
-        float Gq[kCh];
-#pragma unroll
-        for (int c2 = 0; c2 < kCh; ++c2) Gq[c2] = sh.G[c2][q];
+        const float4 g0 = sh.G[0][q], g1 = sh.G[1][q];
+        const float Gq[kCh] = {g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w};
         add_fragment_grads(t, f, c.x, c.y, qr.x, qr.y, sh.w[j_own][q], sh.ga[j_own][q], Gq, vp.k, g);
       }
     }

@@ -48,22 +48,28 @@ __global__ void __launch_bounds__(kBlockSize)
   unsigned done_bits = __ballot_sync(kFullWarp, done);
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int last = 0;
+  // The list is read ahead: entry ids two rounds early, their rectangles one
+  // round early, so a round's gathers wait on loads issued a round before
+  // (three dependent global loads per entry: id, rectangle, record).
+  int k_next = range.x + lane < range.y ? ids[range.x + lane] : -1;
+  int k_after = range.x + 32 + lane < range.y ? ids[range.x + 32 + lane] : -1;
+  TriRect r_next = k_next >= 0 ? rects[k_next] : TriRect{0, 0, 0, 0};
   for (int base = range.x; base < range.y && done_bits != kFullWarp; base += kBatch) {
     // Stage the entries of [base, base + 32) that meet this region, in list order.
-    const int e = base + lane;
-    int count = 0, k = 0;
-    RegionBox box{0u};
-    if (e < range.y) {
-      k = ids[e];
-      box = region_box(rects[k], pix.wx0, pix.wy0, count);  // rects are clipped to the image
-    }
+    const int e = base + lane, k = k_next;
+    const TriRect r = r_next;
+    k_next = k_after;
+    r_next = k_next >= 0 ? rects[k_next] : TriRect{0, 0, 0, 0};
+    k_after = base + 64 + lane < range.y ? ids[base + 64 + lane] : -1;
+    int count = 0;
+    const RegionBox box = k >= 0 ? region_box(r, pix.wx0, pix.wy0, count) : RegionBox{0u};  // rects are clipped
     const unsigned touching = __ballot_sync(kFullWarp, count > 0);
     if (touching == 0u) continue;
     const int batch = __popc(touching), slot = __popc(touching & lanes_below(lane));
     int total;
     const int first = warp_exclusive_scan(lane, count, total);
     if (count > 0) {
-      sh.tri.put(slot, tris[k]);
+      sh.tri.put(slot, tris + k);
       sh.box[slot] = box;
       sh.start[slot] = first;
       sh.pos[slot] = e - range.x;
@@ -77,13 +83,14 @@ __global__ void __launch_bounds__(kBlockSize)
       const WindowCandidate cand = window_candidate(lane, b, my_start, total, sh.start, sh.box);
       const int j = cand.j, p = cand.p;
       if (b + lane >= total || ((done_bits >> p) & 1u)) continue;
-      const PixelTri<float> t = sh.tri.get(j);
+      const PixelTri<float> t = sh.tri.get_window(j);
       const float2 c = region_pixel(pix, p);
       Fragment<float> f;
       shade(t, c.x, c.y, 0.f, 0.f, vp.k, f);
       if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh.hits[p], 1u << j);
     }
     __syncwarp();
+    int last_j = -1;
     for (unsigned m = done ? 0u : sh.hits[lane]; m != 0u; m &= m - 1u) {  // composite, front to back
       const int j = __ffs(m) - 1;
       const PixelTri<float> t = sh.tri.get(j);
@@ -105,10 +112,11 @@ __global__ void __launch_bounds__(kBlockSize)
       acc[6] += w * t.normal[2];
       if (T > 0.5f) median = f.z;
       T = test_T;
-      last = sh.pos[j] + 1;
+      last_j = j;
       // Per-triangle maximum blending weight (non-negative floats order as their bits).
       atomicMax(&sh.wmax[j], __float_as_uint(w));
     }
+    if (last_j >= 0) last = sh.pos[last_j] + 1;
     __syncwarp();
     if (lane < batch && sh.wmax[lane] != 0u) atomicMax(&max_weight_bits[sh.id[lane]], sh.wmax[lane]);
     done_bits = __ballot_sync(kFullWarp, done);

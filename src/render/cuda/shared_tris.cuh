@@ -1,9 +1,11 @@
-// A batch of staged PixelTri records in shared memory, stored field-major
-// (structure of arrays): field f of triangle j at v[f][j]. In the compositing
-// kernels different threads read different triangles (a thread per staged
-// triangle, or a pixel reading its own hits); with records laid out one after
-// another (24 words each) triangles j and j + 4 share banks and the reads
-// serialise up to 8 ways, while field-major reads hit distinct banks.
+// A batch of staged PixelTri records in shared memory, in 16-byte groups
+// stored group-major: group g (floats 4g..4g+3) of triangle j at v[g][j]. A
+// record moves with six 128-bit loads and stores instead of 24 scalar ones
+// (the scalar form throttled the shared-memory pipe: "MIO" stalls were 26% of
+// the forward's samples, Nsight Compute, docs/benchmarks.md), and lanes
+// reading different triangles read consecutive 16-byte words, free of bank
+// conflicts. get_window() reads only the window's inputs (PixelTri puts them
+// first), the coverage passes need no more.
 #pragma once
 #include "render/triangle_math.h"
 
@@ -11,19 +13,30 @@ namespace flat::render::cuda {
 
 template <int Batch>
 struct SharedTris {
-  static constexpr int kFields = sizeof(PixelTri<float>) / sizeof(float);
-  float v[kFields][Batch];
+  static constexpr int kGroups = sizeof(PixelTri<float>) / sizeof(float4);
+  static_assert(kGroups * sizeof(float4) == sizeof(PixelTri<float>), "PixelTri is whole 16-byte groups");
+  float4 v[kGroups][Batch];
 
-  __device__ __forceinline__ void put(int j, const PixelTri<float>& t) {
-    const float* f = reinterpret_cast<const float*>(&t);
+  // Copies record src (global memory, 16-byte aligned) into slot j.
+  __device__ __forceinline__ void put(int j, const PixelTri<float>* __restrict__ src) {
+    const float4* s = reinterpret_cast<const float4*>(src);
+    float4 g[kGroups];
 #pragma unroll
-    for (int i = 0; i < kFields; ++i) v[i][j] = f[i];
+    for (int i = 0; i < kGroups; ++i) g[i] = s[i];
+#pragma unroll
+    for (int i = 0; i < kGroups; ++i) v[i][j] = g[i];
   }
-  __device__ __forceinline__ PixelTri<float> get(int j) const {
+  __device__ __forceinline__ PixelTri<float> get(int j) const { return read(j, kGroups); }
+  // sx, sy, nx, ny, opacity, sigma (the rest left unset).
+  __device__ __forceinline__ PixelTri<float> get_window(int j) const { return read(j, 3); }
+
+ private:
+  __device__ __forceinline__ PixelTri<float> read(int j, int groups) const {
     PixelTri<float> t;
-    float* f = reinterpret_cast<float*>(&t);
+    float4* d = reinterpret_cast<float4*>(&t);
 #pragma unroll
-    for (int i = 0; i < kFields; ++i) f[i] = v[i][j];
+    for (int i = 0; i < kGroups; ++i)
+      if (i < groups) d[i] = v[i][j];
     return t;
   }
 };
