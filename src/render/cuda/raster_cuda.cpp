@@ -51,6 +51,8 @@ ViewParams make_params(const RasterInputs& in, const at::Tensor& w2c_cpu, const 
   vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
   vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
   for (int c = 0; c < 3; ++c) vp.background[c] = bg_cpu.data_ptr<float>()[c];
+  vp.inv_fx = 1.f / vp.cam.fx;
+  vp.inv_fy = 1.f / vp.cam.fy;
   return vp;
 }
 

@@ -17,7 +17,7 @@ namespace flat::render::cuda {
 // every triangle of its tile, so small tiles evaluate ~3x fewer per pixel
 // for a modestly longer sort.
 constexpr int kTileSize = 8;
-constexpr int kBlockSize = kTileSize * kTileSize;   // also the shared-memory batch size
+constexpr int kBlockSize = kTileSize * kTileSize;   // two warps, each on one 8x4 half (tile_pixel.cuh)
 
 struct ViewParams {
   CameraView<float> cam;
@@ -25,6 +25,7 @@ struct ViewParams {
   int width = 0, height = 0;
   int tiles_x = 0, tiles_y = 0;
   float background[3] = {0.f, 0.f, 0.f};
+  float inv_fx = 0.f, inv_fy = 0.f;  // 1 / cam.fx, 1 / cam.fy: pixel rays by multiplication
 };
 
 // Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
