@@ -147,12 +147,13 @@ __global__ void __launch_bounds__(kBlockSize, 10)
       box = region_box(rects[k], pix.wx0, pix.wy0, count);  // rects are clipped to the image
     }
     const unsigned touching = __ballot_sync(kFullWarp, count > 0);
+    const int n_touching = __popc(touching);
     const int above = __popc(touching & ~lanes_below(lane) & ~(1u << lane));  // touching entries after e
     const bool taken = count > 0 && above < kBatch;
-    const int batch = min(__popc(touching), kBatch), slot = batch - 1 - above;
+    const int batch = min(n_touching, kBatch), slot = batch - 1 - above;
     // The next round ends after the highest touching entry not taken (if any).
     const int next = __reduce_max_sync(kFullWarp, count > 0 && above == kBatch ? e + 1 : 0);
-    top = __popc(touching) > kBatch ? next : top - 32;
+    top = n_touching > kBatch ? next : top - 32;
     if (batch == 0) continue;
     int total;
     const int first = warp_exclusive_scan(lane, taken ? count : 0, total);
