@@ -59,6 +59,47 @@ __global__ void tile_ranges_kernel(const uint32_t* __restrict__ tiles, int64_t c
   if (i == count - 1 || (int)tiles[i + 1] != tile) ranges[tile].y = (int)(i + 1);
 }
 
+// Counting sort of the tiles into 256 classes of list length, longest
+// first, in one block (a few thousand tiles: one launch instead of a radix
+// sort's several). The order within a class is arbitrary: each tile
+// composites on its own.
+constexpr int kOrderThreads = 1024, kLengthClasses = 256;
+__global__ void __launch_bounds__(kOrderThreads)
+    tile_order_kernel(const int2* __restrict__ ranges, int num_tiles, int32_t* __restrict__ order) {
+  __shared__ int max_len;
+  __shared__ int next[kLengthClasses];  // class sizes, then each class's next free position
+  const int tid = threadIdx.x;
+  if (tid == 0) max_len = 0;
+  for (int c = tid; c < kLengthClasses; c += kOrderThreads) next[c] = 0;
+  __syncthreads();
+  for (int t = tid; t < num_tiles; t += kOrderThreads) atomicMax(&max_len, ranges[t].y - ranges[t].x);
+  __syncthreads();
+  const int64_t classes_per = (int64_t)max_len + 1;
+  auto class_of = [&](int t) {  // 0: the longest lists
+    return kLengthClasses - 1 - (int)((int64_t)(ranges[t].y - ranges[t].x) * kLengthClasses / classes_per);
+  };
+  for (int t = tid; t < num_tiles; t += kOrderThreads) atomicAdd(&next[class_of(t)], 1);
+  __syncthreads();
+  if (tid < 32) {  // exclusive scan of the class sizes: 8 classes per lane
+    constexpr int kPer = kLengthClasses / 32;
+    int sum = 0;
+    for (int i = 0; i < kPer; ++i) sum += next[tid * kPer + i];
+    int incl = sum;
+    for (int d = 1; d < 32; d <<= 1) {
+      const int up = __shfl_up_sync(0xffffffffu, incl, d);
+      if (tid >= d) incl += up;
+    }
+    int start = incl - sum;
+    for (int i = 0; i < kPer; ++i) {
+      const int n = next[tid * kPer + i];
+      next[tid * kPer + i] = start;
+      start += n;
+    }
+  }
+  __syncthreads();
+  for (int t = tid; t < num_tiles; t += kOrderThreads) order[atomicAdd(&next[class_of(t)], 1)] = t;
+}
+
 int blocks_of(int64_t n) { return (int)((n + 255) / 256); }
 
 int bits_for(int values) {
@@ -112,6 +153,11 @@ void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint
                   const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream) {
   cub::DeviceRadixSort::SortPairs(temp, temp_bytes, tiles_in, tiles_out, ids_in, ids_out, (int)count, 0,
                                   bits_for(num_tiles), stream);
+}
+
+void launch_tile_order(const int2* ranges, int num_tiles, int32_t* tile_order, cudaStream_t stream) {
+  if (num_tiles == 0) return;
+  tile_order_kernel<<<1, kOrderThreads, 0, stream>>>(ranges, num_tiles, tile_order);
 }
 
 void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream) {

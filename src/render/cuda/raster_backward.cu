@@ -109,14 +109,16 @@ struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-f
 // (ptxas: 12 bytes of spills) and the largest shared-memory carveout (10 x
 // 18.6 KB); the compiler's 104 registers and the default carveout allowed 8.
 __global__ void __launch_bounds__(kBlockSize, 10)
-    raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
+    raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
+                           const int32_t* __restrict__ ids,
                            const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
   __shared__ WarpStage stage[kWarps];
-  const TilePixel pix = tile_pixel(vp);
+  const int tile = tile_order[blockIdx.x];
+  const TilePixel pix = tile_pixel(vp, tile);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
+  const int2 range = ranges[tile];
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;
@@ -244,15 +246,16 @@ __global__ void __launch_bounds__(kBlockSize, 10)
 
 }  // namespace
 
-void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
+void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
+                            const PixelTri<float>* tris,
                             const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
                             cudaStream_t stream) {
   // Only the backward: the forward's gathers need the L1 that a larger
   // shared-memory carveout takes away (measured: forward 16.7 -> 24.1 ms).
   cudaFuncSetAttribute(raster_backward_kernel, cudaFuncAttributePreferredSharedMemoryCarveout,
                        cudaSharedmemCarveoutMaxShared);
-  const dim3 grid(vp.tiles_x, vp.tiles_y), block(kTileSize, kTileSize);
-  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, vp, in, tri_grads);
+  const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
+  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, in, tri_grads);
 }
 
 }  // namespace flat::render::cuda

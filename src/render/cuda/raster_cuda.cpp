@@ -9,6 +9,8 @@
 
 #include <algorithm>
 #include <limits>
+#include <memory>
+#include <vector>
 
 #include <ATen/cuda/CUDAContext.h>
 #include <ATen/cuda/CUDAEvent.h>
@@ -29,14 +31,17 @@ namespace {
 
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
 // Per view, kept for the backward: sorted ids, tile ranges, final T, last
-// entry, visible list, and the visible triangles' screen data and rectangles
-// (empty when over kKeepScreenBytes: the backward then recomputes them).
-constexpr int64_t kViewState = 7;
+// entry, visible list, the visible triangles' screen data and rectangles
+// (empty when over kKeepScreenBytes: the backward then recomputes them), and
+// the tiles' compositing order.
+constexpr int64_t kViewState = 8;
 // Screen data kept across views, at most (bytes). At the paper's scale (24
 // views, ~1.5M visible triangles each) it all fits and the backward skips 24
 // recomputations (~2.5 ms on an H100); larger renders fall back to
-// recomputing, keeping peak memory bounded.
-constexpr int64_t kKeepScreenBytes = int64_t(4) << 30;
+// recomputing, keeping peak memory bounded. 5 GiB: anchor-large (24 views,
+// 2.5M visible triangles, 282 MB each) keeps 19 of its views and peaks at
+// 7.5 GiB, under its 8 GiB budget (4 GiB kept 15: 1.1 ms slower, 6.5 GiB).
+constexpr int64_t kKeepScreenBytes = int64_t(5) << 30;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
 static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
@@ -62,9 +67,13 @@ void check_sizes(const RasterInputs& in) {
              "rasterize (cuda): at most 2^31-1 triangles, got " + std::to_string(in.vertices.size(0)));
 }
 
-// One view's culling and binning state over all N triangles. Two of them
-// alternate: view v + 1 is culled on a side stream while view v composites,
-// so the host's wait for v + 1's sizes does not leave the GPU idle.
+// One view's culling and binning state over all N triangles. kCullAhead + 1
+// of them take turns: view v + kCullAhead is culled on a side stream while
+// view v is binned and composited, so the host's one wait per view (for the
+// sizes of the view's buffers) finds them ready, and the host can enqueue
+// views ahead of the GPU instead of idling it. (One, two or three views
+// ahead timed the same within run-to-run noise on the H100; two is kept.)
+constexpr int kCullAhead = 2;
 struct CullScratch {
   at::Tensor rects, counts, keys, offsets, visible, num_visible, scan_temp, select_temp;
   at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
@@ -132,10 +141,11 @@ struct ScreenData {
 
 // Sorts one view's visible triangles by depth, writes their (tile, triangle)
 // pairs in that order and sorts those by tile (binning.cu): returns the pairs'
-// visible-list indices, tile by tile, front to back, and fills ranges.
+// visible-list indices, tile by tile, front to back, fills ranges, and puts
+// the tiles in compositing order (heaviest first) into tile_order.
 // depth_bits and order (nv each) are consumed.
 at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd, int64_t count, const ViewParams& vp,
-                       at::Tensor& ranges, cudaStream_t stream) {
+                       at::Tensor& ranges, at::Tensor& tile_order, cudaStream_t stream) {
   const int64_t nv = order.size(0);
   const int num_tiles = vp.tiles_x * vp.tiles_y;
   const auto i32 = order.options();
@@ -148,7 +158,7 @@ at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd
   sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, nv, stream);
   scan_ordered_counts(nullptr, scan_bytes, nullptr, nullptr, nv, stream);
   sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, count, num_tiles, stream);
-  size_t temp_bytes = std::max(depth_bytes, std::max(scan_bytes, tile_bytes));
+  const size_t temp_bytes = std::max({depth_bytes, scan_bytes, tile_bytes});
   at::Tensor temp = at::empty({(int64_t)temp_bytes + 1}, i32.dtype(at::kByte));
   sort_by_depth(temp.data_ptr(), depth_bytes, u32(depth_bits), u32(depth_sorted), order.data_ptr<int>(),
                 order_sorted.data_ptr<int>(), nv, stream);
@@ -164,6 +174,9 @@ at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd
   check_launch("tile sort");
   launch_tile_ranges(u32(tiles_sorted), count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
   check_launch("tile ranges");
+  launch_tile_order(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), num_tiles, tile_order.data_ptr<int>(),
+                    stream);
+  check_launch("tile order");
   return ids_sorted;
 }
 
@@ -189,7 +202,8 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
   RasterOutputs out = RasterOutputs::images_for(in);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  CullScratch scratch[2] = {CullScratch(N, f, stream), CullScratch(N, f, stream)};
+  std::vector<std::unique_ptr<CullScratch>> scratch;
+  for (int i = 0; i <= kCullAhead; ++i) scratch.push_back(std::make_unique<CullScratch>(N, f, stream));
   const c10::cuda::CUDAStream side = c10::cuda::getStreamFromPool(false, in.vertices.device().index());
   at::cuda::CUDAEvent inputs_ready;
   inputs_ready.record(at::cuda::getCurrentCUDAStream());
@@ -199,12 +213,13 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     const c10::cuda::CUDAStream& stream;
     ~SideDrain() { stream.synchronize(); }
   } drain{side};
-  if (N > 0 && V > 0) scratch[0].cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, 0), side);
+  for (int64_t a = 0; N > 0 && a < std::min<int64_t>(kCullAhead, V); ++a)
+    scratch[a]->cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, a), side);
   views.clear();
   int64_t kept_bytes = 0;
   const int64_t HW = H * W;
   for (int64_t v = 0; v < V; ++v) {
-    CullScratch& s = scratch[v % 2];
+    CullScratch& s = *scratch[v % (kCullAhead + 1)];
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     const int num_tiles = vp.tiles_x * vp.tiles_y;
     int64_t count = 0, nv = 0;
@@ -221,17 +236,21 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                    " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
     const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
     ScreenData sd(in, visible, vp, s.rect_ptr(), stream);
-    at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt));
+    at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt)), tile_order;
     at::Tensor depth_bits = at::empty({nv}, f.dtype(at::kInt)), order = at::empty({nv}, f.dtype(at::kInt));
     launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(),
                       reinterpret_cast<uint32_t*>(depth_bits.data_ptr<int>()), order.data_ptr<int>(), stream);
     check_launch("depth keys");
     s.released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
-    if (N > 0 && v + 1 < V) scratch[(v + 1) % 2].cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, v + 1), side);
+    const int64_t ahead = v + kCullAhead;  // its scratch was last read by view v - 1, released above
+    if (N > 0 && ahead < V)
+      scratch[ahead % (kCullAhead + 1)]->cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, ahead), side);
     if (count > 0) {
-      ids_sorted = bin_by_tile(depth_bits, order, sd, count, vp, ranges, stream);
+      tile_order = at::empty({num_tiles}, f.dtype(at::kInt));
+      ids_sorted = bin_by_tile(depth_bits, order, sd, count, vp, ranges, tile_order, stream);
     } else {
       ids_sorted = at::empty({0}, f.dtype(at::kInt));
+      tile_order = at::arange(num_tiles, f.dtype(at::kInt));  // every tile is composited (the background)
     }
     depth_bits = at::Tensor();
     order = at::Tensor();
@@ -240,7 +259,8 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                       out.depth.data_ptr<float>() + v * HW,      out.normal.data_ptr<float>() + v * 3 * HW,
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
                       last.data_ptr<int>()};
-    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids_sorted.data_ptr<int>(),
+    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
+                          ids_sorted.data_ptr<int>(),
                           sd.tri_ptr(), sd.rect_ptr(), visible.data_ptr<int>(), vp, img,
                           reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward rasterization");
@@ -256,7 +276,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
       if (keep) kept_bytes += sd.bytes();
       const at::Tensor none = at::empty({0}, f);
       views.insert(views.end(), {ids_sorted, ranges, t_final, last, visible, keep ? sd.tris : none,
-                                 keep ? sd.rects : none});
+                                 keep ? sd.rects : none, tile_order});
     }
   }
   out.max_weight = max_bits.view(at::kFloat);  // non-negative floats: integer max == float max
@@ -294,7 +314,8 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
                        grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
                        views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>()};
-    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), sd.tri_ptr(),
+    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()),
+                           views[kViewState * v + 7].data_ptr<int>(), ids.data_ptr<int>(), sd.tri_ptr(),
                            sd.rect_ptr(), vp, img, tri_grads.data_ptr<float>(), stream);
     check_launch("backward rasterization");
     launch_chain(in.vertices.data_ptr<float>(), visible.data_ptr<int>(), nv, tri_grads.data_ptr<float>(), vp,

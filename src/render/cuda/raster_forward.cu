@@ -35,15 +35,17 @@ struct WarpStage {  // one warp's staged triangles (slot j) and per-pixel masks
 };
 
 __global__ void __launch_bounds__(kBlockSize)
-    raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
+    raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
+                          const int32_t* __restrict__ ids,
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
   __shared__ WarpStage stage[kWarps];
-  const TilePixel pix = tile_pixel(vp);
+  const int tile = tile_order[blockIdx.x];
+  const TilePixel pix = tile_pixel(vp, tile);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[blockIdx.y * vp.tiles_x + blockIdx.x];
+  const int2 range = ranges[tile];
   bool done = !pix.inside;
   unsigned done_bits = __ballot_sync(kFullWarp, done);
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
@@ -135,11 +137,13 @@ __global__ void __launch_bounds__(kBlockSize)
 
 }  // namespace
 
-void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
+void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
+                           const PixelTri<float>* tris, const TriRect* rects,
                            const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
                            unsigned int* max_weight_bits, cudaStream_t stream) {
-  const dim3 grid(vp.tiles_x, vp.tiles_y), block(kTileSize, kTileSize);
-  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, ids, tris, rects, visible, vp, out, max_weight_bits);
+  const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
+  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, visible, vp, out,
+                                                        max_weight_bits);
 }
 
 }  // namespace flat::render::cuda

@@ -78,6 +78,10 @@ void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint
                   const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
 // ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
 void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
+// The compositing kernels' tile order (block b composites tile
+// tile_order[b]): longest lists first, so that the last wave of blocks holds
+// the short ones (a counting sort into 256 length classes, one block).
+void launch_tile_order(const int2* ranges, int num_tiles, int32_t* tile_order, cudaStream_t stream);
 
 struct ForwardImages {  // one view, channel-major (C,H,W)
   float* rgb;
@@ -90,7 +94,8 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
 };
 
 // ids index the visible list (tris, rects); visible maps them to triangle ids for max_weight.
-void launch_raster_forward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris, const TriRect* rects,
+void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
+                           const PixelTri<float>* tris, const TriRect* rects,
                            const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
                            unsigned int* max_weight_bits, cudaStream_t stream);
 
@@ -109,7 +114,8 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
 // Accumulates TriGrad<float> into tri_grads: one row of kTriGradStride floats
 // per visible-list entry (the kTriGradSize fields, then zeros: rows of whole
 // 16-byte vectors, added with vector atomics).
-void launch_raster_backward(const int2* ranges, const int32_t* ids, const PixelTri<float>* tris,
+void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
+                            const PixelTri<float>* tris,
                             const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
                             cudaStream_t stream);
 

@@ -30,15 +30,16 @@ struct TilePixel {
   float rx, ry;  // camera ray (x, y), z = 1
 };
 
-__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp) {
+__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, int tile) {
   TilePixel p;
   const int tid = threadIdx.y * kTileSize + threadIdx.x;
   p.lane = tid & 31;
   p.warp = tid >> 5;
-  p.wx0 = blockIdx.x * kTileSize;
-  p.wy0 = blockIdx.y * kTileSize + p.warp * kRegionH;
+  const int tx = tile % vp.tiles_x, ty = tile / vp.tiles_x;
+  p.wx0 = tx * kTileSize;
+  p.wy0 = ty * kTileSize + p.warp * kRegionH;
   p.x = p.wx0 + threadIdx.x;
-  p.y = blockIdx.y * kTileSize + threadIdx.y;
+  p.y = ty * kTileSize + threadIdx.y;
   p.inside = p.x < vp.width && p.y < vp.height;
   p.px = p.x + 0.5f;
   p.py = p.y + 0.5f;
