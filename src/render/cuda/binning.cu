@@ -35,18 +35,50 @@ __global__ void ordered_counts_kernel(const int32_t* __restrict__ order, int64_t
   counts[r] = (tile_hi(t.x1) - tile_lo(t.x0)) * (tile_hi(t.y1) - tile_lo(t.y0));
 }
 
+// Whether the window support of a triangle (u_i + eps > 0 for all i; eps = 0
+// for the TS window) may reach a pixel centre of the pixels [x0, x1) x
+// [y0, y1). Each u_i is affine, so its largest value over the box is at one
+// corner centre, computed as shade() computes u there; the margin keeps the
+// test conservative against rounding at the other centres, where the window
+// is then exactly zero. (Edges and box axes are all the separating axes of a
+// triangle and a box: the test is exact up to the margin.)
+__device__ bool support_meets_box(float sx, float sy, const float nx[3], const float ny[3], float eps, int x0,
+                                  int y0, int x1, int y1) {
+  constexpr float kMargin = 1e-3f;
+  if (x0 >= x1 || y0 >= y1) return false;
+#pragma unroll
+  for (int i = 0; i < 3; ++i) {
+    const float px = (nx[i] >= 0.f ? x1 - 1 : x0) + 0.5f, py = (ny[i] >= 0.f ? y1 - 1 : y0) + 0.5f;
+    const float u = 1.f + nx[i] * (px - sx) + ny[i] * (py - sy);
+    if (u + eps < -kMargin) return false;
+  }
+  return true;
+}
+
 __global__ void duplicate_kernel(const int32_t* __restrict__ order, int64_t nv, const TriRect* __restrict__ rects,
-                                 const int32_t* __restrict__ offsets, int tiles_x, uint32_t* __restrict__ pair_tiles,
+                                 const PixelTri<float>* __restrict__ tris, ViewParams vp,
+                                 const int32_t* __restrict__ offsets, uint32_t* __restrict__ pair_tiles,
                                  int32_t* __restrict__ pair_ids) {
   const int64_t r = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (r >= nv) return;
   const int32_t k = order[r];
   const TriRect t = rects[k];
+  const float4* g = reinterpret_cast<const float4*>(tris + k);  // sx, sy, nx, ny: PixelTri's first 8 floats
+  const float4 a = g[0], b = g[1];
+  const float nx[3] = {a.z, a.w, b.x}, ny[3] = {b.y, b.z, b.w};
+  const float eps = vp.k.window == kWindowFlat ? vp.k.eps : 0.f;
   int32_t off = offsets[r];
   for (int ty = tile_lo(t.y0); ty < tile_hi(t.y1); ++ty)
     for (int tx = tile_lo(t.x0); tx < tile_hi(t.x1); ++tx) {
-      pair_tiles[off] = (uint32_t)(ty * tiles_x + tx);
-      pair_ids[off] = k;
+      const int x0 = max(t.x0, tx * kTileSize), x1 = min(t.x1, (tx + 1) * kTileSize);
+      int halves = 0;
+      for (int h = 0; h < 2; ++h) {
+        const int half_y0 = ty * kTileSize + h * (kTileSize / 2);
+        const int y0 = max(t.y0, half_y0), y1 = min(t.y1, half_y0 + kTileSize / 2);
+        if (support_meets_box(a.x, a.y, nx, ny, eps, x0, y0, x1, y1)) halves |= 1 << h;
+      }
+      pair_tiles[off] = (uint32_t)(ty * vp.tiles_x + tx);
+      pair_ids[off] = (int32_t)((uint32_t)k | ((uint32_t)halves << kPairIndexBits));
       ++off;
     }
 }
@@ -143,10 +175,11 @@ void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, 
   cub::DeviceScan::ExclusiveSum(temp, temp_bytes, counts, offsets, (int)nv, stream);
 }
 
-void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const int32_t* offsets, int tiles_x,
-                      uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream) {
+void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const PixelTri<float>* tris,
+                      const ViewParams& vp, const int32_t* offsets, uint32_t* pair_tiles, int32_t* pair_ids,
+                      cudaStream_t stream) {
   if (nv == 0) return;
-  duplicate_kernel<<<blocks_of(nv), 256, 0, stream>>>(order, nv, rects, offsets, tiles_x, pair_tiles, pair_ids);
+  duplicate_kernel<<<blocks_of(nv), 256, 0, stream>>>(order, nv, rects, tris, vp, offsets, pair_tiles, pair_ids);
 }
 
 void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,

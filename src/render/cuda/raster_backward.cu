@@ -145,8 +145,9 @@ __global__ void __launch_bounds__(kBlockSize, 10)
     int count = 0, k = 0;
     RegionBox box{0u};
     if (e >= 0) {
-      k = ids[range.x + e];
-      box = region_box(rects[k], pix.wx0, pix.wy0, count);  // rects are clipped to the image
+      const int id = ids[range.x + e];  // pair id (raster_kernels.h)
+      k = pair_index(id);
+      if (pair_meets_half(id, pix.warp)) box = region_box(rects[k], pix.wx0, pix.wy0, count);  // clipped rects
     }
     const unsigned touching = __ballot_sync(kFullWarp, count > 0);
     const int n_touching = __popc(touching);

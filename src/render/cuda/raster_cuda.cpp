@@ -166,8 +166,8 @@ at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd
   launch_ordered_counts(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), counts.data_ptr<int>(), stream);
   scan_ordered_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), offsets.data_ptr<int>(), nv, stream);
   check_launch("tile count scan (depth order)");
-  launch_duplicate(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), offsets.data_ptr<int>(), vp.tiles_x, u32(tiles),
-                   ids.data_ptr<int>(), stream);
+  launch_duplicate(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), sd.tri_ptr(), vp, offsets.data_ptr<int>(),
+                   u32(tiles), ids.data_ptr<int>(), stream);
   check_launch("duplicate");
   sort_by_tile(temp.data_ptr(), tile_bytes, u32(tiles), u32(tiles_sorted), ids.data_ptr<int>(),
                ids_sorted.data_ptr<int>(), count, num_tiles, stream);
@@ -234,6 +234,9 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     FLAT_CHECK(count <= std::numeric_limits<int32_t>::max(),
                "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
                    " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
+    FLAT_CHECK(nv <= kMaxVisible, "rasterize (cuda): view " + std::to_string(v) + " has " + std::to_string(nv) +
+                                      " visible triangles, more than the " + std::to_string(kMaxVisible) +
+                                      " the tile lists can index; render fewer triangles per call");
     const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
     ScreenData sd(in, visible, vp, s.rect_ptr(), stream);
     at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt)), tile_order;

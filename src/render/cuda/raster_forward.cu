@@ -53,18 +53,22 @@ __global__ void __launch_bounds__(kBlockSize)
   // The list is read ahead: entry ids two rounds early, their rectangles one
   // round early, so a round's gathers wait on loads issued a round before
   // (three dependent global loads per entry: id, rectangle, record).
+  // Pair ids (raster_kernels.h; -1: past the list): an entry whose triangle
+  // misses this warp's half is skipped without loading its rectangle.
+  auto meets = [&](int id) { return id != -1 && pair_meets_half(id, pix.warp); };
   int k_next = range.x + lane < range.y ? ids[range.x + lane] : -1;
   int k_after = range.x + 32 + lane < range.y ? ids[range.x + 32 + lane] : -1;
-  TriRect r_next = k_next >= 0 ? rects[k_next] : TriRect{0, 0, 0, 0};
+  TriRect r_next = meets(k_next) ? rects[pair_index(k_next)] : TriRect{0, 0, 0, 0};
   for (int base = range.x; base < range.y && done_bits != kFullWarp; base += kBatch) {
     // Stage the entries of [base, base + 32) that meet this region, in list order.
-    const int e = base + lane, k = k_next;
+    const int e = base + lane, k = pair_index(k_next);
+    const bool here = meets(k_next);
     const TriRect r = r_next;
     k_next = k_after;
-    r_next = k_next >= 0 ? rects[k_next] : TriRect{0, 0, 0, 0};
+    r_next = meets(k_next) ? rects[pair_index(k_next)] : TriRect{0, 0, 0, 0};
     k_after = base + 64 + lane < range.y ? ids[base + 64 + lane] : -1;
     int count = 0;
-    const RegionBox box = k >= 0 ? region_box(r, pix.wx0, pix.wy0, count) : RegionBox{0u};  // rects are clipped
+    const RegionBox box = here ? region_box(r, pix.wx0, pix.wy0, count) : RegionBox{0u};  // rects are clipped
     const unsigned touching = __ballot_sync(kFullWarp, count > 0);
     if (touching == 0u) continue;
     const int batch = __popc(touching), slot = __popc(touching & lanes_below(lane));

@@ -28,6 +28,18 @@ struct ViewParams {
   float inv_fx = 0.f, inv_fy = 0.f;  // 1 / cam.fx, 1 / cam.fy: pixel rays by multiplication
 };
 
+// A (triangle, tile) pair's id in the sorted lists: the triangle's
+// visible-list index in bits 0-29, and in bit 30 + h whether its window
+// support reaches a pixel centre of the tile's half h (rows 0-3, 4-7: the
+// compositing warps' regions, render/cuda/tile_pixel.cuh). A support rectangle
+// often meets a half that the triangle misses; the warp of that half then
+// skips the entry without loading its rectangle or record. -1 marks no entry
+// (so at most 2^30 - 1 visible triangles).
+constexpr int kPairIndexBits = 30;
+constexpr int64_t kMaxVisible = (int64_t(1) << kPairIndexBits) - 1;
+FLAT_HD int pair_index(int32_t id) { return id & ((1 << kPairIndexBits) - 1); }
+FLAT_HD bool pair_meets_half(int32_t id, int half) { return ((uint32_t)id >> (kPairIndexBits + half)) & 1u; }
+
 // Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
 FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
@@ -69,9 +81,11 @@ void launch_ordered_counts(const int32_t* order, int64_t nv, const TriRect* rect
                            cudaStream_t stream);
 void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* offsets, int64_t nv,
                          cudaStream_t stream);
-// one (tile id, visible-list index) pair per touched tile, in depth order;
-void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const int32_t* offsets, int tiles_x,
-                      uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream);
+// one (tile id, pair id) pair per touched tile, in depth order (pair ids
+// below: the visible-list index and the tile halves the window reaches);
+void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const PixelTri<float>* tris,
+                      const ViewParams& vp, const int32_t* offsets, uint32_t* pair_tiles, int32_t* pair_ids,
+                      cudaStream_t stream);
 // stable radix sort of the pairs by tile id (the bits num_tiles needs): each
 // tile's pairs stay front to back;
 void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
