@@ -114,11 +114,10 @@ __global__ void __launch_bounds__(kBlockSize, 10)
                            const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
   __shared__ WarpStage stage[kWarps];
-  const int tile = tile_order[blockIdx.x];
-  const TilePixel pix = tile_pixel(vp, tile);
+  const TilePixel pix = tile_pixel(vp, tile_order);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[tile];
+  const int2 range = ranges[pix.tile];
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;

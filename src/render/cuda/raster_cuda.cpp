@@ -39,8 +39,8 @@ constexpr int64_t kViewState = 8;
 // views, ~1.5M visible triangles each) it all fits and the backward skips 24
 // recomputations (~2.5 ms on an H100); larger renders fall back to
 // recomputing, keeping peak memory bounded. 5 GiB: anchor-large (24 views,
-// 2.5M visible triangles, 282 MB each) keeps 19 of its views and peaks at
-// 7.5 GiB, under its 8 GiB budget (4 GiB kept 15: 1.1 ms slower, 6.5 GiB).
+// 2.5M visible triangles, 282 MB each) keeps 18 of its views and peaks at
+// 7.5 GiB, under its 8 GiB budget (4 GiB kept 14: 1.1 ms slower, 6.5 GiB).
 constexpr int64_t kKeepScreenBytes = int64_t(5) << 30;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");

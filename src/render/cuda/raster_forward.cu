@@ -41,11 +41,10 @@ __global__ void __launch_bounds__(kBlockSize)
                           const int32_t* __restrict__ visible, ViewParams vp, ForwardImages out,
                           unsigned int* __restrict__ max_weight_bits) {
   __shared__ WarpStage stage[kWarps];
-  const int tile = tile_order[blockIdx.x];
-  const TilePixel pix = tile_pixel(vp, tile);
+  const TilePixel pix = tile_pixel(vp, tile_order);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[tile];
+  const int2 range = ranges[pix.tile];
   bool done = !pix.inside;
   unsigned done_bits = __ballot_sync(kFullWarp, done);
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;

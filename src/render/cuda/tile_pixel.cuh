@@ -21,6 +21,7 @@ __device__ __forceinline__ float2 pixel_ray(const ViewParams& vp, float px, floa
 }
 
 struct TilePixel {
+  int tile;      // tile index (row-major); block b composites tile_order[b]
   int lane;      // pixel index in the warp's region, row-major
   int warp;      // 0: rows 0-3 of the tile, 1: rows 4-7
   int wx0, wy0;  // region origin (pixels)
@@ -30,8 +31,10 @@ struct TilePixel {
   float rx, ry;  // camera ray (x, y), z = 1
 };
 
-__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, int tile) {
+__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, const int32_t* __restrict__ tile_order) {
   TilePixel p;
+  const int tile = tile_order[blockIdx.x];
+  p.tile = tile;
   const int tid = threadIdx.y * kTileSize + threadIdx.x;
   p.lane = tid & 31;
   p.warp = tid >> 5;
