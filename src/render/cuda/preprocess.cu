@@ -72,7 +72,7 @@ __global__ void __launch_bounds__(kThreads)
     for (int c = 0; c < kTriFloats; ++c) sh_t[kTriStride * threadIdx.x + c] = tf[c];
     // The forward copies the cull pass's rectangle: the pair buffers were sized
     // from it, so the binning must see exactly that one.
-    rects[k] = cull_rects ? cull_rects[i] : r;
+    if (rects) rects[k] = cull_rects ? cull_rects[i] : r;
   }
   __syncthreads();
   store_rows<kTriFloats, kTriStride, kThreads>(sh_t, nullptr, base, rows, tris);

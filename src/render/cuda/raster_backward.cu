@@ -2,30 +2,28 @@
 // each of the block's two warps replays the tile's list for its own 8x4 half
 // (render/cuda/tile_pixel.cuh) on its own, as the forward does
 // (render/cuda/raster_forward.cu). Back to front, a round stages the last 16
-// entries of the next 32 that meet the warp's region, in three phases:
-//   coverage  the round's (triangle, pixel) candidates, flattened over the
-//             lanes (render/cuda/tile_candidates.cuh), evaluate the window
-//             once where the fragment lies before the pixel's last blended
-//             entry; where it contributed in the forward (alpha >= alpha_min)
-//             they mark the pixel's mask and the triangle's 32-bit pixel
-//             mask, and keep the window value in shared memory;
-//   replay    each pixel walks its marked triangles back to front with the
-//             3DGS-style recurrence (as render/cpu/raster_cpu.cpp) and leaves
-//             each fragment's blending weight and dL/dalpha in shared memory;
+// entries of the next 32 whose forward coverage mask (PairMasks,
+// raster_kernels.h) is not empty, in two phases:
+//   replay    each pixel walks the staged triangles its mask bits name and
+//             that lie before its last blended entry, back to front, with the
+//             3DGS-style recurrence (as render/cpu/raster_cpu.cpp); it
+//             evaluates each fragment's window and leaves the window value,
+//             blending weight and dL/dalpha in shared memory;
 //   gradients two lanes per triangle take alternate pixels of its mask and
 //             sum its screen gradients (TriGrad, 21 fields) in registers, add
 //             the two halves with a shuffle and then to global memory once per
 //             (triangle, region) with 16-byte atomics (rows padded to
 //             kTriGradStride floats).
-// The window is evaluated once per fragment; the replay and the gradients
-// reuse its value (recomputing only the cheap affine u_i and the depth).
+// The forward's masks spare the backward its own coverage test: no support
+// rectangles are read, and the window is evaluated only where a fragment
+// blended; the gradients reuse its value (recomputing only the cheap affine
+// u_i and the depth).
 // Rounds of 16 triangles, not 32: the per-fragment arrays (weight, dL/dalpha,
 // window value) are most of a warp's shared memory, and halving them lets
 // twice as many warps share an SM.
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
-#include "render/cuda/tile_candidates.cuh"
 
 namespace flat::render::cuda {
 namespace {
@@ -92,13 +90,9 @@ __device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& 
 
 struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-fragment values
   SharedTris<kBatch> tri;
-  RegionBox box[kBatch];
-  int start[kBatch];           // candidates of slot j: [start[j], start[j] + its count)
   int pos[kBatch];             // position in the tile's list
   int32_t k[kBatch];           // visible-list index (row of tri_grads)
-  unsigned int tri_hits[kBatch];  // per slot: region pixels it blends
-  unsigned int hits[32];       // per pixel: slots it blends
-  int last[32];                // per pixel: number of list entries it blended through
+  unsigned int pixels[kBatch];  // region pixels of the slot's forward coverage mask
   float4 G[kCh / 4][32];       // per pixel: upstream gradients (two 128-bit loads in phase 3)
   float I[kBatch][32];         // per (slot, pixel) fragment: window value,
   float w[kBatch][32];         //   alpha T,
@@ -106,18 +100,18 @@ struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-f
 };
 
 // Occupancy: 10 blocks of two warps per SM. That takes at most 96 registers
-// (ptxas: 12 bytes of spills) and the largest shared-memory carveout (10 x
-// 18.6 KB); the compiler's 104 registers and the default carveout allowed 8.
+// and the largest shared-memory carveout; the compiler's 104 registers and
+// the default carveout allowed 8.
 __global__ void __launch_bounds__(kBlockSize, 10)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
-                           const int32_t* __restrict__ ids,
-                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects, ViewParams vp,
+                           const int32_t* __restrict__ ids, const PixelTri<float>* __restrict__ tris, ViewParams vp,
                            BackwardImages in, float* __restrict__ tri_grads) {
   __shared__ WarpStage stage[kWarps];
   const TilePixel pix = tile_pixel(vp, tile_order);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
   const int2 range = ranges[pix.tile];
+  const uint32_t* __restrict__ masks = in.masks.bits + pix.warp * in.masks.pairs + range.x;
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;
@@ -131,67 +125,56 @@ __global__ void __launch_bounds__(kBlockSize, 10)
   }
 #pragma unroll
   for (int c = 0; c < kCh; c += 4) sh.G[c / 4][lane] = make_float4(G[c], G[c + 1], G[c + 2], G[c + 3]);
-  sh.last[lane] = my_last;
   const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float last_alpha = 0.f;
   const int j_own = lane % kBatch, half = lane / kBatch;  // this lane's slot and share in phase 3
   // List entries [0, top) remain; entries from the region's furthest last
-  // blended one on matter to none of its pixels.
+  // blended one on matter to none of its pixels (and the forward wrote the
+  // masks of all entries before it).
   for (int top = __reduce_max_sync(kFullWarp, my_last); top > 0;) {
-    // Stage the last kBatch entries of [top - 32, top) that meet this region.
+    // Stage the last kBatch entries of [top - 32, top) that cover a pixel of this region.
     const int e = top - 32 + lane;
-    int count = 0, k = 0;
-    RegionBox box{0u};
+    unsigned pixels = 0u;
+    int k = 0;
     if (e >= 0) {
-      const int id = ids[range.x + e];  // pair id (raster_kernels.h)
-      k = pair_index(id);
-      if (pair_meets_half(id, pix.warp)) box = region_box(rects[k], pix.wx0, pix.wy0, count);  // clipped rects
+      pixels = masks[e];
+      k = pair_index(ids[range.x + e]);  // pair id (raster_kernels.h)
     }
-    const unsigned touching = __ballot_sync(kFullWarp, count > 0);
+    const bool covers = pixels != 0u;
+    const unsigned touching = __ballot_sync(kFullWarp, covers);
     const int n_touching = __popc(touching);
     const int above = __popc(touching & ~lanes_below(lane) & ~(1u << lane));  // touching entries after e
-    const bool taken = count > 0 && above < kBatch;
+    const bool taken = covers && above < kBatch;
     const int batch = min(n_touching, kBatch), slot = batch - 1 - above;
     // The next round ends after the highest touching entry not taken (if any).
-    const int next = __reduce_max_sync(kFullWarp, count > 0 && above == kBatch ? e + 1 : 0);
+    const int next = __reduce_max_sync(kFullWarp, covers && above == kBatch ? e + 1 : 0);
     top = n_touching > kBatch ? next : top - 32;
     if (batch == 0) continue;
-    int total;
-    const int first = warp_exclusive_scan(lane, taken ? count : 0, total);
     if (taken) {
       sh.tri.put(slot, tris + k);
-      sh.box[slot] = box;
-      sh.start[slot] = first;
       sh.pos[slot] = e;
       sh.k[slot] = k;
-      sh.tri_hits[slot] = 0u;
-    }
-    sh.hits[lane] = 0u;
-    __syncwarp();
-    // Phase 1, coverage.
-    const int my_start = lane < batch ? sh.start[lane] : total;
-    for (int b = 0; b < total; b += 32) {
-      const WindowCandidate cand = window_candidate(lane, b, my_start, total, sh.start, sh.box);
-      const int j = cand.j, q = cand.p;
-      if (b + lane >= total || sh.pos[j] >= sh.last[q]) continue;  // after the pixel's last blended entry
-      const PixelTri<float> t = sh.tri.get_window(j);
-      const float2 c = region_pixel(pix, q);
-      Fragment<float> f;
-      shade(t, c.x, c.y, 0.f, 0.f, vp.k, f);
-      if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) {
-        sh.I[j][q] = f.I;
-        atomicOr(&sh.hits[q], 1u << j);
-        atomicOr(&sh.tri_hits[j], 1u << q);
-      }
+      sh.pixels[slot] = pixels;
     }
     __syncwarp();
-    // Phase 2, replay back to front (highest slot first).
-    for (unsigned m = sh.hits[lane]; m != 0u;) {
+    // This pixel's fragments: the slots that cover it, before its last
+    // blended entry; and (mine) the pixels of slot j_own, for phase 3.
+    unsigned hits = 0u, mine = 0u;
+    for (int j = 0; j < batch; ++j) {
+      const bool hit = ((sh.pixels[j] >> lane) & 1u) && sh.pos[j] < my_last;
+      const unsigned m = __ballot_sync(kFullWarp, hit);
+      hits |= (unsigned)hit << j;
+      if (j == j_own) mine = m;
+    }
+    // Phase 1, replay back to front (highest slot first).
+    for (unsigned m = hits; m != 0u;) {
       const int j = 31 - __clz(m);
       m &= ~(1u << j);
       const PixelTri<float> t = sh.tri.get(j);
-      const Fragment<float> f = kept_fragment(t, sh.I[j][lane], pix.px, pix.py, pix.rx, pix.ry, vp.k);
+      Fragment<float> f;
+      shade(t, pix.px, pix.py, pix.rx, pix.ry, vp.k, f);
+      fragment_depth(t, pix.rx, pix.ry, f);
       const float inv_keep = __fdividef(1.f, 1.f - f.alpha);
       T = T * inv_keep;
       const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
@@ -203,16 +186,16 @@ __global__ void __launch_bounds__(kBlockSize, 10)
         last_f[c] = fv[c];
       }
       last_alpha = f.alpha;
+      sh.I[j][lane] = f.I;
       sh.w[j][lane] = f.alpha * T;
       sh.ga[j][lane] = g_alpha * T - t_final * inv_keep * bgdot;
     }
     __syncwarp();
-    // Phase 3, per-triangle gradients: the two lanes of slot j_own take
+    // Phase 2, per-triangle gradients: the two lanes of slot j_own take
     // alternate pixels of its mask, then add up through a shuffle.
     float g[kTriGradStride];  // TriGrad's fields, then zeros up to the padded row
 #pragma unroll
     for (int c = 0; c < kTriGradStride; ++c) g[c] = 0.f;
-    const unsigned mine = j_own < batch ? sh.tri_hits[j_own] : 0u;
     if (mine != 0u) {
       const PixelTri<float> t = sh.tri.get(j_own);
       int n = 0;
@@ -220,7 +203,7 @@ __global__ void __launch_bounds__(kBlockSize, 10)
         if ((n & 1) != half) continue;
         const int q = __ffs(m) - 1;
         const float2 c = region_pixel(pix, q);
-        const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 2
+        const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 1
         const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], c.x, c.y, qr.x, qr.y, vp.k);
         const float4 g0 = sh.G[0][q], g1 = sh.G[1][q];
         const float Gq[kCh] = {g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w};
@@ -247,15 +230,14 @@ __global__ void __launch_bounds__(kBlockSize, 10)
 }  // namespace
 
 void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
-                            const PixelTri<float>* tris,
-                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
-                            cudaStream_t stream) {
+                            const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
+                            float* tri_grads, cudaStream_t stream) {
   // Only the backward: the forward's gathers need the L1 that a larger
   // shared-memory carveout takes away (measured: forward 16.7 -> 24.1 ms).
   cudaFuncSetAttribute(raster_backward_kernel, cudaFuncAttributePreferredSharedMemoryCarveout,
                        cudaSharedmemCarveoutMaxShared);
   const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
-  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, in, tri_grads);
+  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, vp, in, tri_grads);
 }
 
 }  // namespace flat::render::cuda

@@ -31,16 +31,17 @@ namespace {
 
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
 // Per view, kept for the backward: sorted ids, tile ranges, final T, last
-// entry, visible list, the visible triangles' screen data and rectangles
-// (empty when over kKeepScreenBytes: the backward then recomputes them), and
-// the tiles' compositing order.
+// entry, visible list, the visible triangles' screen data (empty when over
+// kKeepScreenBytes: the backward then recomputes it), the tiles' compositing
+// order and the entries' coverage masks (PairMasks).
 constexpr int64_t kViewState = 8;
-// Screen data kept across views, at most (bytes). At the paper's scale (24
-// views, ~1.5M visible triangles each) it all fits and the backward skips 24
-// recomputations (~2.5 ms on an H100); larger renders fall back to
-// recomputing, keeping peak memory bounded. 5 GiB: anchor-large (24 views,
-// 2.5M visible triangles, 282 MB each) keeps 18 of its views and peaks at
-// 7.5 GiB, under its 8 GiB budget (4 GiB kept 14: 1.1 ms slower, 6.5 GiB).
+// Screen data and coverage masks kept across views, at most (bytes); the
+// masks are always kept and count first. At the paper's scale (24 views,
+// ~1.5M visible triangles each) it all fits and the backward skips 24
+// recomputations of the screen data (~2.5 ms on an H100); larger renders fall
+// back to recomputing, keeping peak memory bounded. 5 GiB: anchor-large (24
+// views, 2.5M visible triangles, 242 MB of screen data and 41 MB of masks
+// each) keeps the screen data of 18 of its views.
 constexpr int64_t kKeepScreenBytes = int64_t(5) << 30;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
@@ -122,21 +123,22 @@ struct CullScratch {
 // Screen data of one view's visible triangles, in visible-list order.
 struct ScreenData {
   at::Tensor tris, rects;
-  ScreenData(at::Tensor t, at::Tensor r) : tris(std::move(t)), rects(std::move(r)) {}
+  // with_rects: the forward's binning and compositing need the rectangles
+  // (copied from cull_rects); the backward does not.
   ScreenData(const RasterInputs& in, const at::Tensor& visible, const ViewParams& vp, const TriRect* cull_rects,
-             cudaStream_t stream) {
+             bool with_rects, cudaStream_t stream) {
     const int64_t nv = visible.size(0);
     const auto f = in.vertices.options();
     tris = at::empty({nv * kTriFloats}, f);
-    rects = at::empty({nv * 4}, f.dtype(at::kInt));
+    rects = at::empty({with_rects ? nv * 4 : 0}, f.dtype(at::kInt));
     launch_screen(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
-                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, cull_rects, tri_ptr(), rect_ptr(),
-                  stream);
+                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, cull_rects, tri_ptr(),
+                  with_rects ? rect_ptr() : nullptr, stream);
     check_launch("screen preprocessing");
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
-  int64_t bytes() const { return tris.nbytes() + rects.nbytes(); }
+  int64_t tri_bytes() const { return tris.nbytes(); }
 };
 
 // Sorts one view's visible triangles by depth, writes their (tile, triangle)
@@ -238,7 +240,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                                       " visible triangles, more than the " + std::to_string(kMaxVisible) +
                                       " the tile lists can index; render fewer triangles per call");
     const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
-    ScreenData sd(in, visible, vp, s.rect_ptr(), stream);
+    ScreenData sd(in, visible, vp, s.rect_ptr(), true, stream);
     at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt)), tile_order;
     at::Tensor depth_bits = at::empty({nv}, f.dtype(at::kInt)), order = at::empty({nv}, f.dtype(at::kInt));
     launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(),
@@ -258,10 +260,12 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     depth_bits = at::Tensor();
     order = at::Tensor();
     at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
+    const at::Tensor masks = at::empty({for_backward ? 2 * count : 0}, f.dtype(at::kInt));
     ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,
                       out.depth.data_ptr<float>() + v * HW,      out.normal.data_ptr<float>() + v * 3 * HW,
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
-                      last.data_ptr<int>()};
+                      last.data_ptr<int>(),
+                      PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, count}};
     launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
                           ids_sorted.data_ptr<int>(),
                           sd.tri_ptr(), sd.rect_ptr(), visible.data_ptr<int>(), vp, img,
@@ -275,11 +279,11 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                     v, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
     }
     if (for_backward) {
-      const bool keep = kept_bytes + sd.bytes() <= kKeepScreenBytes;
-      if (keep) kept_bytes += sd.bytes();
-      const at::Tensor none = at::empty({0}, f);
-      views.insert(views.end(), {ids_sorted, ranges, t_final, last, visible, keep ? sd.tris : none,
-                                 keep ? sd.rects : none, tile_order});
+      kept_bytes += masks.nbytes();
+      const bool keep = kept_bytes + sd.tri_bytes() <= kKeepScreenBytes;
+      if (keep) kept_bytes += sd.tri_bytes();
+      views.insert(views.end(), {ids_sorted, ranges, t_final, last, visible, keep ? sd.tris : at::empty({0}, f),
+                                 tile_order, masks});
     }
   }
   out.max_weight = max_bits.view(at::kFloat);  // non-negative floats: integer max == float max
@@ -309,17 +313,19 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     const int64_t nv = visible.size(0);
     if (nv == 0) continue;
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
-    const at::Tensor& kept_tris = views[kViewState * v + 5];
-    ScreenData sd = kept_tris.numel() > 0 ? ScreenData(kept_tris, views[kViewState * v + 6])
-                                        : ScreenData(in, visible, vp, nullptr, stream);
+    at::Tensor tris = views[kViewState * v + 5];  // kept, or recomputed here
+    if (tris.numel() == 0) tris = ScreenData(in, visible, vp, nullptr, false, stream).tris;
+    const at::Tensor& masks = views[kViewState * v + 7];
     const at::Tensor& ids = views[kViewState * v];
     const at::Tensor& ranges = views[kViewState * v + 1];
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
                        grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
-                       views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>()};
+                       views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>(),
+                       PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
     launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()),
-                           views[kViewState * v + 7].data_ptr<int>(), ids.data_ptr<int>(), sd.tri_ptr(),
-                           sd.rect_ptr(), vp, img, tri_grads.data_ptr<float>(), stream);
+                           views[kViewState * v + 6].data_ptr<int>(), ids.data_ptr<int>(),
+                           reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()), vp, img,
+                           tri_grads.data_ptr<float>(), stream);
     check_launch("backward rasterization");
     launch_chain(in.vertices.data_ptr<float>(), visible.data_ptr<int>(), nv, tri_grads.data_ptr<float>(), vp,
                  g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),

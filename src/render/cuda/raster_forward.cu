@@ -45,6 +45,8 @@ __global__ void __launch_bounds__(kBlockSize)
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
   const int2 range = ranges[pix.tile];
+  // This half's coverage masks, indexed by sorted entry (PairMasks).
+  uint32_t* const masks = out.masks.bits ? out.masks.bits + pix.warp * out.masks.pairs : nullptr;
   bool done = !pix.inside;
   unsigned done_bits = __ballot_sync(kFullWarp, done);
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
@@ -69,7 +71,10 @@ __global__ void __launch_bounds__(kBlockSize)
     int count = 0;
     const RegionBox box = here ? region_box(r, pix.wx0, pix.wy0, count) : RegionBox{0u};  // rects are clipped
     const unsigned touching = __ballot_sync(kFullWarp, count > 0);
-    if (touching == 0u) continue;
+    if (touching == 0u) {
+      if (masks && e < range.y) masks[e] = 0u;
+      continue;
+    }
     const int batch = __popc(touching), slot = __popc(touching & lanes_below(lane));
     int total;
     const int first = warp_exclusive_scan(lane, count, total);
@@ -95,8 +100,13 @@ __global__ void __launch_bounds__(kBlockSize)
       if (f.alpha >= vp.k.alpha_min && f.alpha > 0.f) atomicOr(&sh.hits[p], 1u << j);
     }
     __syncwarp();
+    const unsigned my_hits = sh.hits[lane];
+    if (masks) {  // each entry's pixels (slot j's: the hits' column j) for the backward
+      const unsigned pixels = __shfl_sync(kFullWarp, warp_transpose_bits(my_hits, lane), slot);
+      if (e < range.y) masks[e] = count > 0 ? pixels : 0u;
+    }
     int last_j = -1;
-    for (unsigned m = done ? 0u : sh.hits[lane]; m != 0u; m &= m - 1u) {  // composite, front to back
+    for (unsigned m = done ? 0u : my_hits; m != 0u; m &= m - 1u) {  // composite, front to back
       const int j = __ffs(m) - 1;
       const PixelTri<float> t = sh.tri.get(j);
       Fragment<float> f;

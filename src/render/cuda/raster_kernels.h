@@ -59,7 +59,8 @@ void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, 
 // visible[k] at index k (the CPU reference shades exactly these pixels, and so
 // do the kernels). cull_rects: the cull pass's rectangles of all triangles,
 // copied instead of recomputed (the forward: binning relies on them); nullptr
-// recomputes them (the backward).
+// recomputes them; rects == nullptr writes none (the backward, which reads
+// the forward's coverage masks instead of rectangles).
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
                    PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
@@ -97,6 +98,18 @@ void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* range
 // the short ones (a counting sort into 256 length classes, one block).
 void launch_tile_order(const int2* ranges, int num_tiles, int32_t* tile_order, cudaStream_t stream);
 
+// Per list entry and tile half (the warps' 8x4 regions, tile_pixel.cuh): the
+// region pixels where the entry's alpha reaches alpha_min (bit = pixel's lane),
+// as the forward's coverage phase found them for the pixels still open at
+// that round (0 for the others). Layout (2, pairs): half h of sorted entry i
+// at bits[h * pairs + i]. Written for every entry of the rounds the forward
+// ran, that is every entry before a pixel's last blended one; the backward
+// reads them instead of re-testing coverage.
+struct PairMasks {
+  uint32_t* bits;  // nullptr: not written (a forward without backward)
+  int64_t pairs;
+};
+
 struct ForwardImages {  // one view, channel-major (C,H,W)
   float* rgb;
   float* alpha;
@@ -105,6 +118,7 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
   float* median;
   float* t_final;   // (H,W) final transmittance, kept for the backward
   int32_t* last;    // (H,W) number of list entries processed, kept for the backward
+  PairMasks masks;  // kept for the backward
 };
 
 // ids index the visible list (tris, rects); visible maps them to triangle ids for max_weight.
@@ -123,15 +137,15 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
   const float* g_normal;
   const float* t_final;
   const int32_t* last;
+  PairMasks masks;  // the forward's
 };
 
 // Accumulates TriGrad<float> into tri_grads: one row of kTriGradStride floats
 // per visible-list entry (the kTriGradSize fields, then zeros: rows of whole
 // 16-byte vectors, added with vector atomics).
 void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
-                            const PixelTri<float>* tris,
-                            const TriRect* rects, const ViewParams& vp, const BackwardImages& in, float* tri_grads,
-                            cudaStream_t stream);
+                            const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
+                            float* tri_grads, cudaStream_t stream);
 
 // Chains one view's per-triangle gradients (tri_grads rows, visible-list order) to
 // the inputs of the triangles visible[0..nv) (adds into the grads), and zeroes

@@ -59,4 +59,19 @@ __device__ __forceinline__ float2 region_pixel(const TilePixel& pix, int q) {
 
 __device__ __forceinline__ unsigned lanes_below(int lane) { return (1u << lane) - 1u; }
 
+// Transpose of the warp's 32x32 bit matrix (lane i's bit j becomes lane j's
+// bit i): five butterfly stages, each swapping the off-diagonal blocks of
+// side s between lanes i and i ^ s (~30 instructions instead of 32 ballots).
+__device__ __forceinline__ unsigned warp_transpose_bits(unsigned x, int lane) {
+  const unsigned kLow[5] = {0x0000ffffu, 0x00ff00ffu, 0x0f0f0f0fu, 0x33333333u, 0x55555555u};
+#pragma unroll
+  for (int i = 0; i < 5; ++i) {
+    const int s = 16 >> i;
+    const unsigned low = kLow[i];  // the columns j with bit s clear
+    const unsigned other = __shfl_xor_sync(kFullWarp, x, s);
+    x = (lane & s) ? (x & ~low) | ((other >> s) & low) : (x & low) | ((other & low) << s);
+  }
+  return x;
+}
+
 }  // namespace flat::render::cuda
