@@ -12,7 +12,10 @@
 #   RASTER_NCU=0 skips step 4; RASTER_NCU_KERNELS picks the kernels (regexes);
 #   RASTER_BENCH=0 skips step 3; RASTER_NCU_SOURCE=1 makes step 4 a stall
 #   sampling report per source line instead (built with -lineinfo):
-#   $OUT/ncu_source.tgz holds, per kernel, the SASS + CUDA source page as CSV.
+#   $OUT/ncu_source.tgz holds, per kernel, the SASS + CUDA source page as CSV;
+#   with it, RASTER_NCU_DETAILS names kernels whose counters step 4 reads too.
+#   RASTER_CUTLASS=ON builds the decoder's CUTLASS convs too (off: the raster
+#   bench needs none of them, and they take most of the build).
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
@@ -25,6 +28,7 @@ targets="flat_bench"
 [ "${RASTER_TESTS:-0}" = 1 ] && targets="$targets flat_test_render flat_test_bench"
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
   -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
+  -DFLAT_CUTLASS="${RASTER_CUTLASS:-OFF}" \
   ${RASTER_NCU_SOURCE:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
 ninja -C "$BUILD" $targets >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
@@ -61,16 +65,17 @@ if [ -n "${RASTER_NCU_SOURCE:-}" ]; then
   for k in ${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel}; do
     timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 --import-source yes \
       --section SourceCounters --section WarpStateStats --section LaunchStats --section Occupancy \
+      --section SpeedOfLight --section MemoryWorkloadAnalysis \
       -o "$S/$k" "$B" raster --workload $first --repeats 1 >"$S/$k.log" 2>&1
     echo "== $k rc=$?"
     ncu -i "$S/$k.ncu-rep" --page details >"$S/$k.details.txt" 2>&1
     ncu -i "$S/$k.ncu-rep" --page source --csv --print-source cuda,sass >"$S/$k.source.csv" 2>&1
-    grep -E "Duration|Warp Cycles Per Issued|Stall|Registers Per|Achieved Occupancy" "$S/$k.details.txt" | head -20
+    grep -E "Duration|Warp Cycles Per Issued|Stall|Registers Per|Achieved Occupancy|DRAM Throughput|Memory Throughput|L2 Hit|L1/TEX Hit" "$S/$k.details.txt" | head -20
   done
   tar czf "$OUT/ncu_source.tgz" -C "$S" . ; ls -la "$OUT/ncu_source.tgz"
-  exit 0
+  [ -z "${RASTER_NCU_DETAILS:-}" ] && exit 0
 fi
-for k in ${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel cull_kernel screen_kernel duplicate_kernel chain_kernel Onesweep}; do
+for k in ${RASTER_NCU_DETAILS:-${RASTER_NCU_KERNELS:-raster_forward_kernel raster_backward_kernel cull_kernel screen_kernel duplicate_kernel chain_kernel Onesweep}}; do
   timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 \
     --section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
     --section SchedulerStats --section InstructionStats --section MemoryWorkloadAnalysis \

@@ -76,6 +76,7 @@ void profile_scene(const RasterWorkload& sc, const render::RasterSettings& setti
 // Mean and maximum over views of the load counts (one forward).
 struct LoadSummary {
   double visible = 0, pairs = 0, entries = 0;
+  double blended = 0;  // triangles with a blended fragment in the view (max_weight > 0 of that view alone)
   int64_t visible_max = 0, pairs_max = 0;
   double entries_max = 0;
 };
@@ -91,6 +92,16 @@ LoadSummary summarise_load(const RasterWorkload& sc, const render::RasterSetting
     s.visible_max = std::max(s.visible_max, l.visible);
     s.pairs_max = std::max(s.pairs_max, l.tile_pairs);
     s.entries_max = std::max(s.entries_max, l.entries_mean);
+  }
+  // One view at a time: the triangles that blend somewhere in that view (the
+  // rest of the visible ones receive no gradient from it).
+  torch::NoGradGuard ng;
+  const int64_t V = sc.targets.size();
+  for (int64_t v = 0; v < V; ++v) {
+    const auto one = sc.targets.index(torch::tensor({v}));
+    const auto r = render::rasterize(sc.vertices, sc.colors, sc.opacities, sc.sigmas, one, sc.height, sc.width,
+                                     settings);
+    s.blended += double((r.max_weight > 0).sum().item<int64_t>()) / double(V);
   }
   return s;
 }
@@ -138,10 +149,10 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   std::string load_cells = "- | - | -";
   if (dev.is_cuda()) {
     const LoadSummary l = summarise_load(sc, settings);
-    spdlog::info("raster {}: per view, mean (max): {:.3f} M ({:.3f} M) visible triangles, {:.3f} M ({:.3f} M) "
-                 "triangle-tile pairs, {:.0f} ({:.0f}) list entries per pixel",
-                 sc.name, l.visible * 1e-6, l.visible_max * 1e-6, l.pairs * 1e-6, l.pairs_max * 1e-6, l.entries,
-                 l.entries_max);
+    spdlog::info("raster {}: per view, mean (max): {:.3f} M ({:.3f} M) visible triangles ({:.3f} M blended), "
+                 "{:.3f} M ({:.3f} M) triangle-tile pairs, {:.0f} ({:.0f}) list entries per pixel",
+                 sc.name, l.visible * 1e-6, l.visible_max * 1e-6, l.blended * 1e-6, l.pairs * 1e-6,
+                 l.pairs_max * 1e-6, l.entries, l.entries_max);
     load_cells = fmt::format("{:.2f} M | {:.2f} M | {:.0f}", l.visible * 1e-6, l.pairs * 1e-6, l.entries);
   }
   spdlog::info("raster {}: forward {:.2f} ms (median of {}), forward+backward {:.2f} ms, peak {:.2f} GiB forward, "

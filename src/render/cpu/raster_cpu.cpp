@@ -1,6 +1,7 @@
 // CPU reference rasterizer. Semantics (shared with the CUDA kernels):
 //  - per view, visible triangles are sorted by the camera depth of their
-//    centroid, ties by triangle index (the CUDA radix sort is stable);
+//    centroid (depth_sort_key(): to 2^-16), ties by triangle index (the CUDA
+//    radix sort is stable);
 //  - each pixel composites them front to back: skip alpha < alpha_min, stop
 //    before the transmittance would drop below t_min;
 //  - the backward replays each pixel back to front (3DGS-style recurrence).
@@ -41,7 +42,7 @@ ViewSetup<T> setup_view(const RasterInputs& in, int64_t view) {
   std::vector<PixelTri<T>> tris;
   std::vector<TriRect> rects;
   std::vector<int64_t> ids;
-  std::vector<float> keys;  // float keys: the CUDA sort orders float bits
+  std::vector<uint32_t> keys;  // depth_sort_key(), as the CUDA sort
   for (int64_t n = 0; n < N; ++n) {
     if (in.k.alpha_min > 0.f && !(op[n] >= T(in.k.alpha_min))) continue;  // can never reach alpha_min
     PixelTri<T> t;
@@ -54,7 +55,7 @@ ViewSetup<T> setup_view(const RasterInputs& in, int64_t view) {
     tris.push_back(t);
     rects.push_back(r);
     ids.push_back(n);
-    keys.push_back((float)key);
+    keys.push_back(depth_sort_key((float)key));
   }
   std::vector<size_t> order(tris.size());
   std::iota(order.begin(), order.end(), size_t(0));

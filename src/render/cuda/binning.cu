@@ -1,6 +1,6 @@
 // Tile binning: prefix sum of tiles touched (the pair count), the list of
 // visible triangles, then two stable radix sorts (cub): the visible triangles
-// by depth (the float bits of the positive centroid depth, 32 bits), and the
+// by depth (depth_sort_key(): 24 bits of the positive centroid depth), and the
 // (triangle, tile) pairs, written in that depth order, by tile id alone
 // (~13 bits), so each tile's list comes out front to back. Sorting once per
 // view by depth and then the pairs by a short key moves ~40% of the bytes of
@@ -23,7 +23,7 @@ __global__ void depth_keys_kernel(const int32_t* __restrict__ visible, int64_t n
                                   uint32_t* __restrict__ depth_bits, int32_t* __restrict__ order) {
   const int64_t k = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (k >= nv) return;
-  depth_bits[k] = __float_as_uint(keys[visible[k]]);  // positive floats order as their bits
+  depth_bits[k] = depth_sort_key(keys[visible[k]]);
   order[k] = (int32_t)k;
 }
 
@@ -161,7 +161,8 @@ void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, ui
 
 void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
                    const int32_t* order_in, int32_t* order_out, int64_t nv, cudaStream_t stream) {
-  cub::DeviceRadixSort::SortPairs(temp, temp_bytes, depth_in, depth_out, order_in, order_out, (int)nv, 0, 32, stream);
+  cub::DeviceRadixSort::SortPairs(temp, temp_bytes, depth_in, depth_out, order_in, order_out, (int)nv, 0, kDepthKeyBits,
+                                  stream);
 }
 
 void launch_ordered_counts(const int32_t* order, int64_t nv, const TriRect* rects, int32_t* counts,
