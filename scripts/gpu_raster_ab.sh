@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Same-run A/B of rasterizer changes on the GPU machine, in one call:
+#   1. build flat_bench from the working tree (variant 0), then apply each
+#      patch of AB_PATCHES in turn (cumulatively: variant i = variant i-1 +
+#      patch i), rebuilding flat_bench and keeping a copy of each binary;
+#   2. with RASTER_TESTS=1, build the render and bench tests at the last
+#      variant and run them (the CUDA-vs-CPU errors of docs/rasterizer.md);
+#   3. time every variant AB_ROUNDS times, interleaved (0 1 2 .. 0 1 2 ..), on
+#      the anchor workloads, then one --profile run each (GPU ms per kernel).
+# Usage there (repo root; .deps/glm and the patch folder carried):
+#   AB_DIR=.ab AB_PATCHES="fuse prefetch" bash scripts/gpu_raster_ab.sh
+# A patch is AB_DIR/NAME.patch (git diff format, applied with patch -p1).
+# Output: $OUT/ab.log (every bench line), a summary table at the end.
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+AB_DIR="${AB_DIR:-$ROOT/.ab}"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+BIN="${AB_BIN_DIR:-/tmp/flat_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
+WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
+ROUNDS="${AB_ROUNDS:-2}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
+cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_CUTLASS=OFF \
+  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
+  || { tail -40 "$OUT/configure.log"; exit 1; }
+names=(base)
+build_variant() {  # $1: index
+  local t0; t0=$(date +%s)
+  ninja -C "$BUILD" flat_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
+  echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
+}
+build_variant 0
+i=0
+for p in ${AB_PATCHES:-}; do
+  i=$((i + 1)); names+=("$p")
+  patch -p1 -s -d "$ROOT" <"$AB_DIR/$p.patch" || { echo "patch $p does not apply"; exit 1; }
+  build_variant $i
+done
+if [ "${RASTER_TESTS:-0}" = 1 ]; then
+  ninja -C "$BUILD" flat_test_render flat_test_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed|FAILED" \
+    >"$OUT/test_render.log"; echo "== render tests (variant $i) rc=${PIPESTATUS[0]}"; tail -3 "$OUT/test_render.log")
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -2)
+fi
+for r in $(seq 1 "$ROUNDS"); do
+  for v in $(seq 0 $i); do
+    "$BIN/flat_bench_$v" raster --workload $WORKLOADS --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_${v}_$r.log" 2>&1 \
+      || { echo "variant $v failed:"; tail -5 "$OUT/bench_${v}_$r.log"; }
+    grep -E "^\| anchor|^\| paper|^\| stage1" "$OUT/bench_${v}_$r.log" | sed "s/^/v$v r$r /" >>"$OUT/ab.log"
+  done
+done
+for v in $(seq 0 $i); do
+  "$BIN/flat_bench_$v" raster --workload $WORKLOADS --repeats 1 --profile 2>&1 | grep -vE "^\[" >"$OUT/profile_$v.log"
+done
+echo "== variants: ${names[*]}"
+grep -h "per view" "$OUT"/bench_0_1.log | cut -c1-220
+echo "== fwd / fwd+bwd ms (columns: variant, round, workload, fwd, fwd+bwd, peak)"
+awk -F'|' '{split($1, a, " "); printf "%s %s %-13s %7s %7s %5s\n", a[1], a[2], $2, $10, $11, $12}' "$OUT/ab.log"
+for v in $(seq 0 $i); do
+  echo "== profile variant $v (${names[$v]})"; grep -E "profile|raster_|chain|radix|screen|cull|gather|rank|duplicate|ordered|Scan|Reduce|Select" "$OUT/profile_$v.log" | head -24
+done
