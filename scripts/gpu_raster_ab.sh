@@ -10,10 +10,13 @@
 # Usage there (repo root; .deps/glm and the patch folder carried):
 #   AB_DIR=.ab AB_PATCHES="fuse prefetch" bash scripts/gpu_raster_ab.sh
 # A patch is AB_DIR/NAME.patch (git diff format, applied with patch -p1).
-# Output: $OUT/ab.log (every bench line), a summary table at the end.
+# Output: a summary at the end (times, profiles, test result) and every log
+# in $OUT/ab_logs.tgz (the device tool returns at most 8 files).
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+FINAL_OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$FINAL_OUT"
+OUT=/tmp/flat_ab_logs; rm -rf "$OUT"; mkdir -p "$OUT"
+trap 'tar czf "$FINAL_OUT/ab_logs.tgz" -C "$OUT" .' EXIT
 AB_DIR="${AB_DIR:-$ROOT/.ab}"
 BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 BIN="${AB_BIN_DIR:-/tmp/flat_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
@@ -60,3 +63,4 @@ awk -F'|' '{split($1, a, " "); printf "%s %s %-13s %7s %7s %5s\n", a[1], a[2], $
 for v in $(seq 0 $i); do
   echo "== profile variant $v (${names[$v]})"; grep -E "profile|raster_|chain|radix|screen|cull|gather|rank|duplicate|ordered|Scan|Reduce|Select" "$OUT/profile_$v.log" | head -24
 done
+[ -f "$OUT/test_render.log" ] && { echo "== render tests, variant $i:"; grep -E "passed|failed|FAILED" "$OUT/test_render.log" | tail -3; }
