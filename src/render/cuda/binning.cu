@@ -1,4 +1,4 @@
-// Tile binning: prefix sum of tiles touched (the pair count), the list of
+// Tile binning: the sum of tiles touched (the pair count), the list of
 // visible triangles, then two stable radix sorts (cub): the visible triangles
 // by depth (depth_sort_key(): 24 bits of the positive centroid depth), and the
 // (triangle, tile) pairs, written in that depth order, by tile id alone
@@ -7,6 +7,7 @@
 // one sort of the pairs by a 64-bit (tile | depth) key. Pair ids are indices
 // into the visible list.
 #include <cub/cub.cuh>
+#include <cuda/std/functional>
 #include <thrust/iterator/counting_iterator.h>
 
 #include "render/cuda/raster_kernels.h"
@@ -15,7 +16,7 @@ namespace flat::render::cuda {
 namespace {
 
 struct IsVisible {
-  const int64_t* tile_counts;
+  const int32_t* tile_counts;
   __device__ bool operator()(int32_t i) const { return tile_counts[i] > 0; }
 };
 
@@ -142,12 +143,15 @@ int bits_for(int values) {
 
 }  // namespace
 
-void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t* offsets, int64_t n,
-                      cudaStream_t stream) {
-  cub::DeviceScan::InclusiveSum(temp, temp_bytes, tile_counts, offsets, (int)n, stream);
+void sum_tile_counts(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t* total, int64_t n,
+                     cudaStream_t stream) {
+  // The 64-bit initial value makes the accumulator 64-bit: the sum may pass
+  // 2^31 (the caller then fails with a clear message).
+  cub::DeviceReduce::Reduce(temp, temp_bytes, tile_counts, total, (int)n, ::cuda::std::plus<int64_t>{}, int64_t(0),
+                            stream);
 }
 
-void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t n, int32_t* visible,
+void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t n, int32_t* visible,
                     int32_t* num_visible, cudaStream_t stream) {
   cub::DeviceSelect::If(temp, temp_bytes, thrust::counting_iterator<int32_t>(0), visible, num_visible, (int)n,
                         IsVisible{tile_counts}, stream);

@@ -25,7 +25,7 @@ __device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k
 
 __global__ void __launch_bounds__(kThreads)
     cull_kernel(const float* __restrict__ vertices, const float* __restrict__ opacities, int64_t n, ViewParams vp,
-                TriRect* __restrict__ rects, int64_t* __restrict__ tile_counts, float* __restrict__ keys) {
+                TriRect* __restrict__ rects, int32_t* __restrict__ tile_counts, float* __restrict__ keys) {
   __shared__ float sh_v[kThreads * 9];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((n - base) < kThreads ? (n - base) : kThreads);
@@ -34,13 +34,13 @@ __global__ void __launch_bounds__(kThreads)
   if ((int)threadIdx.x >= rows) return;
   const int64_t i = base + threadIdx.x;
   TriRect rect{0, 0, 0, 0}, r;
-  int64_t count = 0;
+  int32_t count = 0;
   float key = 0.f;
   PixelTri<float> t;
   if (can_show(opacities[i], vp.k) &&
       preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key)) {
     rect = r;
-    count = (int64_t)(tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));
+    count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));  // < 2^31: ints hold the image's tile grid
   }
   rects[i] = rect;
   tile_counts[i] = count;
@@ -83,7 +83,7 @@ int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 }  // namespace
 
 void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
-                 int64_t* tile_counts, float* keys, cudaStream_t stream) {
+                 int32_t* tile_counts, float* keys, cudaStream_t stream) {
   if (n == 0) return;
   cull_kernel<<<blocks_for(n), kThreads, 0, stream>>>(vertices, opacities, n, vp, rects, tile_counts, keys);
 }

@@ -76,42 +76,41 @@ void check_sizes(const RasterInputs& in) {
 // ahead timed the same within run-to-run noise on the H100; two is kept.)
 constexpr int kCullAhead = 2;
 struct CullScratch {
-  at::Tensor rects, counts, keys, offsets, visible, num_visible, scan_temp, select_temp;
+  at::Tensor rects, counts, keys, visible, num_visible, total, sum_temp, select_temp;
   at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
   at::cuda::CUDAEvent culled, released;  // sizes ready (side stream); last read done (main stream)
-  size_t scan_bytes = 0, select_bytes = 0;
+  size_t sum_bytes = 0, select_bytes = 0;
   CullScratch(int64_t n, const at::TensorOptions& f, cudaStream_t stream) {
     rects = at::empty({n * 4}, f.dtype(at::kInt));
-    counts = at::empty({n}, f.dtype(at::kLong));
+    counts = at::empty({n}, f.dtype(at::kInt));
     keys = at::empty({n}, f);
-    offsets = at::empty({n}, f.dtype(at::kLong));
     visible = at::empty({n}, f.dtype(at::kInt));
     num_visible = at::empty({1}, f.dtype(at::kInt));
-    scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
+    total = at::empty({1}, f.dtype(at::kLong));
+    sum_tile_counts(nullptr, sum_bytes, nullptr, nullptr, n, stream);
     select_visible(nullptr, select_bytes, nullptr, n, nullptr, nullptr, stream);
-    scan_temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
+    sum_temp = at::empty({(int64_t)sum_bytes + 1}, f.dtype(at::kByte));
     select_temp = at::empty({(int64_t)select_bytes + 1}, f.dtype(at::kByte));
     host_count = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
     host_visible = at::zeros({1}, at::TensorOptions().dtype(at::kInt).pinned_memory(true));
   }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
 
-  // Enqueues culling, the tile-count scan and the visible selection of one
-  // view on `side` (after the previous user of this scratch released it), and
-  // the copy of the two sizes to the host.
+  // Enqueues culling, the pair count and the visible selection of one view on
+  // `side` (after the previous user of this scratch released it), and the
+  // copy of the two sizes to the host.
   void cull(const RasterInputs& in, const ViewParams& vp, const c10::cuda::CUDAStream& side) {
     const int64_t n = in.vertices.size(0);
     released.block(side);
     launch_cull(in.vertices.data_ptr<float>(), in.opacities.data_ptr<float>(), n, vp, rect_ptr(),
-                counts.data_ptr<int64_t>(), keys.data_ptr<float>(), side);
+                counts.data_ptr<int>(), keys.data_ptr<float>(), side);
     check_launch("culling");
-    scan_tile_counts(scan_temp.data_ptr(), scan_bytes, counts.data_ptr<int64_t>(), offsets.data_ptr<int64_t>(), n,
-                     side);
-    check_launch("tile count scan");
-    select_visible(select_temp.data_ptr(), select_bytes, counts.data_ptr<int64_t>(), n, visible.data_ptr<int>(),
+    sum_tile_counts(sum_temp.data_ptr(), sum_bytes, counts.data_ptr<int>(), total.data_ptr<int64_t>(), n, side);
+    check_launch("pair count");
+    select_visible(select_temp.data_ptr(), select_bytes, counts.data_ptr<int>(), n, visible.data_ptr<int>(),
                    num_visible.data_ptr<int>(), side);
     check_launch("visible selection");
-    FLAT_CHECK(cudaMemcpyAsync(host_count.data_ptr(), offsets.data_ptr<int64_t>() + n - 1, sizeof(int64_t),
+    FLAT_CHECK(cudaMemcpyAsync(host_count.data_ptr(), total.data_ptr<int64_t>(), sizeof(int64_t),
                                cudaMemcpyDeviceToHost, side) == cudaSuccess &&
                    cudaMemcpyAsync(host_visible.data_ptr(), num_visible.data_ptr(), sizeof(int32_t),
                                    cudaMemcpyDeviceToHost, side) == cudaSuccess,

@@ -45,14 +45,14 @@ FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
 // Pass 1 over all n triangles (render/cuda/preprocess.cu): pixel support
-// rectangle (all zero when culled), tiles touched (int64, for the scan; 0 when
-// culled) and depth sort key.
+// rectangle (all zero when culled), tiles touched (0 when culled) and depth
+// sort key.
 void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
-                 int64_t* tile_counts, float* keys, cudaStream_t stream);
+                 int32_t* tile_counts, float* keys, cudaStream_t stream);
 
 // Ascending ids of the triangles with tile_counts > 0 (cub select; count to
 // *num_visible on the device); `temp` of temp_bytes (ask with temp == nullptr).
-void select_visible(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t n, int32_t* visible,
+void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t n, int32_t* visible,
                     int32_t* num_visible, cudaStream_t stream);
 
 // Pass 2 over the nv visible triangles: screen data and support rectangle of
@@ -65,10 +65,10 @@ void launch_screen(const float* vertices, const float* colors, const float* opac
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
                    PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
 
-// Inclusive prefix sum of tile_counts into offsets (cub); `temp` of temp_bytes
-// (ask with temp == nullptr).
-void scan_tile_counts(void* temp, size_t& temp_bytes, const int64_t* tile_counts, int64_t* offsets, int64_t n,
-                      cudaStream_t stream);
+// Sum of the n tile counts (the view's pair count) into *total (cub reduce,
+// 64-bit sum); `temp` of temp_bytes (ask with temp == nullptr).
+void sum_tile_counts(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t* total, int64_t n,
+                     cudaStream_t stream);
 
 // Binning of one view (render/cuda/binning.cu), in this order:
 // depth_bits[k] = the sort key of visible[k], order[k] = k;
