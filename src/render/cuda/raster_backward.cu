@@ -125,9 +125,12 @@ __global__ void __launch_bounds__(kBlockSize, 10)
   }
 #pragma unroll
   for (int c = 0; c < kCh; c += 4) sh.G[c / 4][lane] = make_float4(G[c], G[c + 1], G[c + 2], G[c + 3]);
-  const float bgdot = vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2];
-  float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
-  float last_alpha = 0.f;
+  // dL/dT_final through the background, times T_final (one register, not two).
+  const float bg_t = t_final * (vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2]);
+  // The replay's running sums enter dL/dalpha only through their dot product
+  // with G, so it keeps that product (acc_G) and the last fragment's (last_G)
+  // instead of the 8 channels of each (the CPU reference keeps the channels).
+  float acc_G = 0.f, last_G = 0.f, last_alpha = 0.f;
   const int j_own = lane % kBatch, half = lane / kBatch;  // this lane's slot and share in phase 3
   // List entries [0, top) remain; entries from the region's furthest last
   // blended one on matter to none of its pixels (and the forward wrote the
@@ -178,17 +181,16 @@ __global__ void __launch_bounds__(kBlockSize, 10)
       const float inv_keep = __fdividef(1.f, 1.f - f.alpha);
       T = T * inv_keep;
       const float fv[kCh] = {t.color[0], t.color[1], t.color[2], f.z, t.normal[0], t.normal[1], t.normal[2], 1.f};
-      float g_alpha = 0.f;
+      float fv_G = 0.f;
 #pragma unroll
-      for (int c = 0; c < kCh; ++c) {
-        acc[c] = last_alpha * last_f[c] + (1.f - last_alpha) * acc[c];
-        g_alpha += (fv[c] - acc[c]) * G[c];
-        last_f[c] = fv[c];
-      }
+      for (int c = 0; c < kCh; ++c) fv_G += fv[c] * G[c];
+      acc_G = last_alpha * last_G + (1.f - last_alpha) * acc_G;  // what lies behind, dotted with G
+      const float g_alpha = fv_G - acc_G;
+      last_G = fv_G;
       last_alpha = f.alpha;
       sh.I[j][lane] = f.I;
       sh.w[j][lane] = f.alpha * T;
-      sh.ga[j][lane] = g_alpha * T - t_final * inv_keep * bgdot;
+      sh.ga[j][lane] = g_alpha * T - inv_keep * bg_t;
     }
     __syncwarp();
     // Phase 2, per-triangle gradients: the two lanes of slot j_own take
