@@ -134,16 +134,29 @@ __global__ void __launch_bounds__(kBlockSize, 10)
   const int j_own = lane % kBatch, half = lane / kBatch;  // this lane's slot and share in phase 3
   // List entries [0, top) remain; entries from the region's furthest last
   // blended one on matter to none of its pixels (and the forward wrote the
-  // masks of all entries before it).
-  for (int top = __reduce_max_sync(kFullWarp, my_last); top > 0;) {
-    // Stage the last kBatch entries of [top - 32, top) that cover a pixel of this region.
-    const int e = top - 32 + lane;
-    unsigned pixels = 0u;
-    int k = 0;
+  // masks of all entries before it). A round looks at the window
+  // [top - 32, top); the masks and pair ids of the window before it,
+  // [top - 64, top - 32), are read a round ahead (read at the round's start,
+  // their loads were 10% of the stall samples), and the next round's window,
+  // which lies in these two, comes from registers.
+  int top = __reduce_max_sync(kFullWarp, my_last);
+  unsigned cur_pixels, ahead_pixels;
+  int cur_id, ahead_id;
+  auto read_entry = [&](int e, unsigned& pixels, int& id) {
+    pixels = 0u;
+    id = 0;
     if (e >= 0) {
       pixels = masks[e];
-      k = pair_index(ids[range.x + e]);  // pair id (raster_kernels.h)
+      id = ids[range.x + e];
     }
+  };
+  read_entry(top - 32 + lane, cur_pixels, cur_id);
+  read_entry(top - 64 + lane, ahead_pixels, ahead_id);
+  while (top > 0) {
+    // Stage the last kBatch entries of [top - 32, top) that cover a pixel of this region.
+    const int e = top - 32 + lane;
+    const unsigned pixels = cur_pixels;
+    const int k = pair_index(cur_id);  // pair id (raster_kernels.h)
     const bool covers = pixels != 0u;
     const unsigned touching = __ballot_sync(kFullWarp, covers);
     const int n_touching = __popc(touching);
@@ -152,7 +165,18 @@ __global__ void __launch_bounds__(kBlockSize, 10)
     const int batch = min(n_touching, kBatch), slot = batch - 1 - above;
     // The next round ends after the highest touching entry not taken (if any).
     const int next = __reduce_max_sync(kFullWarp, covers && above == kBatch ? e + 1 : 0);
-    top = n_touching > kBatch ? next : top - 32;
+    const int next_top = n_touching > kBatch ? next : top - 32;
+    {  // entry next_top - 32 + lane: in this window (lane from_cur) or the one ahead
+      const int from_cur = next_top - top + lane, from_ahead = from_cur + 32;
+      const unsigned p_cur = __shfl_sync(kFullWarp, cur_pixels, from_cur & 31);
+      const int i_cur = __shfl_sync(kFullWarp, cur_id, from_cur & 31);
+      const unsigned p_ahead = __shfl_sync(kFullWarp, ahead_pixels, from_ahead & 31);
+      const int i_ahead = __shfl_sync(kFullWarp, ahead_id, from_ahead & 31);
+      cur_pixels = from_cur >= 0 ? p_cur : p_ahead;
+      cur_id = from_cur >= 0 ? i_cur : i_ahead;
+    }
+    read_entry(next_top - 64 + lane, ahead_pixels, ahead_id);
+    top = next_top;
     if (batch == 0) continue;
     if (taken) {
       sh.tri.put(slot, tris + k);
