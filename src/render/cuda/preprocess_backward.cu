@@ -19,8 +19,8 @@ constexpr int kThreads = 128;
 constexpr int kGradStride = kTriGradStride + 1;  // odd: thread r reads its own row without bank conflicts
 
 // 6 blocks per SM: at most 80 registers (12 bytes spilled); the compiler's 94
-// allowed 5, and the kernel waits on its loads (H100: 9.36 -> 8.52 ms per
-// anchor-large step).
+// allowed 5, and the kernel waits on its loads (H100, anchor-large step:
+// 9.54 -> 9.24 ms; 7 blocks, 72 registers and 48 bytes spilled: 10.38 ms).
 __global__ void __launch_bounds__(kThreads, 6)
     chain_kernel(const float* __restrict__ vertices, const int32_t* __restrict__ visible, int64_t nv,
                  float* __restrict__ tri_grads, ViewParams vp, float* __restrict__ g_vertices,
