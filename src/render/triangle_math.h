@@ -77,18 +77,20 @@ struct TriRect {
   int x0, y0, x1, y1;
 };
 
-// Gradient of the loss with respect to one triangle's PixelTri geometry.
+// Gradient of the loss with respect to one triangle's PixelTri geometry. The
+// normal's gradient is not a field: it is folded into h (fold_normal_grad()),
+// since the normal is a function of h alone; that keeps the rows the CUDA
+// backward adds up and the chain rule reads at 18 floats.
 template <class T>
 struct TriGrad {
   T s[2];
   T n[6];      // (nx_i, ny_i) for i = 0..2
   T h[3];
   T zlo, zhi;
-  T normal[3];
   T color[3];
   T opacity, sigma;
 };
-constexpr int kTriGradSize = 21;  // number of T in TriGrad
+constexpr int kTriGradSize = 18;  // number of T in TriGrad
 
 template <class T> FLAT_HD T tmin(T a, T b) { return a < b ? a : b; }
 template <class T> FLAT_HD T tmax(T a, T b) { return a > b ? a : b; }
@@ -211,8 +213,8 @@ FLAT_HD bool preprocess_forward(const T* v, const CameraView<T>& cam, const Rast
 }
 
 // Reverse of preprocess_forward's geometry: gradient of the PixelTri geometry
-// (g.s, g.n, g.h, g.zlo, g.zhi, g.normal) -> gradient of the world vertices,
-// added into gv[0..8]. Recomputes the forward intermediates.
+// (g.s, g.n, g.h with the normal's folded in, g.zlo, g.zhi) -> gradient of the
+// world vertices, added into gv[0..8]. Recomputes the forward intermediates.
 template <class T>
 FLAT_HD void preprocess_backward(const T* v, const CameraView<T>& cam, const TriGrad<T>& g, T* gv) {
   T c[3][3];
@@ -226,11 +228,7 @@ FLAT_HD void preprocess_backward(const T* v, const CameraView<T>& cam, const Tri
   N[2] = a[0] * b[1] - a[1] * b[0];
   const T D = N[0] * c[0][0] + N[1] * c[0][1] + N[2] * c[0][2];
   T h[3], gh[3];
-  for (int r = 0; r < 3; ++r) h[r] = N[r] / D, gh[r] = g.h[r];
-  const T nh = std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);
-  // normal = -h / |h|
-  const T gn_dot_hh = (g.normal[0] * h[0] + g.normal[1] * h[1] + g.normal[2] * h[2]) / nh;
-  for (int r = 0; r < 3; ++r) gh[r] += -(g.normal[r] - gn_dot_hh * h[r] / nh) / nh;
+  for (int r = 0; r < 3; ++r) h[r] = N[r] / D, gh[r] = g.h[r];  // g.h holds the normal's gradient too
   // h = N / D, D = N . c0
   const T gD = -(gh[0] * h[0] + gh[1] * h[1] + gh[2] * h[2]) / D;
   T gN[3];
@@ -350,6 +348,27 @@ FLAT_HD float fast_div(float a, float b) {
 #endif
 }
 FLAT_HD double fast_div(double a, double b) { return a / b; }
+// 1 / sqrt(x): on the GPU (float) the 2-ulp hardware reciprocal square root
+// (the IEEE square root and division are ~30 instructions); exact on the CPU.
+FLAT_HD float fast_rsqrt(float x) {
+#if defined(__CUDA_ARCH__)
+  return rsqrtf(x);
+#else
+  return 1.f / std::sqrt(x);
+#endif
+}
+FLAT_HD double fast_rsqrt(double x) { return 1.0 / std::sqrt(x); }
+
+// The gradient gn of the camera-space normal (normal = -h / |h|) added into
+// the gradient gh of the plane h: gh += -(gn - (gn . h) h / |h|^2) / |h|.
+// Linear in gn: the rasterizers fold a triangle's summed normal gradient once
+// (the CUDA backward once per tile half, before adding its row).
+template <class T>
+FLAT_HD void fold_normal_grad(const T h[3], const T gn[3], T gh[3]) {
+  const T inv = fast_rsqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);  // 1 / |h|
+  const T gn_dot_h = gn[0] * h[0] + gn[1] * h[1] + gn[2] * h[2];
+  for (int r = 0; r < 3; ++r) gh[r] -= (gn[r] - gn_dot_h * inv * inv * h[r]) * inv;
+}
 
 // FLAT (paper eq. "Window Function"): I = prod_i clamp(u_i + eps, 0, 1)^sigma.
 // TS (Triangle Splatting): I = (min_i u_i)^sigma inside, 0 outside.

@@ -192,6 +192,7 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
       const TriRect& rc = vs.rects[r];
       TriGrad<T>& gr = tg[r];
       std::fill(reinterpret_cast<T*>(&gr), reinterpret_cast<T*>(&gr) + kTriGradSize, T(0));
+      T g_normal[3] = {T(0), T(0), T(0)};  // folded into gr.h once summed
       for (int y = rc.y0; y < rc.y1; ++y)
         for (int x = rc.x0; x < rc.x1; ++x) {
           const int64_t p = (int64_t)y * W + x;
@@ -220,7 +221,7 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
           const T bgdot = bg[0] * Gp[0] + bg[1] * Gp[1] + bg[2] * Gp[2];
           g_alpha += -ps.t_final[p] / (T(1) - f.alpha) * bgdot;
           last_alpha[p] = f.alpha;
-          for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], gr.normal[c] += w * Gp[4 + c];
+          for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], g_normal[c] += w * Gp[4 + c];
           const T g_z = w * Gp[3];
           if (f.zclamp == 0) {
             const T g_invz = -g_z * f.z * f.z;
@@ -243,6 +244,7 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
             }
           }
         }
+      fold_normal_grad(t.h, g_normal, gr.h);
       // Chain this view's triangle gradient to the inputs.
       const int64_t n = vs.ids[r];
       for (int c = 0; c < 3; ++c) gc[3 * n + c] += gr.color[c];

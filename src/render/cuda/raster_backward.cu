@@ -10,9 +10,10 @@
 //             evaluates each fragment's window and leaves the window value,
 //             blending weight and dL/dalpha in shared memory;
 //   gradients two lanes per triangle take alternate pixels of its mask and
-//             sum its screen gradients (TriGrad, 21 fields) in registers, add
-//             the two halves with a shuffle and then to global memory once per
-//             (triangle, region) with 16-byte atomics (rows padded to
+//             sum its screen gradients (TriGrad's 18 fields and the normal's
+//             3) in registers, add the two halves with a shuffle, fold the
+//             normal's into the plane's and add the row to global memory once
+//             per (triangle, region) with 16-byte atomics (rows padded to
 //             kTriGradStride floats).
 // The forward's masks spare the backward its own coverage test: no support
 // rectangles are read, and the window is evaluated only where a fragment
@@ -33,16 +34,18 @@ constexpr int kCh = 8;      // r, g, b, depth, nx, ny, nz, alpha
 constexpr int kWarps = kBlockSize / 32;
 static_assert(2 * kBatch == 32, "two lanes per staged triangle");
 static_assert(kCh == 8, "upstream gradients staged as two float4");
-// Offsets of the TriGrad fields in a flat float array (layout of TriGrad<float>).
-constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGNormal = 13, kGColor = 16, kGOpacity = 19,
-              kGSigma = 20;
+// Offsets of the TriGrad fields in a flat float array (layout of TriGrad<float>),
+// then the normal's gradient, summed beside them and folded into h
+// (fold_normal_grad()) before the row is added.
+constexpr int kGS = 0, kGN = 2, kGH = 8, kGZlo = 11, kGZhi = 12, kGColor = 13, kGOpacity = 16, kGSigma = 17,
+              kGNormal = kTriGradSize, kGAcc = kTriGradSize + 3;
 
 // Adds fragment f's contribution to triangle t's screen gradients g, given the
 // fragment's weight w = alpha T, dL/dalpha and the pixel's upstream gradients G.
 __device__ __forceinline__ void add_fragment_grads(const PixelTri<float>& t, const Fragment<float>& f, float px,
                                                    float py, float rx, float ry, float w, float g_alpha,
                                                    const float G[kCh], const RasterConstants& k,
-                                                   float g[kTriGradSize]) {
+                                                   float g[kGAcc]) {
 #pragma unroll
   for (int c = 0; c < 3; ++c) {
     g[kGColor + c] += w * G[c];
@@ -219,9 +222,9 @@ __global__ void __launch_bounds__(kBlockSize, 10)
     __syncwarp();
     // Phase 2, per-triangle gradients: the two lanes of slot j_own take
     // alternate pixels of its mask, then add up through a shuffle.
-    float g[kTriGradStride];  // TriGrad's fields, then zeros up to the padded row
+    float g[kGAcc];  // TriGrad's fields, then the normal's gradient
 #pragma unroll
-    for (int c = 0; c < kTriGradStride; ++c) g[c] = 0.f;
+    for (int c = 0; c < kGAcc; ++c) g[c] = 0.f;
     if (mine != 0u) {
       const PixelTri<float> t = sh.tri.get(j_own);
       int n = 0;
@@ -238,14 +241,16 @@ __global__ void __launch_bounds__(kBlockSize, 10)
     }
     if (__any_sync(kFullWarp, half == 1 && __popc(mine) > 1)) {
 #pragma unroll
-      for (int c = 0; c < kTriGradSize; ++c) g[c] += __shfl_down_sync(kFullWarp, g[c], kBatch);
+      for (int c = 0; c < kGAcc; ++c) g[c] += __shfl_down_sync(kFullWarp, g[c], kBatch);
     }
     if (half == 0 && mine != 0u) {  // 16-byte atomics over the padded row
+      fold_normal_grad(sh.tri.get(j_own).h, g + kGNormal, g + kGH);
       float4* dst = reinterpret_cast<float4*>(tri_grads + (int64_t)kTriGradStride * sh.k[j_own]);
+      auto field = [&](int c) { return c < kTriGradSize ? g[c] : 0.f; };  // zeros in the padding
 #pragma unroll
       for (int v = 0; v < kTriGradStride / 4; ++v) {
         const int c = 4 * v;
-        const float4 a = make_float4(g[c], g[c + 1], g[c + 2], g[c + 3]);
+        const float4 a = make_float4(field(c), field(c + 1), field(c + 2), field(c + 3));
         if (a.x != 0.f || a.y != 0.f || a.z != 0.f || a.w != 0.f) atomicAdd(dst + v, a);
       }
     }

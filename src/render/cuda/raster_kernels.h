@@ -127,7 +127,7 @@ void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const 
                            const int32_t* visible, const ViewParams& vp, const ForwardImages& out,
                            unsigned int* max_weight_bits, cudaStream_t stream);
 
-constexpr int kTriGradStride = 24;
+constexpr int kTriGradStride = 20;  // five 16-byte vectors
 static_assert(kTriGradStride >= kTriGradSize && kTriGradStride % 4 == 0, "padded TriGrad rows");
 
 struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state

@@ -1,5 +1,5 @@
 // Coalesced block-wide copies between row-major global arrays (rows of W
-// floats: vertices 9, colours 3, PixelTri 24, TriGrad 21) and a shared-memory
+// floats: vertices 9, colours 3, PixelTri 24, TriGrad rows 20) and a shared-memory
 // tile, so that per-triangle kernels read and write whole cache lines instead
 // of one scattered 4-byte access per field and thread. Row r of the tile is
 // global row rows[base + r] (a gather by triangle id) or, with rows == nullptr,
