@@ -42,9 +42,11 @@ __global__ void __launch_bounds__(kThreads)
     rect = r;
     count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));  // < 2^31: ints hold the image's tile grid
   }
-  rects[i] = rect;
   tile_counts[i] = count;
-  keys[i] = key;
+  if (count > 0) {  // only visible triangles' rectangles and keys are read (and culling comes in runs)
+    rects[i] = rect;
+    keys[i] = key;
+  }
 }
 
 __global__ void __launch_bounds__(kThreads)

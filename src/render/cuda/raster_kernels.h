@@ -44,9 +44,9 @@ FLAT_HD bool pair_meets_half(int32_t id, int half) { return ((uint32_t)id >> (kP
 FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
-// Pass 1 over all n triangles (render/cuda/preprocess.cu): pixel support
-// rectangle (all zero when culled), tiles touched (0 when culled) and depth
-// sort key.
+// Pass 1 over all n triangles (render/cuda/preprocess.cu): tiles touched (0
+// when culled) and, for the others only, the pixel support rectangle and the
+// depth sort key.
 void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
                  int32_t* tile_counts, float* keys, cudaStream_t stream);
 
