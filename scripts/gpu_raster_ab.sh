@@ -5,8 +5,12 @@
 #      patch i), rebuilding flat_bench and keeping a copy of each binary;
 #   2. with RASTER_TESTS=1, build the render and bench tests at the last
 #      variant and run them (the CUDA-vs-CPU errors of docs/rasterizer.md);
+#      RASTER_TESTS=each runs them at every variant;
 #   3. time every variant AB_ROUNDS times, interleaved (0 1 2 .. 0 1 2 ..), on
-#      the anchor workloads, then one --profile run each (GPU ms per kernel).
+#      the anchor workloads, then one --profile run each (GPU ms per kernel);
+#   4. with AB_NCU=1, Nsight Compute's stall sampling per source line of the
+#      last variant's forward and backward kernels (one launch, view 12 of
+#      the first workload; the build then has -lineinfo), in the archive.
 # Usage there (repo root; .deps/glm and the patch folder carried):
 #   AB_DIR=.ab AB_PATCHES="fuse prefetch" bash scripts/gpu_raster_ab.sh
 # A patch is AB_DIR/NAME.patch (git diff format, applied with patch -p1).
@@ -24,14 +28,22 @@ WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
 ROUNDS="${AB_ROUNDS:-2}"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_CUTLASS=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
+  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
+  ${AB_NCU:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
 names=(base)
+run_tests() {  # $1: index
+  ninja -C "$BUILD" flat_test_render flat_test_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed|FAILED" \
+    >"$OUT/test_render_$1.log"; echo "== render tests (variant $1) rc=${PIPESTATUS[0]}"; tail -1 "$OUT/test_render_$1.log")
+  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -1)
+}
 build_variant() {  # $1: index
   local t0; t0=$(date +%s)
   ninja -C "$BUILD" flat_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
   cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
   echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
+  [ "${RASTER_TESTS:-0}" = each ] && run_tests "$1"
 }
 build_variant 0
 i=0
@@ -40,12 +52,7 @@ for p in ${AB_PATCHES:-}; do
   patch -p1 -s -d "$ROOT" <"$AB_DIR/$p.patch" || { echo "patch $p does not apply"; exit 1; }
   build_variant $i
 done
-if [ "${RASTER_TESTS:-0}" = 1 ]; then
-  ninja -C "$BUILD" flat_test_render flat_test_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
-  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed|FAILED" \
-    >"$OUT/test_render.log"; echo "== render tests (variant $i) rc=${PIPESTATUS[0]}"; tail -3 "$OUT/test_render.log")
-  (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -2)
-fi
+[ "${RASTER_TESTS:-0}" = 1 ] && run_tests "$i"
 for r in $(seq 1 "$ROUNDS"); do
   for v in $(seq 0 $i); do
     "$BIN/flat_bench_$v" raster --workload $WORKLOADS --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_${v}_$r.log" 2>&1 \
@@ -63,4 +70,20 @@ awk -F'|' '{split($1, a, " "); printf "%s %s %-13s %7s %7s %5s\n", a[1], a[2], $
 for v in $(seq 0 $i); do
   echo "== profile variant $v (${names[$v]})"; grep -E "profile|raster_|chain|radix|screen|cull|gather|rank|duplicate|ordered|Scan|Reduce|Select" "$OUT/profile_$v.log" | head -24
 done
-[ -f "$OUT/test_render.log" ] && { echo "== render tests, variant $i:"; grep -E "passed|failed|FAILED" "$OUT/test_render.log" | tail -3; }
+for v in $(seq 0 $i); do
+  [ -f "$OUT/test_render_$v.log" ] && { echo "== render tests, variant $v:"; grep -E "passed|failed|FAILED" "$OUT/test_render_$v.log" | tail -3; }
+done
+if [ -n "${AB_NCU:-}" ] && command -v ncu >/dev/null; then
+  first=$(echo $WORKLOADS | awk '{print $1}')
+  for k in raster_forward_kernel raster_backward_kernel; do
+    timeout 240 ncu --clock-control none -k "regex:$k" --launch-skip 12 --launch-count 1 --import-source yes \
+      --section SourceCounters --section WarpStateStats --section LaunchStats --section Occupancy \
+      --section SpeedOfLight --section MemoryWorkloadAnalysis \
+      -o "$OUT/ncu_$k" "$BIN/flat_bench_$i" raster --workload $first --repeats 1 >"$OUT/ncu_$k.log" 2>&1
+    ncu -i "$OUT/ncu_$k.ncu-rep" --page details >"$OUT/ncu_$k.details.txt" 2>&1
+    ncu -i "$OUT/ncu_$k.ncu-rep" --page source --csv --print-source cuda,sass >"$OUT/ncu_$k.source.csv" 2>&1
+    rm -f "$OUT/ncu_$k.ncu-rep"
+    echo "== ncu $k (variant $i)"
+    grep -E "Duration|Warp Cycles Per Issued|Registers Per|Achieved Occupancy|DRAM Throughput|L2 Hit" "$OUT/ncu_$k.details.txt" | head -8
+  done
+fi
