@@ -31,6 +31,8 @@ cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OII
   -DFLAT_CUTLASS="${RASTER_CUTLASS:-OFF}" \
   ${RASTER_NCU_SOURCE:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
+source "$ROOT/scripts/gpu_sync_mtimes.sh"
+sync_mtimes "$ROOT" "$BUILD"
 ninja -C "$BUILD" $targets >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
 echo "== built $targets in $(( $(date +%s) - t0 )) s"
 B="$BUILD/flat_bench"

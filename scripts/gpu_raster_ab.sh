@@ -31,6 +31,7 @@ cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OII
   -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
   ${AB_NCU:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
   || { tail -40 "$OUT/configure.log"; exit 1; }
+source "$ROOT/scripts/gpu_sync_mtimes.sh"
 names=(base)
 run_tests() {  # $1: index
   ninja -C "$BUILD" flat_test_render flat_test_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
@@ -40,6 +41,7 @@ run_tests() {  # $1: index
 }
 build_variant() {  # $1: index
   local t0; t0=$(date +%s)
+  sync_mtimes "$ROOT" "$BUILD"
   ninja -C "$BUILD" flat_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
   cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
   echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
