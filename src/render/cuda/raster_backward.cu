@@ -7,8 +7,9 @@
 //   replay    each pixel walks the staged triangles its mask bits name and
 //             that lie before its last blended entry, back to front, with the
 //             3DGS-style recurrence (as render/cpu/raster_cpu.cpp); it
-//             evaluates each fragment's window and leaves the window value,
-//             blending weight and dL/dalpha in shared memory;
+//             evaluates each fragment's window and depth and leaves the
+//             window value, depth, blending weight and dL/dalpha in shared
+//             memory;
 //   gradients two lanes per triangle take alternate pixels of its mask and
 //             sum its screen gradients (TriGrad's 18 fields and the normal's
 //             3) in registers, add the two halves with a shuffle, fold the
@@ -17,11 +18,11 @@
 //             kTriGradStride floats).
 // The forward's masks spare the backward its own coverage test: no support
 // rectangles are read, and the window is evaluated only where a fragment
-// blended; the gradients reuse its value (recomputing only the cheap affine
-// u_i and the depth).
+// blended; the gradients reuse its value and depth (recomputing only the
+// cheap affine u_i).
 // Rounds of 16 triangles, not 32: the per-fragment arrays (weight, dL/dalpha,
-// window value) are most of a warp's shared memory, and halving them lets
-// twice as many warps share an SM.
+// window value, depth) are most of a warp's shared memory, and halving them
+// lets twice as many warps share an SM (21.9 KB a block: 10 blocks fit).
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/tile_pixel.cuh"
 #include "render/cuda/shared_tris.cuh"
@@ -77,17 +78,26 @@ __device__ __forceinline__ void add_fragment_grads(const PixelTri<float>& t, con
   }
 }
 
-// The fragment of staged triangle t at pixel centre (px, py) with ray (rx, ry),
-// from its kept window value I (bit-identical to shade() + fragment_depth()).
-__device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& t, float I, float px, float py,
-                                                         float rx, float ry, const RasterConstants& k) {
+// A fragment's depth as the replay keeps it for the gradients: z where the
+// ray meets the plane, or a negative code where it was clamped (the
+// gradient then needs only which end).
+constexpr float kKeptZlo = -1.f, kKeptZhi = -2.f;
+__device__ __forceinline__ float kept_depth(const Fragment<float>& f) {
+  return f.zclamp == 0 ? f.z : (f.zclamp < 0 ? kKeptZlo : kKeptZhi);
+}
+
+// The fragment of staged triangle t at pixel centre (px, py) from its kept
+// window value I and depth (bit-identical to shade() + fragment_depth()).
+__device__ __forceinline__ Fragment<float> kept_fragment(const PixelTri<float>& t, float I, float z, float px,
+                                                         float py, const RasterConstants& k) {
   Fragment<float> f;
   const float dx = px - t.sx, dy = py - t.sy;
 #pragma unroll
   for (int i = 0; i < 3; ++i) f.u[i] = 1.f + t.nx[i] * dx + t.ny[i] * dy;
   f.I = I;
   f.alpha = tmin(k.alpha_max, t.opacity * I);
-  fragment_depth(t, rx, ry, f);
+  f.z = z;
+  f.zclamp = z > 0.f ? 0 : (z == kKeptZlo ? -1 : 1);
   return f;
 }
 
@@ -98,6 +108,7 @@ struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-f
   unsigned int pixels[kBatch];  // region pixels of the slot's forward coverage mask
   float4 G[kCh / 4][32];       // per pixel: upstream gradients (two 128-bit loads in phase 3)
   float I[kBatch][32];         // per (slot, pixel) fragment: window value,
+  float z[kBatch][32];         //   depth (kept_depth()),
   float w[kBatch][32];         //   alpha T,
   float ga[kBatch][32];        //   and dL/dalpha
 };
@@ -216,6 +227,7 @@ __global__ void __launch_bounds__(kBlockSize, 10)
       last_G = fv_G;
       last_alpha = f.alpha;
       sh.I[j][lane] = f.I;
+      sh.z[j][lane] = kept_depth(f);
       sh.w[j][lane] = f.alpha * T;
       sh.ga[j][lane] = g_alpha * T - inv_keep * bg_t;
     }
@@ -233,7 +245,7 @@ __global__ void __launch_bounds__(kBlockSize, 10)
         const int q = __ffs(m) - 1;
         const float2 c = region_pixel(pix, q);
         const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 1
-        const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], c.x, c.y, qr.x, qr.y, vp.k);
+        const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], sh.z[j_own][q], c.x, c.y, vp.k);
         const float4 g0 = sh.G[0][q], g1 = sh.G[1][q];
         const float Gq[kCh] = {g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w};
         add_fragment_grads(t, f, c.x, c.y, qr.x, qr.y, sh.w[j_own][q], sh.ga[j_own][q], Gq, vp.k, g);
