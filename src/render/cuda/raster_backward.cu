@@ -239,9 +239,8 @@ __global__ void __launch_bounds__(kBlockSize, 10)
     for (int c = 0; c < kGAcc; ++c) g[c] = 0.f;
     if (mine != 0u) {
       const PixelTri<float> t = sh.tri.get(j_own);
-      int n = 0;
-      for (unsigned m = mine; m != 0u; m &= m - 1u, ++n) {
-        if ((n & 1) != half) continue;
+      // Alternate pixels: lane half 1 starts at the second; each step clears two.
+      for (unsigned m = half ? mine & (mine - 1u) : mine; m != 0u; m &= m - 1u, m &= m - 1u) {
         const int q = __ffs(m) - 1;
         const float2 c = region_pixel(pix, q);
         const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 1
