@@ -3,7 +3,8 @@
 // (render/cuda/tile_pixel.cuh) on its own, as the forward does
 // (render/cuda/raster_forward.cu). Back to front, a round stages the last 16
 // entries of the next 32 whose forward coverage mask (PairMasks,
-// raster_kernels.h) is not empty, in two phases:
+// raster_kernels.h) is not empty (the masks and pair ids of the 32 entries
+// below are read a round ahead), in two phases:
 //   replay    each pixel walks the staged triangles its mask bits name and
 //             that lie before its last blended entry, back to front, with the
 //             3DGS-style recurrence (as render/cpu/raster_cpu.cpp); it
