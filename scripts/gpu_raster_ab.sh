@@ -70,7 +70,7 @@ grep -h "per view" "$OUT"/bench_0_1.log | cut -c1-220
 echo "== fwd / fwd+bwd ms (columns: variant, round, workload, fwd, fwd+bwd, peak)"
 awk -F'|' '{split($1, a, " "); printf "%s %s %-13s %7s %7s %5s\n", a[1], a[2], $2, $10, $11, $12}' "$OUT/ab.log"
 for v in $(seq 0 $i); do
-  echo "== profile variant $v (${names[$v]})"; grep -E "profile|raster_|chain|radix|screen|cull|gather|rank|duplicate|ordered|Scan|Reduce|Select" "$OUT/profile_$v.log" | head -24
+  echo "== profile variant $v (${names[$v]})"; grep -E "profile|GPU timeline|^  +[0-9.]+  (fwd|bwd) |raster_|chain|radix|screen|cull|gather|rank|duplicate|ordered|Scan|Reduce|Select" "$OUT/profile_$v.log" | head -40
 done
 for v in $(seq 0 $i); do
   [ -f "$OUT/test_render_$v.log" ] && { echo "== render tests, variant $v:"; grep -E "passed|failed|FAILED" "$OUT/test_render_$v.log" | tail -3; }

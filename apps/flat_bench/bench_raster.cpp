@@ -41,6 +41,61 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// One GPU activity (kernel, copy or memset) of a profiled step.
+struct GpuSpan {
+  uint64_t start, end;
+  std::string name;
+};
+
+// Short kernel name: the function name without namespaces and arguments.
+std::string short_name(const std::string& name) {
+  std::string n = name;
+  for (size_t a; (a = n.find("(anonymous namespace)::")) != std::string::npos;) n.erase(a, 23);
+  n = n.substr(0, n.find('('));
+  if (n.rfind("void ", 0) == 0) n = n.substr(5);
+  const size_t t = n.find('<');
+  if (t != std::string::npos) n = n.substr(0, t);
+  const size_t c = n.rfind("::");
+  return c == std::string::npos ? n : n.substr(c + 2);
+}
+
+// Where the GPU idles in the step: time with no kernel, copy or memset
+// running on any stream, split at the end of the forward (the last
+// max-weight merge), and which activity each idle gap precedes (a gap
+// before a kernel is time the GPU waited for the host to launch it). Gaps
+// are grouped by the activities before and after them.
+void print_gpu_idle(std::vector<GpuSpan> spans) {
+  if (spans.empty()) return;
+  std::sort(spans.begin(), spans.end(), [](const GpuSpan& a, const GpuSpan& b) { return a.start < b.start; });
+  uint64_t fwd_end = spans.front().start;
+  for (const auto& s : spans)
+    if (s.name.find("merge_max_weight") != std::string::npos) fwd_end = std::max(fwd_end, s.end);
+  double idle[2] = {0, 0};
+  std::map<std::string, std::pair<double, int>> before;  // next activity -> (idle ms, gaps)
+  uint64_t busy_until = spans.front().end;
+  std::string last_name = spans.front().name;  // the activity that ends last so far
+  for (size_t i = 1; i < spans.size(); ++i) {
+    const GpuSpan& s = spans[i];
+    if (s.start > busy_until) {
+      const double gap = (s.start - busy_until) * 1e-6;
+      idle[s.start > fwd_end ? 1 : 0] += gap;
+      auto& b = before[(s.start > fwd_end ? "bwd " : "fwd ") + short_name(last_name) + " > " + short_name(s.name)];
+      b.first += gap;
+      b.second += 1;
+    }
+    if (s.end > busy_until) last_name = s.name;
+    busy_until = std::max(busy_until, s.end);
+  }
+  const double span_ms = (busy_until - spans.front().start) * 1e-6, fwd_ms = (fwd_end - spans.front().start) * 1e-6;
+  std::printf("GPU timeline: first to last activity %.2f ms (forward %.2f ms), idle %.2f ms in the forward and "
+              "%.2f ms after it; idle before:\n",
+              span_ms, fwd_ms, idle[0], idle[1]);
+  std::vector<std::pair<double, std::string>> rows;
+  for (const auto& [name, b] : before) rows.push_back({b.first, name + " x" + std::to_string(b.second)});
+  std::sort(rows.rbegin(), rows.rend());
+  for (size_t i = 0; i < rows.size() && i < 12; ++i) std::printf("  %8.3f  %s\n", rows[i].first, rows[i].second.c_str());
+}
+
 // One forward+backward step under the libtorch (Kineto) profiler: GPU time per
 // kernel name, summed over the step (where the time goes, without nsys).
 void profile_scene(const RasterWorkload& sc, const render::RasterSettings& settings) {
@@ -49,23 +104,35 @@ void profile_scene(const RasterWorkload& sc, const render::RasterSettings& setti
   auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
   auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
   const torch::profiler::impl::ProfilerConfig cfg(torch::profiler::impl::ProfilerState::KINETO);
-  const std::set<ActivityType> acts = {ActivityType::CPU, ActivityType::CUDA};
+  // GPU activities only: recording every host op would slow the host down and
+  // open idle gaps on the GPU that an unprofiled step does not have.
+  const std::set<ActivityType> acts = {ActivityType::CUDA};
   prof::prepareProfiler(cfg, acts);
   torch::cuda::synchronize();
   prof::enableProfiler(cfg, acts);
+  const double t0 = now_ms();
   auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
+  const double t_fwd_host = now_ms();
   (r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.normal.sum()).backward();
+  const double t_bwd_host = now_ms();
   torch::cuda::synchronize();
+  const double t_end = now_ms();
   const auto result = prof::disableProfiler();
   std::map<std::string, std::pair<double, int>> per_kernel;  // name -> (ms, launches)
   double total = 0;
+  std::vector<GpuSpan> spans;
   for (const auto& e : result->events()) {
     if (e.deviceType() != c10::DeviceType::CUDA) continue;
     auto& k = per_kernel[e.name().substr(0, 60)];
     k.first += e.durationNs() * 1e-6;
     k.second += 1;
     total += e.durationNs() * 1e-6;
+    spans.push_back({e.startNs(), e.endNs(), e.name()});
   }
+  std::printf("profile %s: host returned from the forward after %.2f ms, from the backward call after %.2f ms, "
+              "GPU done after %.2f ms (with the profiler's overhead)\n",
+              sc.name.c_str(), t_fwd_host - t0, t_bwd_host - t0, t_end - t0);
+  print_gpu_idle(spans);
   std::vector<std::pair<double, std::string>> rows;
   for (const auto& [name, k] : per_kernel) rows.push_back({k.first, name + " x" + std::to_string(k.second)});
   std::sort(rows.rbegin(), rows.rend());
@@ -114,7 +181,7 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   const int64_t V = sc.targets.size();
   // Random upstream weights so every output carries gradient.
   auto w_rgb = torch::rand({V, 3, sc.height, sc.width}, sc.vertices.options());
-  std::vector<double> fwd, fwdbwd;
+  std::vector<double> fwd, fwdbwd, fwd_host;  // fwd_host: until the forward call returns
   double peak_fwd = 0, peak_all = 0;
   int64_t contributing = 0;
   for (int it = 0; it < repeats + 2; ++it) {
@@ -125,9 +192,11 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
       const double t0 = now_ms();
       auto r = render::rasterize(sc.vertices, sc.colors, sc.opacities, sc.sigmas, sc.targets, sc.height, sc.width,
                                  settings);
+      const double t_host = now_ms();
       sync();
       const double t1 = now_ms();
       if (it >= 2) fwd.push_back(t1 - t0);
+      if (it >= 2) fwd_host.push_back(t_host - t0);
       peak_fwd = std::max(peak_fwd, peak_memory_gib(dev));
       if (it == 0) contributing = (r.max_weight > 0).sum().item<int64_t>();
     }
@@ -155,9 +224,9 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
                  l.pairs_max * 1e-6, l.entries, l.entries_max);
     load_cells = fmt::format("{:.2f} M | {:.2f} M | {:.0f}", l.visible * 1e-6, l.pairs * 1e-6, l.entries);
   }
-  spdlog::info("raster {}: forward {:.2f} ms (median of {}), forward+backward {:.2f} ms, peak {:.2f} GiB forward, "
-               "{:.2f} GiB forward+backward",
-               sc.name, median(fwd), repeats, median(fwdbwd), peak_fwd, peak_all);
+  spdlog::info("raster {}: forward {:.2f} ms (median of {}; the host call returns after {:.2f} ms), forward+backward "
+               "{:.2f} ms, peak {:.2f} GiB forward, {:.2f} GiB forward+backward",
+               sc.name, median(fwd), repeats, median(fwd_host), median(fwdbwd), peak_fwd, peak_all);
   std::printf("| %s | %lld | %lld | %lldx%lld | %s | %s | %.2f | %.2f | %.2f |\n", sc.name.c_str(),
               (long long)sc.vertices.size(0), (long long)V, (long long)sc.height, (long long)sc.width,
               settings.window.c_str(), load_cells.c_str(), median(fwd), median(fwdbwd), peak_all);
