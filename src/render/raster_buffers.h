@@ -11,7 +11,8 @@ namespace flat::render {
 // vertices (N,9), colors (N,3), opacities (N), sigmas (N), w2c (V,4,4),
 // K (V,4) pixel intrinsics fx, fy, cx, cy; background (3).
 struct RasterInputs {
-  at::Tensor vertices, colors, opacities, sigmas, w2c, K, background;
+  at::Tensor vertices, colors, opacities, sigmas;
+  at::Tensor w2c, K, background;  // on the host, for either back end (rasterize.cpp)
   int64_t height = 0, width = 0;
   RasterConstants k;
 };
