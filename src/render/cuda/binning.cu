@@ -1,5 +1,5 @@
-// Tile binning: the sum of tiles touched (the pair count), the list of
-// visible triangles, then two stable radix sorts (cub): the visible triangles
+// Tile binning: the list of visible triangles (the cull pass gave their tile
+// counts and the pair count), then two stable radix sorts (cub): the visible triangles
 // by depth (depth_sort_key(): 24 bits of the positive centroid depth), and the
 // (triangle, tile) pairs, written in that depth order, by tile id alone
 // (~13 bits), so each tile's list comes out front to back. Sorting once per
@@ -7,7 +7,6 @@
 // one sort of the pairs by a 64-bit (tile | depth) key. Pair ids are indices
 // into the visible list.
 #include <cub/cub.cuh>
-#include <cuda/std/functional>
 #include <thrust/iterator/counting_iterator.h>
 
 #include "render/cuda/raster_kernels.h"
@@ -142,14 +141,6 @@ int bits_for(int values) {
 }
 
 }  // namespace
-
-void sum_tile_counts(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t* total, int64_t n,
-                     cudaStream_t stream) {
-  // The 64-bit initial value makes the accumulator 64-bit: the sum may pass
-  // 2^31 (the caller then fails with a clear message).
-  cub::DeviceReduce::Reduce(temp, temp_bytes, tile_counts, total, (int)n, ::cuda::std::plus<int64_t>{}, int64_t(0),
-                            stream);
-}
 
 void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t n, int32_t* visible,
                     int32_t* num_visible, cudaStream_t stream) {

@@ -2,7 +2,8 @@
 // render/triangle_math.h, shared with the CPU reference; its chain rule is
 // render/cuda/preprocess_backward.cu):
 //   cull    all N triangles: support rectangle, tiles touched (0 = culled) and
-//           depth sort key; cheap outputs, coalesced.
+//           depth sort key; cheap outputs, coalesced; and their sum, the
+//           view's pair count (one atomic a block).
 //   screen  the view's visible triangles only (typically a quarter of them):
 //           the PixelTri screen data the compositing kernels read, stored
 //           compactly (index k of the visible list). The backward re-runs it
@@ -25,27 +26,38 @@ __device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k
 
 __global__ void __launch_bounds__(kThreads)
     cull_kernel(const float* __restrict__ vertices, const float* __restrict__ opacities, int64_t n, ViewParams vp,
-                TriRect* __restrict__ rects, int32_t* __restrict__ tile_counts, float* __restrict__ keys) {
+                TriRect* __restrict__ rects, int32_t* __restrict__ tile_counts, float* __restrict__ keys,
+                unsigned long long* __restrict__ total) {
   __shared__ float sh_v[kThreads * 9];
+  __shared__ long long warp_sums[kThreads / 32];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((n - base) < kThreads ? (n - base) : kThreads);
   load_rows<9, 9, kThreads>(vertices, nullptr, base, rows, sh_v);
   __syncthreads();
-  if ((int)threadIdx.x >= rows) return;
-  const int64_t i = base + threadIdx.x;
-  TriRect rect{0, 0, 0, 0}, r;
   int32_t count = 0;
-  float key = 0.f;
-  PixelTri<float> t;
-  if (can_show(opacities[i], vp.k) &&
-      preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key)) {
-    rect = r;
-    count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));  // < 2^31: ints hold the image's tile grid
+  if ((int)threadIdx.x < rows) {
+    const int64_t i = base + threadIdx.x;
+    TriRect r;
+    float key = 0.f;
+    PixelTri<float> t;
+    if (can_show(opacities[i], vp.k) &&
+        preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key))
+      count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));  // < 2^31: ints hold the tile grid
+    tile_counts[i] = count;
+    if (count > 0) {  // only visible triangles' rectangles and keys are read (and culling comes in runs)
+      rects[i] = r;
+      keys[i] = key;
+    }
   }
-  tile_counts[i] = count;
-  if (count > 0) {  // only visible triangles' rectangles and keys are read (and culling comes in runs)
-    rects[i] = rect;
-    keys[i] = key;
+  // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
+  long long sum = count;
+  for (int d = 16; d > 0; d >>= 1) sum += __shfl_down_sync(0xffffffffu, sum, d);
+  if ((threadIdx.x & 31) == 0) warp_sums[threadIdx.x / 32] = sum;
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    long long block_sum = 0;
+    for (int w = 0; w < kThreads / 32; ++w) block_sum += warp_sums[w];
+    if (block_sum > 0) atomicAdd(total, (unsigned long long)block_sum);
   }
 }
 
@@ -85,9 +97,10 @@ int blocks_for(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 }  // namespace
 
 void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
-                 int32_t* tile_counts, float* keys, cudaStream_t stream) {
-  if (n == 0) return;
-  cull_kernel<<<blocks_for(n), kThreads, 0, stream>>>(vertices, opacities, n, vp, rects, tile_counts, keys);
+                 int32_t* tile_counts, float* keys, int64_t* total, cudaStream_t stream) {
+  if (cudaMemsetAsync(total, 0, sizeof(int64_t), stream) != cudaSuccess || n == 0) return;  // error: the caller's check
+  cull_kernel<<<blocks_for(n), kThreads, 0, stream>>>(vertices, opacities, n, vp, rects, tile_counts, keys,
+                                                      reinterpret_cast<unsigned long long*>(total));
 }
 
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,

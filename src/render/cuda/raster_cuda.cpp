@@ -29,6 +29,16 @@ void check_launch(const char* what) {
 
 namespace {
 
+void copy_async(void* dst, const void* src, int64_t bytes, cudaStream_t stream) {
+  const cudaError_t err = bytes > 0 ? cudaMemcpyAsync(dst, src, bytes, cudaMemcpyDeviceToDevice, stream) : cudaSuccess;
+  if (err != cudaSuccess) fail(std::string("rasterize (cuda): device copy failed: ") + cudaGetErrorString(err));
+}
+
+void zero_async(const at::Tensor& t, cudaStream_t stream) {
+  const cudaError_t err = t.numel() > 0 ? cudaMemsetAsync(t.data_ptr(), 0, t.nbytes(), stream) : cudaSuccess;
+  if (err != cudaSuccess) fail(std::string("rasterize (cuda): memset failed: ") + cudaGetErrorString(err));
+}
+
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
 // Per view, kept for the backward: sorted ids, tile ranges, final T, last
 // entry, visible list, the visible triangles' screen data (empty when over
@@ -76,10 +86,10 @@ void check_sizes(const RasterInputs& in) {
 // ahead timed the same within run-to-run noise on the H100; two is kept.)
 constexpr int kCullAhead = 2;
 struct CullScratch {
-  at::Tensor rects, counts, keys, visible, num_visible, total, sum_temp, select_temp;
+  at::Tensor rects, counts, keys, visible, num_visible, total, select_temp;
   at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
   at::cuda::CUDAEvent culled, released;  // sizes ready (side stream); last read done (main stream)
-  size_t sum_bytes = 0, select_bytes = 0;
+  size_t select_bytes = 0;
   CullScratch(int64_t n, const at::TensorOptions& f, cudaStream_t stream) {
     rects = at::empty({n * 4}, f.dtype(at::kInt));
     counts = at::empty({n}, f.dtype(at::kInt));
@@ -87,26 +97,22 @@ struct CullScratch {
     visible = at::empty({n}, f.dtype(at::kInt));
     num_visible = at::empty({1}, f.dtype(at::kInt));
     total = at::empty({1}, f.dtype(at::kLong));
-    sum_tile_counts(nullptr, sum_bytes, nullptr, nullptr, n, stream);
     select_visible(nullptr, select_bytes, nullptr, n, nullptr, nullptr, stream);
-    sum_temp = at::empty({(int64_t)sum_bytes + 1}, f.dtype(at::kByte));
     select_temp = at::empty({(int64_t)select_bytes + 1}, f.dtype(at::kByte));
     host_count = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
     host_visible = at::zeros({1}, at::TensorOptions().dtype(at::kInt).pinned_memory(true));
   }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
 
-  // Enqueues culling, the pair count and the visible selection of one view on
+  // Enqueues culling (with the pair count) and the visible selection of one view on
   // `side` (after the previous user of this scratch released it), and the
   // copy of the two sizes to the host.
   void cull(const RasterInputs& in, const ViewParams& vp, const c10::cuda::CUDAStream& side) {
     const int64_t n = in.vertices.size(0);
     released.block(side);
     launch_cull(in.vertices.data_ptr<float>(), in.opacities.data_ptr<float>(), n, vp, rect_ptr(),
-                counts.data_ptr<int>(), keys.data_ptr<float>(), side);
+                counts.data_ptr<int>(), keys.data_ptr<float>(), total.data_ptr<int64_t>(), side);
     check_launch("culling");
-    sum_tile_counts(sum_temp.data_ptr(), sum_bytes, counts.data_ptr<int>(), total.data_ptr<int64_t>(), n, side);
-    check_launch("pair count");
     select_visible(select_temp.data_ptr(), select_bytes, counts.data_ptr<int>(), n, visible.data_ptr<int>(),
                    num_visible.data_ptr<int>(), side);
     check_launch("visible selection");
@@ -140,40 +146,64 @@ struct ScreenData {
   int64_t tri_bytes() const { return tris.nbytes(); }
 };
 
-// Sorts one view's visible triangles by depth, writes their (tile, triangle)
-// pairs in that order and sorts those by tile (binning.cu): returns the pairs'
-// visible-list indices, tile by tile, front to back, fills ranges, and puts
-// the tiles in compositing order (heaviest first) into tile_order.
-// depth_bits and order (nv each) are consumed.
-at::Tensor bin_by_tile(at::Tensor& depth_bits, at::Tensor& order, ScreenData& sd, int64_t count, const ViewParams& vp,
-                       at::Tensor& ranges, at::Tensor& tile_order, cudaStream_t stream) {
-  const int64_t nv = order.size(0);
-  const int num_tiles = vp.tiles_x * vp.tiles_y;
-  const auto i32 = order.options();
-  auto u32 = [](at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); };
-  at::Tensor depth_sorted = at::empty({nv}, i32), order_sorted = at::empty({nv}, i32);
-  at::Tensor counts = at::empty({nv}, i32), offsets = at::empty({nv}, i32);
-  at::Tensor tiles = at::empty({count}, i32), tiles_sorted = at::empty({count}, i32);
-  at::Tensor ids = at::empty({count}, i32), ids_sorted = at::empty({count}, i32);
+// One view's binning buffers, carved from a single allocation (one
+// allocator call a view instead of ten: the host's per-view work is what
+// small renders wait on): the depth keys and orders before and after the
+// depth sort, the depth-order offsets, the pairs before the tile sort, and
+// the sorts' and scan's temporary storage.
+struct BinScratch {
+  at::Tensor bytes;
+  uint32_t *depth_bits, *depth_sorted, *tiles, *tiles_sorted;
+  int32_t *order, *order_sorted, *counts, *offsets, *ids;
+  void* temp;
   size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
-  sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, nv, stream);
-  scan_ordered_counts(nullptr, scan_bytes, nullptr, nullptr, nv, stream);
-  sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, count, num_tiles, stream);
-  const size_t temp_bytes = std::max({depth_bytes, scan_bytes, tile_bytes});
-  at::Tensor temp = at::empty({(int64_t)temp_bytes + 1}, i32.dtype(at::kByte));
-  sort_by_depth(temp.data_ptr(), depth_bytes, u32(depth_bits), u32(depth_sorted), order.data_ptr<int>(),
-                order_sorted.data_ptr<int>(), nv, stream);
+  BinScratch(int64_t nv, int64_t count, int num_tiles, const at::TensorOptions& f, cudaStream_t stream) {
+    sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, nv, stream);
+    scan_ordered_counts(nullptr, scan_bytes, nullptr, nullptr, nv, stream);
+    sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, count, num_tiles, stream);
+    auto aligned = [](size_t b) { return (b + 255) / 256 * 256; };
+    const size_t per_tri = aligned(nv * sizeof(int32_t)), per_pair = aligned(count * sizeof(int32_t));
+    const size_t temp_bytes = aligned(std::max({depth_bytes, scan_bytes, tile_bytes, size_t(1)}));
+    bytes = at::empty({(int64_t)(6 * per_tri + 3 * per_pair + temp_bytes)}, f.dtype(at::kByte));
+    char* p = reinterpret_cast<char*>(bytes.data_ptr());
+    auto take = [&](size_t b) {
+      char* q = p;
+      p += b;
+      return q;
+    };
+    depth_bits = reinterpret_cast<uint32_t*>(take(per_tri));
+    depth_sorted = reinterpret_cast<uint32_t*>(take(per_tri));
+    order = reinterpret_cast<int32_t*>(take(per_tri));
+    order_sorted = reinterpret_cast<int32_t*>(take(per_tri));
+    counts = reinterpret_cast<int32_t*>(take(per_tri));
+    offsets = reinterpret_cast<int32_t*>(take(per_tri));
+    tiles = reinterpret_cast<uint32_t*>(take(per_pair));
+    tiles_sorted = reinterpret_cast<uint32_t*>(take(per_pair));
+    ids = reinterpret_cast<int32_t*>(take(per_pair));
+    temp = take(temp_bytes);
+  }
+};
+
+// Sorts one view's visible triangles by depth (keys and order in bs, from
+// launch_depth_keys), writes their (tile, triangle) pairs in that order and
+// sorts those by tile (binning.cu): returns the pairs' visible-list indices,
+// tile by tile, front to back, fills ranges, and puts the tiles in
+// compositing order (heaviest first) into tile_order.
+at::Tensor bin_by_tile(BinScratch& bs, int64_t nv, ScreenData& sd, int64_t count, const ViewParams& vp,
+                       at::Tensor& ranges, at::Tensor& tile_order, cudaStream_t stream) {
+  const int num_tiles = vp.tiles_x * vp.tiles_y;
+  at::Tensor ids_sorted = at::empty({count}, ranges.options());
+  sort_by_depth(bs.temp, bs.depth_bytes, bs.depth_bits, bs.depth_sorted, bs.order, bs.order_sorted, nv, stream);
   check_launch("depth sort");
-  launch_ordered_counts(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), counts.data_ptr<int>(), stream);
-  scan_ordered_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), offsets.data_ptr<int>(), nv, stream);
+  launch_ordered_counts(bs.order_sorted, nv, sd.rect_ptr(), bs.counts, stream);
+  scan_ordered_counts(bs.temp, bs.scan_bytes, bs.counts, bs.offsets, nv, stream);
   check_launch("tile count scan (depth order)");
-  launch_duplicate(order_sorted.data_ptr<int>(), nv, sd.rect_ptr(), sd.tri_ptr(), vp, offsets.data_ptr<int>(),
-                   u32(tiles), ids.data_ptr<int>(), stream);
+  launch_duplicate(bs.order_sorted, nv, sd.rect_ptr(), sd.tri_ptr(), vp, bs.offsets, bs.tiles, bs.ids, stream);
   check_launch("duplicate");
-  sort_by_tile(temp.data_ptr(), tile_bytes, u32(tiles), u32(tiles_sorted), ids.data_ptr<int>(),
-               ids_sorted.data_ptr<int>(), count, num_tiles, stream);
+  sort_by_tile(bs.temp, bs.tile_bytes, bs.tiles, bs.tiles_sorted, bs.ids, ids_sorted.data_ptr<int>(), count, num_tiles,
+               stream);
   check_launch("tile sort");
-  launch_tile_ranges(u32(tiles_sorted), count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+  launch_tile_ranges(bs.tiles_sorted, count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
   check_launch("tile ranges");
   launch_tile_order(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), num_tiles, tile_order.data_ptr<int>(),
                     stream);
@@ -238,12 +268,15 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     FLAT_CHECK(nv <= kMaxVisible, "rasterize (cuda): view " + std::to_string(v) + " has " + std::to_string(nv) +
                                       " visible triangles, more than the " + std::to_string(kMaxVisible) +
                                       " the tile lists can index; render fewer triangles per call");
-    const at::Tensor visible = s.visible.narrow(0, 0, nv).clone();  // kept for the backward (4 bytes a triangle)
+    // Raw copies and memsets below: ATen's clone and zeros cost the host more,
+    // and small renders wait on the host.
+    const at::Tensor visible = at::empty({nv}, f.dtype(at::kInt));  // kept for the backward (4 bytes a triangle)
+    copy_async(visible.data_ptr(), s.visible.data_ptr(), nv * sizeof(int32_t), stream);
     ScreenData sd(in, visible, vp, s.rect_ptr(), true, stream);
-    at::Tensor ids_sorted, ranges = at::zeros({num_tiles, 2}, f.dtype(at::kInt)), tile_order;
-    at::Tensor depth_bits = at::empty({nv}, f.dtype(at::kInt)), order = at::empty({nv}, f.dtype(at::kInt));
-    launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(),
-                      reinterpret_cast<uint32_t*>(depth_bits.data_ptr<int>()), order.data_ptr<int>(), stream);
+    at::Tensor ids_sorted, ranges = at::empty({num_tiles, 2}, f.dtype(at::kInt)), tile_order;
+    zero_async(ranges, stream);
+    BinScratch bs(nv, count, num_tiles, f, stream);
+    launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(), bs.depth_bits, bs.order, stream);
     check_launch("depth keys");
     s.released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
     const int64_t ahead = v + kCullAhead;  // its scratch was last read by view v - 1, released above
@@ -251,13 +284,12 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
       scratch[ahead % (kCullAhead + 1)]->cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, ahead), side);
     if (count > 0) {
       tile_order = at::empty({num_tiles}, f.dtype(at::kInt));
-      ids_sorted = bin_by_tile(depth_bits, order, sd, count, vp, ranges, tile_order, stream);
+      ids_sorted = bin_by_tile(bs, nv, sd, count, vp, ranges, tile_order, stream);
     } else {
       ids_sorted = at::empty({0}, f.dtype(at::kInt));
       tile_order = at::arange(num_tiles, f.dtype(at::kInt));  // every tile is composited (the background)
     }
-    depth_bits = at::Tensor();
-    order = at::Tensor();
+    bs.bytes = at::Tensor();
     at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
     const at::Tensor masks = at::empty({for_backward ? 2 * count : 0}, f.dtype(at::kInt));
     ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,
@@ -265,7 +297,8 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
                       last.data_ptr<int>(),
                       PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, count}};
-    const at::Tensor view_max = at::zeros({nv}, f.dtype(at::kInt));
+    const at::Tensor view_max = at::empty({nv}, f.dtype(at::kInt));
+    zero_async(view_max, stream);
     launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
                           ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), vp, img,
                           reinterpret_cast<unsigned int*>(view_max.data_ptr<int>()), stream);

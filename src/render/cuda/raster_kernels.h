@@ -46,9 +46,10 @@ FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
 // Pass 1 over all n triangles (render/cuda/preprocess.cu): tiles touched (0
 // when culled) and, for the others only, the pixel support rectangle and the
-// depth sort key.
+// depth sort key; the sum of the tile counts (the view's pair count) into
+// *total, zeroed first.
 void launch_cull(const float* vertices, const float* opacities, int64_t n, const ViewParams& vp, TriRect* rects,
-                 int32_t* tile_counts, float* keys, cudaStream_t stream);
+                 int32_t* tile_counts, float* keys, int64_t* total, cudaStream_t stream);
 
 // Ascending ids of the triangles with tile_counts > 0 (cub select; count to
 // *num_visible on the device); `temp` of temp_bytes (ask with temp == nullptr).
@@ -64,11 +65,6 @@ void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, 
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
                    PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
-
-// Sum of the n tile counts (the view's pair count) into *total (cub reduce,
-// 64-bit sum); `temp` of temp_bytes (ask with temp == nullptr).
-void sum_tile_counts(void* temp, size_t& temp_bytes, const int32_t* tile_counts, int64_t* total, int64_t n,
-                     cudaStream_t stream);
 
 // Binning of one view (render/cuda/binning.cu), in this order:
 // depth_bits[k] = the sort key of visible[k], order[k] = k;
