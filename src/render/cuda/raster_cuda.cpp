@@ -49,10 +49,10 @@ constexpr int64_t kViewState = 8;
 // masks are always kept and count first. At the paper's scale (24 views,
 // ~1.5M visible triangles each) it all fits and the backward skips 24
 // recomputations of the screen data (~2.5 ms on an H100); larger renders fall
-// back to recomputing, keeping peak memory bounded. 5 GiB: anchor-large (24
+// back to recomputing, keeping peak memory bounded. 5.5 GiB: anchor-large (24
 // views, 2.5M visible triangles, 242 MB of screen data and 41 MB of masks
-// each) keeps the screen data of 18 of its views.
-constexpr int64_t kKeepScreenBytes = int64_t(5) << 30;
+// each) keeps the screen data of 20 of its views, at 8 GiB of peak memory.
+constexpr int64_t kKeepScreenBytes = int64_t(11) << 29;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
 static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
@@ -340,9 +340,12 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   g.sigmas = at::zeros_like(in.sigmas);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  // Per-triangle screen gradients of one view (visible-list rows); the chain
-  // kernel re-zeroes the rows it consumed, so one zeroing serves every view.
-  const at::Tensor tri_grads = at::zeros({N * kTriGradStride}, f);
+  // Per-triangle screen gradients of one view (visible-list rows, as many as
+  // the longest list); the chain kernel re-zeroes the rows it consumed, so
+  // one zeroing serves every view.
+  int64_t rows = 0;
+  for (int64_t v = 0; v < V; ++v) rows = std::max(rows, views[kViewState * v + 4].size(0));
+  const at::Tensor tri_grads = at::zeros({rows * kTriGradStride}, f);
   for (int64_t v = 0; v < V; ++v) {
     const at::Tensor& visible = views[kViewState * v + 4];
     const int64_t nv = visible.size(0);
