@@ -126,21 +126,6 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
   }
 };
 
-// The cameras on the host, copied there in one transfer: both back ends read
-// them on the host (a few hundred bytes), and each check or small op on the
-// GPU would cost a host sync or a launch.
-camera::Cameras host_cameras(const camera::Cameras& cams) {
-  check_shape(cams.intrinsics, {-1, 4}, "rasterize: cameras intrinsics", "(V,4) normalised fx,fy,cx,cy");
-  check_shape(cams.c2w, {cams.intrinsics.size(0), 4, 4}, "rasterize: cameras camera-to-world", "(V,4,4)");
-  if (!cams.intrinsics.is_cuda() && !cams.c2w.is_cuda()) return cams;
-  if (cams.intrinsics.device() != cams.c2w.device()) return cams.to(at::kCPU);
-  const int64_t V = cams.intrinsics.size(0);
-  const at::Tensor both =
-      at::cat({cams.c2w.reshape({-1}).to(at::kDouble), cams.intrinsics.reshape({-1}).to(at::kDouble)}).cpu();
-  return {both.narrow(0, 16 * V, 4 * V).view({V, 4}).to(cams.intrinsics.scalar_type()),
-          both.narrow(0, 0, 16 * V).view({V, 4, 4}).to(cams.c2w.scalar_type())};
-}
-
 void check_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
                   const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width) {
   check_shape(vertices, {-1, 3, 3}, "rasterize: vertices", "(N,3,3)");
@@ -183,7 +168,9 @@ RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors
                             const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
                             const RasterSettings& settings) {
   settings.check();
-  const camera::Cameras host_cams = host_cameras(cams);
+  // The cameras on the host (a few hundred bytes): both back ends read them
+  // there, and each check or small op on the GPU would cost a sync or a launch.
+  const camera::Cameras host_cams = cams.to(at::kCPU);
   check_inputs(vertices, colors, opacities, sigmas, host_cams, height, width);
   const auto dev = vertices.device();
   // fp32 maths, except the double CPU reference used for finite differences.

@@ -51,7 +51,7 @@ constexpr int64_t kViewState = 8;
 // recomputations of the screen data (~2.5 ms on an H100); larger renders fall
 // back to recomputing, keeping peak memory bounded. 5.5 GiB: anchor-large (24
 // views, 2.5M visible triangles, 242 MB of screen data and 41 MB of masks
-// each) keeps the screen data of 20 of its views, at 8 GiB of peak memory.
+// each) keeps the screen data of 20 of its views, at 7.88 GiB of peak memory.
 constexpr int64_t kKeepScreenBytes = int64_t(11) << 29;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
