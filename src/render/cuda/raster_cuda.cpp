@@ -49,10 +49,11 @@ constexpr int64_t kViewState = 8;
 // masks are always kept and count first. At the paper's scale (24 views,
 // ~1.5M visible triangles each) it all fits and the backward skips 24
 // recomputations of the screen data (~2.5 ms on an H100); larger renders fall
-// back to recomputing, keeping peak memory bounded. 5.5 GiB: anchor-large (24
+// back to recomputing, keeping peak memory bounded. 5.25 GiB: anchor-large (24
 // views, 2.5M visible triangles, 242 MB of screen data and 41 MB of masks
-// each) keeps the screen data of 20 of its views, at 7.88 GiB of peak memory.
-constexpr int64_t kKeepScreenBytes = int64_t(11) << 29;
+// each) keeps the screen data of 19 of its views, at 7.94 GiB of peak memory
+// (the backward's two gradient buffers included, see backward()).
+constexpr int64_t kKeepScreenBytes = int64_t(21) << 28;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
 static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
@@ -340,12 +341,20 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   g.sigmas = at::zeros_like(in.sigmas);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  // Per-triangle screen gradients of one view (visible-list rows, as many as
-  // the longest list); the chain kernel re-zeroes the rows it consumed, so
-  // one zeroing serves every view.
+  // Per-triangle screen gradients of kChainViews views (visible-list rows, as
+  // many as the longest list) and their row maps; the chain rule runs once
+  // per group of views (launch_chain) and resets both, so they are set once.
   int64_t rows = 0;
   for (int64_t v = 0; v < V; ++v) rows = std::max(rows, views[kViewState * v + 4].size(0));
-  const at::Tensor tri_grads = at::zeros({rows * kTriGradStride}, f);
+  const at::Tensor tri_grads = at::zeros({kChainViews, rows * kTriGradStride}, f);
+  const at::Tensor row_of = at::full({kChainViews, N}, -1, f.dtype(at::kInt));
+  ChainViews group;
+  auto chain = [&] {
+    launch_chain(in.vertices.data_ptr<float>(), N, group, g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(),
+                 g.opacities.data_ptr<float>(), g.sigmas.data_ptr<float>(), stream);
+    check_launch("preprocess backward");
+    group.count = 0;
+  };
   for (int64_t v = 0; v < V; ++v) {
     const at::Tensor& visible = views[kViewState * v + 4];
     const int64_t nv = visible.size(0);
@@ -360,16 +369,20 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
                        grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
                        views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>(),
                        PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
+    const int slot = group.count++;
+    group.cam[slot] = vp.cam;
+    group.tri_grads[slot] = tri_grads[slot].data_ptr<float>();
+    group.row_of[slot] = row_of[slot].data_ptr<int>();
     launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()),
                            views[kViewState * v + 6].data_ptr<int>(), ids.data_ptr<int>(),
                            reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()), vp, img,
-                           tri_grads.data_ptr<float>(), stream);
+                           group.tri_grads[slot], stream);
     check_launch("backward rasterization");
-    launch_chain(in.vertices.data_ptr<float>(), visible.data_ptr<int>(), nv, tri_grads.data_ptr<float>(), vp,
-                 g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(), g.opacities.data_ptr<float>(),
-                 g.sigmas.data_ptr<float>(), stream);
-    check_launch("preprocess backward");
+    launch_row_map(visible.data_ptr<int>(), nv, group.row_of[slot], stream);
+    check_launch("row map");
+    if (group.count == kChainViews) chain();
   }
+  if (group.count > 0) chain();
   return g;
 }
 

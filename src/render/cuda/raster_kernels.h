@@ -146,12 +146,25 @@ void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const
                             const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
                             float* tri_grads, cudaStream_t stream);
 
-// Chains one view's per-triangle gradients (tri_grads rows, visible-list order) to
-// the inputs of the triangles visible[0..nv) (adds into the grads), and zeroes
-// the tri_grads rows it read (the buffer is zeroed once per backward).
-void launch_chain(const float* vertices, const int32_t* visible, int64_t nv, float* tri_grads,
-                  const ViewParams& vp, float* g_vertices, float* g_colors, float* g_opacities, float* g_sigmas,
-                  cudaStream_t stream);
+// The chain rule of up to kChainViews views in one pass (preprocess_backward.cu).
+// View v of the group: its camera, its TriGrad rows (visible-list order) and
+// its row map (N entries: triangle i's visible-list index, -1 when culled).
+constexpr int kChainViews = 2;
+struct ChainViews {
+  int count = 0;
+  CameraView<float> cam[kChainViews];
+  float* tri_grads[kChainViews] = {};
+  int32_t* row_of[kChainViews] = {};
+};
+
+// row_of[visible[k]] = k for k < nv (row_of holds -1 elsewhere).
+void launch_row_map(const int32_t* visible, int64_t nv, int32_t* row_of, cudaStream_t stream);
+
+// Chains the group's per-triangle gradients to the inputs of the n triangles
+// (adds into the grads), then zeroes the tri_grads rows and resets the row
+// map entries it read (the buffers are set once per backward).
+void launch_chain(const float* vertices, int64_t n, const ChainViews& cv, float* g_vertices, float* g_colors,
+                  float* g_opacities, float* g_sigmas, cudaStream_t stream);
 
 // Throws flat::Error naming `what` if the last launch failed (defined in the glue).
 void check_launch(const char* what);
