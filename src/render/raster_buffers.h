@@ -15,7 +15,15 @@ struct RasterInputs {
   at::Tensor w2c, K, background;  // on the host, for either back end (rasterize.cpp)
   int64_t height = 0, width = 0;
   RasterConstants k;
+  // The value checks' statistics (rasterize.cpp), on the host; for CUDA
+  // inputs filled by an asynchronous copy: read only once the stream that
+  // computed them has been waited for. Empty when there are no triangles.
+  at::Tensor value_stats;
 };
+
+// Fails unless the inputs are finite, opacities lie in [0, 1] and sigmas are
+// positive, from in.value_stats (rasterize.cpp).
+void check_input_values(const RasterInputs& in);
 
 struct RasterOutputs {
   at::Tensor rgb, alpha, depth, normal, median_depth;  // (V,C,H,W)

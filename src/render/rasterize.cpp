@@ -74,9 +74,10 @@ RasterConstants load_constants(AutogradContext* ctx) {
 struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& vertices, const at::Tensor& colors,
                                const at::Tensor& opacities, const at::Tensor& sigmas, const at::Tensor& w2c,
-                               const at::Tensor& K, const at::Tensor& background, int64_t height, int64_t width,
-                               RasterConstants k) {
+                               const at::Tensor& K, const at::Tensor& background, const at::Tensor& value_stats,
+                               int64_t height, int64_t width, RasterConstants k) {
     RasterInputs in{vertices.reshape({vertices.size(0), 9}), colors, opacities, sigmas, w2c, K, background, height, width, k};
+    in.value_stats = value_stats;
     RasterOutputs out;
     if (vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -115,14 +116,14 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad (only the
       // cameras did, which get no gradient): nothing to compute.
-      if (views.empty()) return variable_list(10);
+      if (views.empty()) return variable_list(11);
       g = cuda::backward(in, views, g_rgb, g_alpha, g_depth, g_normal);
 #endif
     } else {
       g = cpu::backward(in, g_rgb, g_alpha, g_depth, g_normal);
     }
     return {g.vertices.view_as(saved[0]), g.colors, g.opacities, g.sigmas, at::Tensor(), at::Tensor(),
-            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
   }
 };
 
@@ -145,23 +146,40 @@ void check_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at
   for (const auto* t : {&colors, &opacities, &sigmas})
     FLAT_CHECK(t->device() == dev, "rasterize: vertices, colors, opacities and sigmas must be on one device");
   FLAT_CHECK(dev.is_cpu() || dev.is_cuda(), "rasterize: unsupported device " + dev.str());
-  if (N == 0) return;
-  // One host sync for all value checks.
-  auto stats = at::stack({(vertices.sum() + colors.sum() + opacities.sum() + sigmas.sum()).to(at::kDouble),
-                          opacities.min().to(at::kDouble), opacities.max().to(at::kDouble),
-                          sigmas.min().to(at::kDouble)})
-                   .cpu();
-  const double* s = stats.data_ptr<double>();
+}
+
+// The value checks' statistics: [sum of every input value, min and max
+// opacity, min sigma]. On the GPU they are copied to pinned host memory
+// without a sync; the CUDA back end checks them at its first wait for the
+// device (cuda::forward), so the GPU does not idle through the call's setup.
+at::Tensor value_stats(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                       const at::Tensor& sigmas) {
+  const at::Tensor stats = at::stack({(vertices.sum() + colors.sum() + opacities.sum() + sigmas.sum()).to(at::kDouble),
+                                      opacities.min().to(at::kDouble), opacities.max().to(at::kDouble),
+                                      sigmas.min().to(at::kDouble)});
+  if (!stats.is_cuda()) return stats;
+  at::Tensor host = at::empty({4}, at::TensorOptions().dtype(at::kDouble).pinned_memory(true));
+  host.copy_(stats, /*non_blocking=*/true);
+  return host;
+}
+
+}  // namespace
+
+void check_input_values(const RasterInputs& in) {
+  if (in.value_stats.numel() == 0) return;  // no triangles: nothing to check
+  const double* s = in.value_stats.data_ptr<double>();
   if (!std::isfinite(s[0])) {
-    check_finite(vertices, "rasterize: vertices");
-    check_finite(colors, "rasterize: colors");
-    check_finite(opacities, "rasterize: opacities");
-    check_finite(sigmas, "rasterize: sigmas");
+    check_finite(in.vertices, "rasterize: vertices");
+    check_finite(in.colors, "rasterize: colors");
+    check_finite(in.opacities, "rasterize: opacities");
+    check_finite(in.sigmas, "rasterize: sigmas");
   }
   FLAT_CHECK(s[1] >= 0.0 && s[2] <= 1.0, "rasterize: opacities must lie in [0, 1], got range [" + std::to_string(s[1]) +
                                              ", " + std::to_string(s[2]) + "]");
   FLAT_CHECK(s[3] > 0.0, "rasterize: sigmas must be > 0, got min " + std::to_string(s[3]));
 }
+
+namespace {
 
 // Checked inputs in the back ends' dtype and layout.
 RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
@@ -190,6 +208,9 @@ RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors
   in.height = height;
   in.width = width;
   in.k = to_constants(settings);
+  in.value_stats = in.vertices.size(0) > 0 ? value_stats(in.vertices, in.colors, in.opacities, in.sigmas)
+                                           : at::empty({0}, at::kDouble);
+  if (!dev.is_cuda()) check_input_values(in);  // else at the CUDA back end's first sync
   return in;
 }
 
@@ -200,7 +221,7 @@ RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, con
                        const RasterSettings& settings) {
   const RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
   auto outs = RasterizeFunction::apply(in.vertices, in.colors, in.opacities, in.sigmas, in.w2c, in.K, in.background,
-                                       height, width, in.k);
+                                       in.value_stats, height, width, in.k);
   return RenderOutput{outs[0], outs[1], outs[2], outs[3], outs[4], outs[5]};
 }
 

@@ -156,3 +156,24 @@ TEST_CASE("rasterize cuda: a backward through the cameras only (scene frozen) ru
   REQUIRE_NOTHROW(out.rgb.sum().backward());
   CHECK((!cams.c2w.grad().defined() || cams.c2w.grad().abs().sum().item<double>() == 0.0));
 }
+
+TEST_CASE("rasterize cuda: bad input values are reported by name (checked at the back end's first sync)",
+          "[render][cuda][errors]") {
+  FLAT_REQUIRE_CUDA();
+  // The value checks run on the GPU without a sync of their own; they must
+  // still stop the call with the input's name, whichever view count.
+  const torch::Device dev(torch::kCUDA, 0);
+  auto soup = flat::test::random_soup(300, torch::kFloat, 707, 0.5);
+  auto cams = flat::test::test_cameras(4).to(dev);
+  const auto v = soup.vertices.to(dev), c = soup.colors.to(dev), o = soup.opacities.to(dev), s = soup.sigmas.to(dev);
+  auto nan_vertices = v.clone();
+  nan_vertices[7][1][2] = std::nanf("");
+  REQUIRE_THROWS_WITH(rasterize(nan_vertices, c, o, s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("vertices"));
+  auto inf_colors = c.clone();
+  inf_colors[3][0] = INFINITY;
+  REQUIRE_THROWS_WITH(rasterize(v, inf_colors, o, s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("colors"));
+  REQUIRE_THROWS_WITH(rasterize(v, c, o * 3, s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("opacities"));
+  REQUIRE_THROWS_WITH(rasterize(v, c, o, -s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("sigmas"));
+  // The same call with good values still renders after the failures.
+  REQUIRE(rasterize(v, c, o, s, cams, 40, 56, RasterSettings{}).alpha.max().item<float>() > 0.0f);
+}

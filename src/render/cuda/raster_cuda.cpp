@@ -260,6 +260,10 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
       // pair buffers. View v - 1 may still be compositing meanwhile.
       s.culled.synchronize();
       s.culled.block(at::cuda::getCurrentCUDAStream());
+      // The inputs' value statistics were copied before the first cull
+      // (rasterize.cpp): checked at this first wait, not with a sync of their
+      // own, and before any size the culling computed from the values is used.
+      if (v == 0) check_input_values(in);
       count = s.host_count.data_ptr<int64_t>()[0];
       nv = s.host_visible.data_ptr<int>()[0];
     }
