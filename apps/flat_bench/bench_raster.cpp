@@ -61,7 +61,7 @@ std::string short_name(const std::string& name) {
 
 // Where the GPU idles in the step: time with no kernel, copy or memset
 // running on any stream, split at the end of the forward (the last
-// max-weight merge), and which activity each idle gap precedes (a gap
+// forward compositing kernel), and which activity each idle gap precedes (a gap
 // before a kernel is time the GPU waited for the host to launch it). Gaps
 // are grouped by the activities before and after them.
 void print_gpu_idle(std::vector<GpuSpan> spans) {
@@ -69,7 +69,7 @@ void print_gpu_idle(std::vector<GpuSpan> spans) {
   std::sort(spans.begin(), spans.end(), [](const GpuSpan& a, const GpuSpan& b) { return a.start < b.start; });
   uint64_t fwd_end = spans.front().start;
   for (const auto& s : spans)
-    if (s.name.find("merge_max_weight") != std::string::npos) fwd_end = std::max(fwd_end, s.end);
+    if (s.name.find("raster_forward_kernel") != std::string::npos) fwd_end = std::max(fwd_end, s.end);
   double idle[2] = {0, 0};
   std::map<std::string, std::pair<double, int>> before;  // next activity -> (idle ms, gaps)
   uint64_t busy_until = spans.front().end;

@@ -58,7 +58,7 @@ FLAT_HD CameraView<T> make_camera_view(const T* w2c, const T* K) {
 }
 
 // What one pixel needs of one triangle (also the shared-memory record on CUDA;
-// 16-byte aligned so that it moves with 128-bit loads: 24 floats with padding).
+// 16-byte aligned so that it moves with 128-bit loads: 23 floats with padding).
 // The window's inputs come first: the CUDA coverage pass reads only the first
 // three 16-byte groups.
 template <class T>
@@ -70,6 +70,7 @@ struct alignas(16) PixelTri {
   T h[3];            // camera-space plane h . X = 1
   T normal[3];       // camera-space unit normal facing the camera
   T color[3];
+  int32_t index;     // the triangle's row in the inputs (CUDA: where its max weight goes)
 };
 
 // Screen-space support rectangle [x0,x1) x [y0,y1) in pixels and the sort key.

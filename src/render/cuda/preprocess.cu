@@ -17,7 +17,7 @@ namespace flat::render::cuda {
 namespace {
 
 constexpr int kThreads = 128;
-constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 24 (22 + alignment padding)
+constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 24 (23 + alignment padding)
 constexpr int kTriStride = kTriFloats + 1;
 
 __device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k) {
@@ -81,6 +81,7 @@ __global__ void __launch_bounds__(kThreads)
     t.color[0] = colors[3 * i], t.color[1] = colors[3 * i + 1], t.color[2] = colors[3 * i + 2];
     t.opacity = opacities[i];
     t.sigma = sigmas[i];
+    t.index = (int32_t)i;
     const float* tf = reinterpret_cast<const float*>(&t);
 #pragma unroll
     for (int c = 0; c < kTriFloats; ++c) sh_t[kTriStride * threadIdx.x + c] = tf[c];

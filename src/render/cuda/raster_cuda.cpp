@@ -302,15 +302,10 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                       out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
                       last.data_ptr<int>(),
                       PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, count}};
-    const at::Tensor view_max = at::empty({nv}, f.dtype(at::kInt));
-    zero_async(view_max, stream);
     launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
                           ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), vp, img,
-                          reinterpret_cast<unsigned int*>(view_max.data_ptr<int>()), stream);
+                          reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward rasterization");
-    launch_merge_max_weight(visible.data_ptr<int>(), nv, reinterpret_cast<const unsigned int*>(view_max.data_ptr<int>()),
-                            reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
-    check_launch("max weight merge");
     if (load || spdlog::should_log(spdlog::level::debug)) {  // workload counts (host syncs)
       const ViewLoad l = count_load(nv, count, ranges, last);
       if (load) load->push_back(l);

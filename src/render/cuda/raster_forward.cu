@@ -29,7 +29,6 @@ struct WarpStage {  // one warp's staged triangles (slot j) and per-pixel masks
   RegionBox box[kBatch];
   int start[kBatch];      // candidates of slot j: [start[j], start[j] + its count)
   int pos[kBatch];        // position in the tile's list
-  int32_t k[kBatch];      // visible-list index (for the view's max weights)
   unsigned int wmax[kBatch];  // max weight bits in this region
   unsigned int hits[32];      // per pixel: slots with alpha >= alpha_min
 };
@@ -38,7 +37,7 @@ __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
                           const int32_t* __restrict__ ids,
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
-                          ViewParams vp, ForwardImages out, unsigned int* __restrict__ view_max_bits) {
+                          ViewParams vp, ForwardImages out, unsigned int* __restrict__ max_weight_bits) {
   __shared__ WarpStage stage[kWarps];
   const TilePixel pix = tile_pixel(vp, tile_order);
   WarpStage& sh = stage[pix.warp];
@@ -82,7 +81,6 @@ __global__ void __launch_bounds__(kBlockSize)
       sh.box[slot] = box;
       sh.start[slot] = first;
       sh.pos[slot] = e - range.x;
-      sh.k[slot] = k;
       sh.wmax[slot] = 0u;
     }
     sh.hits[lane] = 0u;
@@ -132,7 +130,7 @@ __global__ void __launch_bounds__(kBlockSize)
     }
     if (last_j >= 0) last = sh.pos[last_j] + 1;
     __syncwarp();
-    if (lane < batch && sh.wmax[lane] != 0u) atomicMax(&view_max_bits[sh.k[lane]], sh.wmax[lane]);
+    if (lane < batch && sh.wmax[lane] != 0u) atomicMax(&max_weight_bits[sh.tri.index(lane)], sh.wmax[lane]);
     done_bits = __ballot_sync(kFullWarp, done);
     __syncwarp();  // this round's reads of the stage before the next round's writes
   }
@@ -147,33 +145,14 @@ __global__ void __launch_bounds__(kBlockSize)
   out.last[p] = last;
 }
 
-// max_weight over views: each triangle appears once in a view's visible list
-// and views run one after another on the stream, so no atomics.
-__global__ void merge_max_weight_kernel(const int32_t* __restrict__ visible, int64_t nv,
-                                        const unsigned int* __restrict__ view_max_bits,
-                                        unsigned int* __restrict__ max_weight_bits) {
-  const int64_t k = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
-  if (k >= nv) return;
-  const unsigned int w = view_max_bits[k];
-  if (w != 0u) {
-    const int32_t i = visible[k];
-    max_weight_bits[i] = max(max_weight_bits[i], w);
-  }
-}
-
 }  // namespace
 
 void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
                            const PixelTri<float>* tris, const TriRect* rects, const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* view_max_bits, cudaStream_t stream) {
+                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream) {
   const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
-  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, out, view_max_bits);
+  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, out, max_weight_bits);
 }
 
-void launch_merge_max_weight(const int32_t* visible, int64_t nv, const unsigned int* view_max_bits,
-                             unsigned int* max_weight_bits, cudaStream_t stream) {
-  if (nv == 0) return;
-  merge_max_weight_kernel<<<(int)((nv + 255) / 256), 256, 0, stream>>>(visible, nv, view_max_bits, max_weight_bits);
-}
 
 }  // namespace flat::render::cuda

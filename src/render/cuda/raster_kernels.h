@@ -117,14 +117,12 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
   PairMasks masks;  // kept for the backward
 };
 
-// ids index the visible list (tris, rects). view_max_bits (nv, zeroed): each
-// visible triangle's largest blending weight in this view (float bits).
+// ids index the visible list (tris, rects). max_weight_bits (N, zeroed once
+// per call): each triangle's largest blending weight over the views so far
+// (float bits, atomicMax at PixelTri::index).
 void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
                            const PixelTri<float>* tris, const TriRect* rects, const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* view_max_bits, cudaStream_t stream);
-// max_weight_bits[visible[k]] = max(itself, view_max_bits[k]) (after the view's forward).
-void launch_merge_max_weight(const int32_t* visible, int64_t nv, const unsigned int* view_max_bits,
-                             unsigned int* max_weight_bits, cudaStream_t stream);
+                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream);
 
 constexpr int kTriGradStride = 20;  // five 16-byte vectors
 static_assert(kTriGradStride >= kTriGradSize && kTriGradStride % 4 == 0, "padded TriGrad rows");

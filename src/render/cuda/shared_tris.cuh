@@ -7,6 +7,8 @@
 // conflicts. get_window() reads only the window's inputs (PixelTri puts them
 // first), the coverage passes need no more.
 #pragma once
+#include <cstddef>
+
 #include "render/triangle_math.h"
 
 namespace flat::render::cuda {
@@ -29,6 +31,11 @@ struct SharedTris {
   __device__ __forceinline__ PixelTri<float> get(int j) const { return read(j, kGroups); }
   // sx, sy, nx, ny, opacity, sigma (the rest left unset).
   __device__ __forceinline__ PixelTri<float> get_window(int j) const { return read(j, 3); }
+  // The triangle's input row alone (PixelTri::index).
+  __device__ __forceinline__ int32_t index(int j) const {
+    constexpr int kOffset = offsetof(PixelTri<float>, index);
+    return reinterpret_cast<const int32_t*>(&v[kOffset / 16][j])[(kOffset % 16) / 4];
+  }
 
  private:
   __device__ __forceinline__ PixelTri<float> read(int j, int groups) const {
