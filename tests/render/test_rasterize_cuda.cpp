@@ -174,6 +174,11 @@ TEST_CASE("rasterize cuda: bad input values are reported by name (checked at the
   REQUIRE_THROWS_WITH(rasterize(v, inf_colors, o, s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("colors"));
   REQUIRE_THROWS_WITH(rasterize(v, c, o * 3, s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("opacities"));
   REQUIRE_THROWS_WITH(rasterize(v, c, o, -s, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("sigmas"));
+  // With no view the back end never waits for a view's sizes: still checked.
+  auto no_views = flat::test::test_cameras(1).to(dev);
+  no_views.c2w = no_views.c2w.narrow(0, 0, 0);
+  no_views.intrinsics = no_views.intrinsics.narrow(0, 0, 0);
+  REQUIRE_THROWS_WITH(rasterize(nan_vertices, c, o, s, no_views, 40, 56, RasterSettings{}), FLAT_CONTAINS("vertices"));
   // The same call with good values still renders after the failures.
   REQUIRE(rasterize(v, c, o, s, cams, 40, 56, RasterSettings{}).alpha.max().item<float>() > 0.0f);
 }

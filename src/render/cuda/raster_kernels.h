@@ -1,7 +1,8 @@
 // Launchers of the rasterizer's CUDA kernels. Plain header (no torch): the
 // .cu files implement these; render/cuda/raster_cuda.cpp calls them with
-// buffers it allocates through libtorch. One view per call; everything is
-// enqueued on `stream`, nothing synchronises.
+// buffers it allocates through libtorch. One view per call (the chain rule:
+// up to kChainViews); everything is enqueued on `stream`, nothing
+// synchronises.
 #pragma once
 #include <cstddef>
 #include <cstdint>
