@@ -255,7 +255,7 @@ void add_raster(CLI::App& app) {
   struct Opts {
     std::vector<std::string> workloads = {"anchor-large", "anchor-small"};
     std::string ply, cams, window = "flat", device = "auto", write_dir;
-    int repeats = 5;
+    int repeats = 5, views_per_bin = 2;
     uint64_t seed = 0;
     bool profile = false;
   };
@@ -270,6 +270,10 @@ void add_raster(CLI::App& app) {
   sub->add_option("--triangles", opts->ply, "time this triangle soup PLY instead (with --cameras)");
   sub->add_option("--cameras", opts->cams, "cameras JSON for --triangles");
   sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}))->capture_default_str();
+  sub->add_option("--views-per-bin", opts->views_per_bin,
+                  "views binned by one sort: 1 | 2 (the rasterizer's default)")
+      ->check(CLI::Range(1, 2))
+      ->capture_default_str();
   sub->add_option("--repeats", opts->repeats, "timed repeats after 2 warm-ups")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
@@ -283,6 +287,7 @@ void add_raster(CLI::App& app) {
     FLAT_CHECK(!opts->profile || dev.is_cuda(), "flat_bench raster: --profile needs --device cuda (GPU kernel times)");
     render::RasterSettings settings;
     settings.window = opts->window;
+    settings.views_per_bin = opts->views_per_bin;
     std::printf("| workload | triangles | views | HxW | window | visible / view | pairs / view | entries / px | "
                 "forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
     auto run = [&](const RasterWorkload& sc) {

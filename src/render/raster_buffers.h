@@ -15,6 +15,7 @@ struct RasterInputs {
   at::Tensor w2c, K, background;  // on the host, for either back end (rasterize.cpp)
   int64_t height = 0, width = 0;
   RasterConstants k;
+  int64_t views_per_bin = 2;  // CUDA: views binned by one sort (RasterSettings::views_per_bin)
   // The value checks' statistics (rasterize.cpp), on the host; for CUDA
   // inputs filled by an asynchronous copy: read only once the stream that
   // computed them has been waited for. Empty when there are no triangles.

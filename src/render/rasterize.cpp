@@ -25,6 +25,8 @@ void RasterSettings::check() const {
   FLAT_CHECK(transmittance_min >= 0.0 && transmittance_min < 1.0, "raster settings: 'transmittance_min' must be in [0, 1)");
   FLAT_CHECK(min_inradius >= 0.0, "raster settings: 'min_inradius' must be >= 0");
   FLAT_CHECK(min_cos >= 0.0 && min_cos < 1.0, "raster settings: 'min_cos' must be in [0, 1)");
+  FLAT_CHECK(views_per_bin == 1 || views_per_bin == 2,
+             "raster settings: 'views_per_bin' must be 1 or 2, got " + std::to_string(views_per_bin));
 }
 
 namespace {
@@ -75,9 +77,10 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& vertices, const at::Tensor& colors,
                                const at::Tensor& opacities, const at::Tensor& sigmas, const at::Tensor& w2c,
                                const at::Tensor& K, const at::Tensor& background, const at::Tensor& value_stats,
-                               int64_t height, int64_t width, RasterConstants k) {
+                               int64_t height, int64_t width, RasterConstants k, int64_t views_per_bin) {
     RasterInputs in{vertices.reshape({vertices.size(0), 9}), colors, opacities, sigmas, w2c, K, background, height, width, k};
     in.value_stats = value_stats;
+    in.views_per_bin = views_per_bin;
     RasterOutputs out;
     if (vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -116,14 +119,14 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad (only the
       // cameras did, which get no gradient): nothing to compute.
-      if (views.empty()) return variable_list(11);
+      if (views.empty()) return variable_list(12);
       g = cuda::backward(in, views, g_rgb, g_alpha, g_depth, g_normal);
 #endif
     } else {
       g = cpu::backward(in, g_rgb, g_alpha, g_depth, g_normal);
     }
     return {g.vertices.view_as(saved[0]), g.colors, g.opacities, g.sigmas, at::Tensor(), at::Tensor(),
-            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
   }
 };
 
@@ -208,6 +211,7 @@ RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors
   in.height = height;
   in.width = width;
   in.k = to_constants(settings);
+  in.views_per_bin = settings.views_per_bin;
   in.value_stats = in.vertices.size(0) > 0 ? value_stats(in.vertices, in.colors, in.opacities, in.sigmas)
                                            : at::empty({0}, at::kDouble);
   if (!dev.is_cuda()) check_input_values(in);  // else at the CUDA back end's first sync
@@ -221,7 +225,7 @@ RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, con
                        const RasterSettings& settings) {
   const RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
   auto outs = RasterizeFunction::apply(in.vertices, in.colors, in.opacities, in.sigmas, in.w2c, in.K, in.background,
-                                       in.value_stats, height, width, in.k);
+                                       in.value_stats, height, width, in.k, in.views_per_bin);
   return RenderOutput{outs[0], outs[1], outs[2], outs[3], outs[4], outs[5]};
 }
 

@@ -245,7 +245,13 @@ TEST_CASE("raster settings: read from YAML through the config visitor, bad value
   CHECK(s.alpha_min == Approx(1.0 / 255.0));  // untouched defaults
   REQUIRE_THROWS_WITH(flat::config::parse<RasterSettings>("window: box\n", "raster.yaml"), FLAT_CONTAINS("window"));
   REQUIRE_THROWS_WITH(flat::config::parse<RasterSettings>("eps: 3\n", "raster.yaml"), FLAT_CONTAINS("eps"));
+  REQUIRE_THROWS_WITH(flat::config::parse<RasterSettings>("views_per_bin: 3\n", "raster.yaml"),
+                      FLAT_CONTAINS("views_per_bin"));
+  CHECK(flat::config::parse<RasterSettings>("views_per_bin: 2\n", "raster.yaml").views_per_bin == 2);
   auto bad = RasterSettings{};
   bad.background = {1.0, 1.0};
   REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("background"));
+  bad = RasterSettings{};
+  bad.views_per_bin = 0;
+  REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("views_per_bin"));
 }

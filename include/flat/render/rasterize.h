@@ -24,6 +24,10 @@ struct RasterSettings {
   double transmittance_min = 1e-4;  // a pixel stops before its transmittance drops below this
   double min_inradius = 1e-3;   // pixels; smaller (degenerate) triangles are culled
   double min_cos = 1e-3;        // edge-on cull: |cos(normal, ray to centroid)| below this
+  // CUDA only, speed only (the images are the same): views binned by one
+  // depth sort and one tile sort (1 or 2; 2 pays the sorts' host cost once for
+  // two views and needs one view's cull and binning scratch more).
+  int views_per_bin = 2;
 
   template <class V>
   void visit(V& v) {
@@ -36,6 +40,7 @@ struct RasterSettings {
     v.field("transmittance_min", transmittance_min, config::range(0.0, 1.0), "early-stop transmittance");
     v.field("min_inradius", min_inradius, config::non_negative(), "cull triangles with smaller screen inradius (px)");
     v.field("min_cos", min_cos, config::range(0.0, 1.0), "cull edge-on triangles below this |cos|");
+    v.field("views_per_bin", views_per_bin, config::range(1, 2), "CUDA: views binned by one sort, 1 | 2 (speed only)");
   }
   void check() const;  // throws flat::Error on bad values (also when built in code, not from YAML)
 };

@@ -5,7 +5,8 @@
 // (~13 bits), so each tile's list comes out front to back. Sorting once per
 // view by depth and then the pairs by a short key moves ~40% of the bytes of
 // one sort of the pairs by a 64-bit (tile | depth) key. Pair ids are indices
-// into the visible list.
+// into the visible list. Small views are binned two at a time (a bin group,
+// raster_kernels.h): the tile ids then count on through the views.
 #include <cub/cub.cuh>
 #include <thrust/iterator/counting_iterator.h>
 
@@ -20,11 +21,11 @@ struct IsVisible {
 };
 
 __global__ void depth_keys_kernel(const int32_t* __restrict__ visible, int64_t nv, const float* __restrict__ keys,
-                                  uint32_t* __restrict__ depth_bits, int32_t* __restrict__ order) {
+                                  int32_t first, uint32_t* __restrict__ depth_bits, int32_t* __restrict__ order) {
   const int64_t k = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (k >= nv) return;
   depth_bits[k] = depth_sort_key(keys[visible[k]]);
-  order[k] = (int32_t)k;
+  order[k] = first + (int32_t)k;
 }
 
 __global__ void ordered_counts_kernel(const int32_t* __restrict__ order, int64_t nv, const TriRect* __restrict__ rects,
@@ -56,7 +57,7 @@ __device__ bool support_meets_box(float sx, float sy, const float nx[3], const f
 }
 
 __global__ void duplicate_kernel(const int32_t* __restrict__ order, int64_t nv, const TriRect* __restrict__ rects,
-                                 const PixelTri<float>* __restrict__ tris, ViewParams vp,
+                                 const PixelTri<float>* __restrict__ tris, ViewParams vp, int32_t second,
                                  const int32_t* __restrict__ offsets, uint32_t* __restrict__ pair_tiles,
                                  int32_t* __restrict__ pair_ids) {
   const int64_t r = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
@@ -67,6 +68,7 @@ __global__ void duplicate_kernel(const int32_t* __restrict__ order, int64_t nv, 
   const float4 a = g[0], b = g[1];
   const float nx[3] = {a.z, a.w, b.x}, ny[3] = {b.y, b.z, b.w};
   const float eps = vp.k.window == kWindowFlat ? vp.k.eps : 0.f;
+  const uint32_t view_tiles = k >= second ? (uint32_t)(vp.tiles_x * vp.tiles_y) : 0u;  // the group's second view
   int32_t off = offsets[r];
   for (int ty = tile_lo(t.y0); ty < tile_hi(t.y1); ++ty)
     for (int tx = tile_lo(t.x0); tx < tile_hi(t.x1); ++tx) {
@@ -77,7 +79,7 @@ __global__ void duplicate_kernel(const int32_t* __restrict__ order, int64_t nv, 
         const int y0 = max(t.y0, half_y0), y1 = min(t.y1, half_y0 + kTileSize / 2);
         if (support_meets_box(a.x, a.y, nx, ny, eps, x0, y0, x1, y1)) halves |= 1 << h;
       }
-      pair_tiles[off] = (uint32_t)(ty * vp.tiles_x + tx);
+      pair_tiles[off] = view_tiles + (uint32_t)(ty * vp.tiles_x + tx);
       pair_ids[off] = (int32_t)((uint32_t)k | ((uint32_t)halves << kPairIndexBits));
       ++off;
     }
@@ -91,13 +93,15 @@ __global__ void tile_ranges_kernel(const uint32_t* __restrict__ tiles, int64_t c
   if (i == count - 1 || (int)tiles[i + 1] != tile) ranges[tile].y = (int)(i + 1);
 }
 
-// Counting sort of the tiles into 256 classes of list length, longest
+// Counting sort of one view's tiles into 256 classes of list length, longest
 // first, in one block (a few thousand tiles: one launch instead of a radix
-// sort's several). The order within a class is arbitrary: each tile
-// composites on its own.
+// sort's several); block b sorts view b of the group. The order within a
+// class is arbitrary: each tile composites on its own.
 constexpr int kOrderThreads = 1024, kLengthClasses = 256;
 __global__ void __launch_bounds__(kOrderThreads)
-    tile_order_kernel(const int2* __restrict__ ranges, int num_tiles, int32_t* __restrict__ order) {
+    tile_order_kernel(const int2* __restrict__ group_ranges, int num_tiles, int32_t* __restrict__ group_order) {
+  const int2* __restrict__ ranges = group_ranges + (int64_t)blockIdx.x * num_tiles;
+  int32_t* __restrict__ order = group_order + (int64_t)blockIdx.x * num_tiles;
   __shared__ int max_len;
   __shared__ int next[kLengthClasses];  // class sizes, then each class's next free position
   const int tid = threadIdx.x;
@@ -148,10 +152,10 @@ void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, 
                         IsVisible{tile_counts}, stream);
 }
 
-void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, uint32_t* depth_bits, int32_t* order,
-                       cudaStream_t stream) {
+void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, int32_t first, uint32_t* depth_bits,
+                       int32_t* order, cudaStream_t stream) {
   if (nv == 0) return;
-  depth_keys_kernel<<<blocks_of(nv), 256, 0, stream>>>(visible, nv, keys, depth_bits, order);
+  depth_keys_kernel<<<blocks_of(nv), 256, 0, stream>>>(visible, nv, keys, first, depth_bits, order);
 }
 
 void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
@@ -172,10 +176,11 @@ void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, 
 }
 
 void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const PixelTri<float>* tris,
-                      const ViewParams& vp, const int32_t* offsets, uint32_t* pair_tiles, int32_t* pair_ids,
-                      cudaStream_t stream) {
+                      const ViewParams& vp, int32_t second, const int32_t* offsets, uint32_t* pair_tiles,
+                      int32_t* pair_ids, cudaStream_t stream) {
   if (nv == 0) return;
-  duplicate_kernel<<<blocks_of(nv), 256, 0, stream>>>(order, nv, rects, tris, vp, offsets, pair_tiles, pair_ids);
+  duplicate_kernel<<<blocks_of(nv), 256, 0, stream>>>(order, nv, rects, tris, vp, second, offsets, pair_tiles,
+                                                      pair_ids);
 }
 
 void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
@@ -184,9 +189,9 @@ void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint
                                   bits_for(num_tiles), stream);
 }
 
-void launch_tile_order(const int2* ranges, int num_tiles, int32_t* tile_order, cudaStream_t stream) {
-  if (num_tiles == 0) return;
-  tile_order_kernel<<<1, kOrderThreads, 0, stream>>>(ranges, num_tiles, tile_order);
+void launch_tile_order(const int2* ranges, int num_tiles, int views, int32_t* tile_order, cudaStream_t stream) {
+  if (num_tiles == 0 || views == 0) return;
+  tile_order_kernel<<<views, kOrderThreads, 0, stream>>>(ranges, num_tiles, tile_order);
 }
 
 void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream) {

@@ -48,7 +48,7 @@ __global__ void __launch_bounds__(kThreads, 5)
   for (int v = 0; v < kChainViews; ++v) {
     if (k[v] < 0) continue;
     cv.row_of[v][i] = -1;  // ready for the next group
-    float4* row = reinterpret_cast<float4*>(cv.tri_grads[v] + (int64_t)kTriGradStride * k[v]);
+    float4* row = reinterpret_cast<float4*>(cv.tri_grads + (int64_t)kTriGradStride * k[v]);
     float4 r[kTriGradStride / 4];
 #pragma unroll
     for (int q = 0; q < kTriGradStride / 4; ++q) r[q] = row[q];
@@ -80,18 +80,19 @@ __global__ void __launch_bounds__(kThreads, 5)
   add_rows<3, 3, kThreads>(sh_c, nullptr, base, rows, g_colors);
 }
 
-__global__ void row_map_kernel(const int32_t* __restrict__ visible, int64_t nv, int32_t* __restrict__ row_of) {
+__global__ void row_map_kernel(const int32_t* __restrict__ visible, int64_t nv, int32_t first_row,
+                               int32_t* __restrict__ row_of) {
   const int64_t k = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
-  if (k < nv) row_of[visible[k]] = (int32_t)k;
+  if (k < nv) row_of[visible[k]] = first_row + (int32_t)k;
 }
 
 int blocks_for(int64_t n, int threads) { return (int)((n + threads - 1) / threads); }
 
 }  // namespace
 
-void launch_row_map(const int32_t* visible, int64_t nv, int32_t* row_of, cudaStream_t stream) {
+void launch_row_map(const int32_t* visible, int64_t nv, int32_t first_row, int32_t* row_of, cudaStream_t stream) {
   if (nv == 0) return;
-  row_map_kernel<<<blocks_for(nv, 256), 256, 0, stream>>>(visible, nv, row_of);
+  row_map_kernel<<<blocks_for(nv, 256), 256, 0, stream>>>(visible, nv, first_row, row_of);
 }
 
 void launch_chain(const float* vertices, int64_t n, const ChainViews& cv, float* g_vertices, float* g_colors,

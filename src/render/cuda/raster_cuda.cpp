@@ -1,10 +1,13 @@
 // libtorch glue of the CUDA rasterizer: allocation, the per-view loop and the
-// launch checks. Views are rendered one after another, so scratch memory is
-// that of one view. Per view: cull all triangles, select the visible ones,
-// compute their screen data (visible-list order), bin, sort, composite. The
-// forward keeps per view only the sorted ids, the tile ranges, two per-pixel
-// maps and the visible list; the backward recomputes the visible triangles'
-// screen data (one cheap kernel) instead of storing it.
+// launch checks. Views are rendered one bin group (two views, or one:
+// RasterSettings::views_per_bin) after another, so scratch memory is that of
+// one group.
+// Per view: cull all triangles and select the visible ones; per group:
+// compute their screen data (the group's list: its views' visible lists one
+// after another), bin and sort; per view again: composite. The forward keeps
+// per view only the sorted ids, the tile ranges, two per-pixel maps and the
+// visible list (and the screen data while it fits kKeepScreenBytes; else the
+// backward recomputes it, one cheap kernel).
 #include "render/cuda/raster_cuda.h"
 
 #include <algorithm>
@@ -43,7 +46,9 @@ constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
 // Per view, kept for the backward: sorted ids, tile ranges, final T, last
 // entry, visible list, the visible triangles' screen data (empty when over
 // kKeepScreenBytes: the backward then recomputes it), the tiles' compositing
-// order and the entries' coverage masks (PairMasks).
+// order and the entries' coverage masks (PairMasks). The ids, screen data and
+// masks are the bin group's (the same tensors for each of its views), the
+// visible list a slice of the group's (SavedGroup).
 constexpr int64_t kViewState = 8;
 // Screen data and coverage masks kept across views, at most (bytes); the
 // masks are always kept and count first. At the paper's scale (24 views,
@@ -79,13 +84,15 @@ void check_sizes(const RasterInputs& in) {
              "rasterize (cuda): at most 2^31-1 triangles, got " + std::to_string(in.vertices.size(0)));
 }
 
-// One view's culling and binning state over all N triangles. kCullAhead + 1
-// of them take turns: view v + kCullAhead is culled on a side stream while
-// view v is binned and composited, so the host's one wait per view (for the
-// sizes of the view's buffers) finds them ready, and the host can enqueue
-// views ahead of the GPU instead of idling it. (One, two or three views
-// ahead timed the same within run-to-run noise on the H100; two is kept.)
-constexpr int kCullAhead = 2;
+// One view's culling state over all N triangles. Views are culled on a side
+// stream kCullAhead bin groups ahead of the group being binned and
+// composited (a ring of (kCullAhead + 1) x the group size of these), so the
+// host's one wait per view (for the sizes of the view's buffers) finds them
+// ready, and the host can enqueue views ahead of the GPU instead of idling
+// it. (One group ahead timed as two with two-view groups on the H100, at
+// two views' scratch less; with one-view groups one, two or three views
+// ahead had timed the same.)
+constexpr int kCullAhead = 1;
 struct CullScratch {
   at::Tensor rects, counts, keys, visible, num_visible, total, select_temp;
   at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
@@ -126,20 +133,21 @@ struct CullScratch {
   }
 };
 
-// Screen data of one view's visible triangles, in visible-list order.
+// Screen data of a bin group's visible triangles, in group-list order (each
+// view's rows from its first row on, add()).
 struct ScreenData {
   at::Tensor tris, rects;
   // with_rects: the forward's binning and compositing need the rectangles
-  // (copied from cull_rects); the backward does not.
-  ScreenData(const RasterInputs& in, const at::Tensor& visible, const ViewParams& vp, const TriRect* cull_rects,
-             bool with_rects, cudaStream_t stream) {
-    const int64_t nv = visible.size(0);
-    const auto f = in.vertices.options();
-    tris = at::empty({nv * kTriFloats}, f);
-    rects = at::empty({with_rects ? nv * 4 : 0}, f.dtype(at::kInt));
+  // (copied from the cull pass's); the backward does not.
+  ScreenData(int64_t rows, bool with_rects, const at::TensorOptions& f)
+      : tris(at::empty({rows * kTriFloats}, f)), rects(at::empty({with_rects ? rows * 4 : 0}, f.dtype(at::kInt))) {}
+  // Rows [first, first + nv): the triangles visible[0..nv) of one view.
+  // cull_rects: that view's cull-pass rectangles (nullptr: recomputed).
+  void add(const RasterInputs& in, const int32_t* visible, int64_t nv, int64_t first, const ViewParams& vp,
+           const TriRect* cull_rects, cudaStream_t stream) {
     launch_screen(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
-                  in.sigmas.data_ptr<float>(), visible.data_ptr<int>(), nv, vp, cull_rects, tri_ptr(),
-                  with_rects ? rect_ptr() : nullptr, stream);
+                  in.sigmas.data_ptr<float>(), visible, nv, vp, cull_rects, tri_ptr() + first,
+                  rects.numel() > 0 ? rect_ptr() + first : nullptr, stream);
     check_launch("screen preprocessing");
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
@@ -147,8 +155,28 @@ struct ScreenData {
   int64_t tri_bytes() const { return tris.nbytes(); }
 };
 
-// One view's binning buffers, carved from a single allocation (one
-// allocator call a view instead of ten: the host's per-view work is what
+// The temporary storage cub's sorts and scan need, asked for the largest
+// lists a call may bin rather than once per group (each ask costs the host
+// device queries; the sizes only grow with the item count): the depth sort
+// and scan for max_rows items, the tile sort for the largest pair count so
+// far and the group's largest tile count.
+struct TempSizes {
+  size_t depth = 0, scan = 0, tile = 0;
+  int64_t tile_pairs = -1;
+  int max_tiles = 0;
+  TempSizes(int64_t max_rows, int max_group_tiles, cudaStream_t stream) : max_tiles(max_group_tiles) {
+    sort_by_depth(nullptr, depth, nullptr, nullptr, nullptr, nullptr, max_rows, stream);
+    scan_ordered_counts(nullptr, scan, nullptr, nullptr, max_rows, stream);
+  }
+  void fit(int64_t pairs, cudaStream_t stream) {
+    if (pairs <= tile_pairs) return;
+    sort_by_tile(nullptr, tile, nullptr, nullptr, nullptr, nullptr, pairs, max_tiles, stream);
+    tile_pairs = pairs;
+  }
+};
+
+// A bin group's binning buffers, carved from a single allocation (one
+// allocator call a group instead of ten: the host's per-view work is what
 // small renders wait on): the depth keys and orders before and after the
 // depth sort, the depth-order offsets, the pairs before the tile sort, and
 // the sorts' and scan's temporary storage.
@@ -158,10 +186,9 @@ struct BinScratch {
   int32_t *order, *order_sorted, *counts, *offsets, *ids;
   void* temp;
   size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
-  BinScratch(int64_t nv, int64_t count, int num_tiles, const at::TensorOptions& f, cudaStream_t stream) {
-    sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, nv, stream);
-    scan_ordered_counts(nullptr, scan_bytes, nullptr, nullptr, nv, stream);
-    sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, count, num_tiles, stream);
+  BinScratch(int64_t nv, int64_t count, TempSizes& sizes, const at::TensorOptions& f, cudaStream_t stream) {
+    sizes.fit(count, stream);
+    depth_bytes = sizes.depth, scan_bytes = sizes.scan, tile_bytes = sizes.tile;
     auto aligned = [](size_t b) { return (b + 255) / 256 * 256; };
     const size_t per_tri = aligned(nv * sizeof(int32_t)), per_pair = aligned(count * sizeof(int32_t));
     const size_t temp_bytes = aligned(std::max({depth_bytes, scan_bytes, tile_bytes, size_t(1)}));
@@ -185,30 +212,27 @@ struct BinScratch {
   }
 };
 
-// Sorts one view's visible triangles by depth (keys and order in bs, from
+// Sorts a bin group's visible triangles by depth (keys and order in bs, from
 // launch_depth_keys), writes their (tile, triangle) pairs in that order and
-// sorts those by tile (binning.cu): returns the pairs' visible-list indices,
-// tile by tile, front to back, fills ranges, and puts the tiles in
-// compositing order (heaviest first) into tile_order.
-at::Tensor bin_by_tile(BinScratch& bs, int64_t nv, ScreenData& sd, int64_t count, const ViewParams& vp,
-                       at::Tensor& ranges, at::Tensor& tile_order, cudaStream_t stream) {
-  const int num_tiles = vp.tiles_x * vp.tiles_y;
-  at::Tensor ids_sorted = at::empty({count}, ranges.options());
-  sort_by_depth(bs.temp, bs.depth_bytes, bs.depth_bits, bs.depth_sorted, bs.order, bs.order_sorted, nv, stream);
+// sorts those by tile (binning.cu): returns the pairs' group-list indices,
+// tile by tile, front to back, and fills ranges (group_tiles of them: the
+// group's views one after another). second: the second view's first row.
+at::Tensor bin_by_tile(BinScratch& bs, int64_t rows, ScreenData& sd, int64_t pairs, const ViewParams& vp,
+                       int64_t second, int group_tiles, at::Tensor& ranges, cudaStream_t stream) {
+  at::Tensor ids_sorted = at::empty({pairs}, ranges.options());
+  sort_by_depth(bs.temp, bs.depth_bytes, bs.depth_bits, bs.depth_sorted, bs.order, bs.order_sorted, rows, stream);
   check_launch("depth sort");
-  launch_ordered_counts(bs.order_sorted, nv, sd.rect_ptr(), bs.counts, stream);
-  scan_ordered_counts(bs.temp, bs.scan_bytes, bs.counts, bs.offsets, nv, stream);
+  launch_ordered_counts(bs.order_sorted, rows, sd.rect_ptr(), bs.counts, stream);
+  scan_ordered_counts(bs.temp, bs.scan_bytes, bs.counts, bs.offsets, rows, stream);
   check_launch("tile count scan (depth order)");
-  launch_duplicate(bs.order_sorted, nv, sd.rect_ptr(), sd.tri_ptr(), vp, bs.offsets, bs.tiles, bs.ids, stream);
+  launch_duplicate(bs.order_sorted, rows, sd.rect_ptr(), sd.tri_ptr(), vp, (int32_t)second, bs.offsets, bs.tiles,
+                   bs.ids, stream);
   check_launch("duplicate");
-  sort_by_tile(bs.temp, bs.tile_bytes, bs.tiles, bs.tiles_sorted, bs.ids, ids_sorted.data_ptr<int>(), count, num_tiles,
-               stream);
+  sort_by_tile(bs.temp, bs.tile_bytes, bs.tiles, bs.tiles_sorted, bs.ids, ids_sorted.data_ptr<int>(), pairs,
+               group_tiles, stream);
   check_launch("tile sort");
-  launch_tile_ranges(bs.tiles_sorted, count, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+  launch_tile_ranges(bs.tiles_sorted, pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
   check_launch("tile ranges");
-  launch_tile_order(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), num_tiles, tile_order.data_ptr<int>(),
-                    stream);
-  check_launch("tile order");
   return ids_sorted;
 }
 
@@ -220,6 +244,35 @@ ViewLoad count_load(int64_t visible, int64_t pairs, const at::Tensor& ranges, co
   const at::Tensor s = at::stack({list.mean(), list.max(), entries.mean(), entries.max()}).cpu();
   const double* d = s.data_ptr<double>();
   return ViewLoad{visible, pairs, d[0], (int64_t)d[1], d[2], (int64_t)d[3]};
+}
+
+// One view of a bin group in the forward: its cull state, its sizes and its
+// first row in the group's visible list.
+struct GroupView {
+  int64_t view = 0, nv = 0, pairs = 0, first = 0;
+  CullScratch* cull = nullptr;
+  ViewParams vp;
+};
+
+// A bin group in the backward state: its views share the ids, screen data and
+// mask tensors (the forward stores them with each view), and each view's
+// visible list is a slice of the group's (its storage offset is its first
+// row there).
+struct SavedGroup {
+  int64_t first_view = 0, views = 0, rows = 0;
+  int live = 0;  // views with visible triangles
+};
+std::vector<SavedGroup> saved_groups(const std::vector<at::Tensor>& views, int64_t V) {
+  std::vector<SavedGroup> groups;
+  for (int64_t v = 0; v < V; ++v) {
+    if (v == 0 || !views[kViewState * v].is_same(views[kViewState * (v - 1)])) groups.push_back({v, 0, 0, 0});
+    const int64_t nv = views[kViewState * v + 4].numel();
+    SavedGroup& g = groups.back();
+    g.views += 1;
+    g.rows += nv;
+    g.live += nv > 0;
+  }
+  return groups;
 }
 
 }  // namespace
@@ -234,8 +287,23 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
   RasterOutputs out = RasterOutputs::images_for(in);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  std::vector<std::unique_ptr<CullScratch>> scratch;
-  for (int i = 0; i <= kCullAhead; ++i) scratch.push_back(std::make_unique<CullScratch>(N, f, stream));
+  // Two views a group by default: the host's work per view (~340 us on
+  // anchor-small, two thirds of it the sorts' and binning's launches), which
+  // small renders wait on, is paid once for both, and the sorts and binning
+  // kernels fill the GPU better (anchor-small 12.5 -> 11.6 ms, anchor-large
+  // 59.4 -> 58.3 ms on the H100, same run).
+  const int group_max = (int)std::clamp<int64_t>(in.views_per_bin, 1, kBinViews);
+  // Views are culled kCullAhead groups ahead of the group being binned; the
+  // ring holds those and the group's own.
+  const int64_t ahead = kCullAhead * group_max, ring = ahead + group_max;
+  // Each built when first used: the first cull starts after one is built,
+  // not after all (the GPU would idle meanwhile).
+  std::vector<std::unique_ptr<CullScratch>> scratch(ring);
+  auto scratch_of = [&](int64_t view) -> CullScratch& {
+    std::unique_ptr<CullScratch>& s = scratch[view % ring];
+    if (!s) s = std::make_unique<CullScratch>(N, f, stream);
+    return *s;
+  };
   const c10::cuda::CUDAStream side = c10::cuda::getStreamFromPool(false, in.vertices.device().index());
   at::cuda::CUDAEvent inputs_ready;
   inputs_ready.record(at::cuda::getCurrentCUDAStream());
@@ -245,80 +313,118 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     const c10::cuda::CUDAStream& stream;
     ~SideDrain() { stream.synchronize(); }
   } drain{side};
-  for (int64_t a = 0; N > 0 && a < std::min<int64_t>(kCullAhead, V); ++a)
-    scratch[a]->cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, a), side);
+  for (int64_t a = 0; N > 0 && a < std::min<int64_t>(ahead, V); ++a)
+    scratch_of(a).cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, a), side);
+  // A view's sizes: the one host wait per view (the group before may still be
+  // compositing meanwhile).
+  auto wait_for = [&](int64_t v) {
+    GroupView g;
+    g.view = v;
+    g.cull = &scratch_of(v);
+    g.vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+    if (N == 0) return g;
+    g.cull->culled.synchronize();
+    g.cull->culled.block(at::cuda::getCurrentCUDAStream());
+    // The inputs' value statistics were copied before the first cull
+    // (rasterize.cpp): checked at this first wait, not with a sync of their
+    // own, and before any size the culling computed from the values is used.
+    if (v == 0) check_input_values(in);
+    g.pairs = g.cull->host_count.data_ptr<int64_t>()[0];
+    g.nv = g.cull->host_visible.data_ptr<int>()[0];
+    FLAT_CHECK(g.pairs <= std::numeric_limits<int32_t>::max(),
+               "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(g.pairs) +
+                   " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
+    FLAT_CHECK(g.nv <= kMaxVisible, "rasterize (cuda): view " + std::to_string(v) + " has " + std::to_string(g.nv) +
+                                        " visible triangles, more than the " + std::to_string(kMaxVisible) +
+                                        " the tile lists can index; render fewer triangles per call");
+    return g;
+  };
   views.clear();
   int64_t kept_bytes = 0;
   const int64_t HW = H * W;
-  for (int64_t v = 0; v < V; ++v) {
-    CullScratch& s = *scratch[v % (kCullAhead + 1)];
-    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
-    const int num_tiles = vp.tiles_x * vp.tiles_y;
-    int64_t count = 0, nv = 0;
-    if (N > 0) {
-      // The one host wait per view: the sizes of the visible list and of the
-      // pair buffers. View v - 1 may still be compositing meanwhile.
-      s.culled.synchronize();
-      s.culled.block(at::cuda::getCurrentCUDAStream());
-      // The inputs' value statistics were copied before the first cull
-      // (rasterize.cpp): checked at this first wait, not with a sync of their
-      // own, and before any size the culling computed from the values is used.
-      if (v == 0) check_input_values(in);
-      count = s.host_count.data_ptr<int64_t>()[0];
-      nv = s.host_visible.data_ptr<int>()[0];
+  const int64_t tiles = ((W + kTileSize - 1) / kTileSize) * ((H + kTileSize - 1) / kTileSize);
+  TempSizes temp_sizes(std::min<int64_t>(group_max * N, kMaxVisible), (int)(group_max * tiles), stream);
+  for (int64_t v = 0; v < V;) {
+    // The group: the next views while there is room and the group's sizes
+    // stay within what the sort and the pair ids can index.
+    GroupView group[kBinViews];
+    int n = 0;
+    int64_t rows = 0, pairs = 0;
+    while (n < group_max && v + n < V) {
+      GroupView g = wait_for(v + n);
+      if (n > 0 && (rows + g.nv > kMaxVisible || pairs + g.pairs > std::numeric_limits<int32_t>::max())) break;
+      g.first = rows;
+      rows += g.nv;
+      pairs += g.pairs;
+      group[n++] = g;
     }
-    FLAT_CHECK(count <= std::numeric_limits<int32_t>::max(),
-               "rasterize (cuda): view " + std::to_string(v) + " needs " + std::to_string(count) +
-                   " (triangle, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller triangles");
-    FLAT_CHECK(nv <= kMaxVisible, "rasterize (cuda): view " + std::to_string(v) + " has " + std::to_string(nv) +
-                                      " visible triangles, more than the " + std::to_string(kMaxVisible) +
-                                      " the tile lists can index; render fewer triangles per call");
+    v += n;
+    const ViewParams& vp = group[0].vp;  // the views differ only in their cameras
+    const int num_tiles = vp.tiles_x * vp.tiles_y, group_tiles = n * num_tiles;
     // Raw copies and memsets below: ATen's clone and zeros cost the host more,
     // and small renders wait on the host.
-    const at::Tensor visible = at::empty({nv}, f.dtype(at::kInt));  // kept for the backward (4 bytes a triangle)
-    copy_async(visible.data_ptr(), s.visible.data_ptr(), nv * sizeof(int32_t), stream);
-    ScreenData sd(in, visible, vp, s.rect_ptr(), true, stream);
-    at::Tensor ids_sorted, ranges = at::empty({num_tiles, 2}, f.dtype(at::kInt)), tile_order;
+    const at::Tensor visible = at::empty({rows}, f.dtype(at::kInt));  // kept for the backward (4 bytes a triangle)
+    ScreenData sd(rows, true, f);
+    at::Tensor ranges = at::empty({group_tiles, 2}, f.dtype(at::kInt));
     zero_async(ranges, stream);
-    BinScratch bs(nv, count, num_tiles, f, stream);
-    launch_depth_keys(visible.data_ptr<int>(), nv, s.keys.data_ptr<float>(), bs.depth_bits, bs.order, stream);
-    check_launch("depth keys");
-    s.released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
-    const int64_t ahead = v + kCullAhead;  // its scratch was last read by view v - 1, released above
-    if (N > 0 && ahead < V)
-      scratch[ahead % (kCullAhead + 1)]->cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, ahead), side);
-    if (count > 0) {
-      tile_order = at::empty({num_tiles}, f.dtype(at::kInt));
-      ids_sorted = bin_by_tile(bs, nv, sd, count, vp, ranges, tile_order, stream);
-    } else {
-      ids_sorted = at::empty({0}, f.dtype(at::kInt));
-      tile_order = at::arange(num_tiles, f.dtype(at::kInt));  // every tile is composited (the background)
+    BinScratch bs(rows, pairs, temp_sizes, f, stream);
+    for (int j = 0; j < n; ++j) {
+      const GroupView& g = group[j];
+      int32_t* view_visible = visible.data_ptr<int>() + g.first;
+      copy_async(view_visible, g.cull->visible.data_ptr(), g.nv * sizeof(int32_t), stream);
+      sd.add(in, view_visible, g.nv, g.first, g.vp, g.cull->rect_ptr(), stream);
+      launch_depth_keys(view_visible, g.nv, g.cull->keys.data_ptr<float>(), (int32_t)g.first, bs.depth_bits + g.first,
+                        bs.order + g.first, stream);
+      check_launch("depth keys");
+      g.cull->released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
     }
+    for (int j = 0; j < n; ++j) {  // each one's scratch was last read by the group before, released above
+      const int64_t next = group[j].view + ahead;
+      if (N > 0 && next < V) scratch_of(next).cull(in, make_params(in, w2c_cpu, K_cpu, bg_cpu, next), side);
+    }
+    const int64_t second = n > 1 ? group[1].first : rows;
+    const at::Tensor ids_sorted = pairs > 0 ? bin_by_tile(bs, rows, sd, pairs, vp, second, group_tiles, ranges, stream)
+                                            : at::empty({0}, f.dtype(at::kInt));
     bs.bytes = at::Tensor();
-    at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
-    const at::Tensor masks = at::empty({for_backward ? 2 * count : 0}, f.dtype(at::kInt));
-    ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,
-                      out.depth.data_ptr<float>() + v * HW,      out.normal.data_ptr<float>() + v * 3 * HW,
-                      out.median_depth.data_ptr<float>() + v * HW, t_final.data_ptr<float>(),
-                      last.data_ptr<int>(),
-                      PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, count}};
-    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
-                          ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), vp, img,
-                          reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
-    check_launch("forward rasterization");
-    if (load || spdlog::should_log(spdlog::level::debug)) {  // workload counts (host syncs)
-      const ViewLoad l = count_load(nv, count, ranges, last);
-      if (load) load->push_back(l);
-      spdlog::debug("raster view {}: {} visible triangles, {} (triangle, tile) pairs, tile list mean {:.1f} max {}, "
-                    "entries per pixel mean {:.1f} max {}",
-                    v, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
-    }
+    // Every tile is composited, those without entries too (the background).
+    const at::Tensor tile_order = at::empty({group_tiles}, f.dtype(at::kInt));
+    launch_tile_order(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), num_tiles, n, tile_order.data_ptr<int>(),
+                      stream);
+    check_launch("tile order");
+    const at::Tensor masks = at::empty({for_backward ? 2 * pairs : 0}, f.dtype(at::kInt));
+    at::Tensor kept_tris = at::empty({0}, f);
     if (for_backward) {
       kept_bytes += masks.nbytes();
-      const bool keep = kept_bytes + sd.tri_bytes() <= kKeepScreenBytes;
-      if (keep) kept_bytes += sd.tri_bytes();
-      views.insert(views.end(), {ids_sorted, ranges, t_final, last, visible, keep ? sd.tris : at::empty({0}, f),
-                                 tile_order, masks});
+      if (kept_bytes + sd.tri_bytes() <= kKeepScreenBytes) {
+        kept_bytes += sd.tri_bytes();
+        kept_tris = sd.tris;
+      }
+    }
+    for (int j = 0; j < n; ++j) {
+      const GroupView& g = group[j];
+      const int64_t u = g.view;
+      const at::Tensor view_ranges = ranges.narrow(0, j * num_tiles, num_tiles);
+      const at::Tensor view_order = tile_order.narrow(0, j * num_tiles, num_tiles);
+      at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
+      ForwardImages img{out.rgb.data_ptr<float>() + u * 3 * HW,    out.alpha.data_ptr<float>() + u * HW,
+                        out.depth.data_ptr<float>() + u * HW,      out.normal.data_ptr<float>() + u * 3 * HW,
+                        out.median_depth.data_ptr<float>() + u * HW, t_final.data_ptr<float>(),
+                        last.data_ptr<int>(),
+                        PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, pairs}};
+      launch_raster_forward(reinterpret_cast<const int2*>(view_ranges.data_ptr<int>()), view_order.data_ptr<int>(),
+                            ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), g.vp, img,
+                            reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+      check_launch("forward rasterization");
+      if (load || spdlog::should_log(spdlog::level::debug)) {  // workload counts (host syncs)
+        const ViewLoad l = count_load(g.nv, g.pairs, view_ranges, last);
+        if (load) load->push_back(l);
+        spdlog::debug("raster view {}: {} visible triangles, {} (triangle, tile) pairs, tile list mean {:.1f} max {}, "
+                      "entries per pixel mean {:.1f} max {}",
+                      u, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
+      }
+      if (for_backward)
+        views.insert(views.end(), {ids_sorted, view_ranges, t_final, last, visible.narrow(0, g.first, g.nv), kept_tris,
+                                   view_order, masks});
     }
   }
   if (V == 0) {  // no view waited for the device: the value checks still hold
@@ -344,48 +450,72 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   g.sigmas = at::zeros_like(in.sigmas);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
-  // Per-triangle screen gradients of kChainViews views (visible-list rows, as
-  // many as the longest list) and their row maps; the chain rule runs once
-  // per group of views (launch_chain) and resets both, so they are set once.
+  // The chain rule runs once per pass of up to kChainViews views with
+  // triangles (whole bin groups: a group's gradient rows are its list's).
+  // The pass's per-triangle screen gradients are one buffer, its groups'
+  // lists one after another, with a row map per view; launch_chain resets
+  // both, so they are set once, as large as the largest pass.
+  const std::vector<SavedGroup> groups = saved_groups(views, V);
   int64_t rows = 0;
-  for (int64_t v = 0; v < V; ++v) rows = std::max(rows, views[kViewState * v + 4].size(0));
-  const at::Tensor tri_grads = at::zeros({kChainViews, rows * kTriGradStride}, f);
+  {
+    int slots = 0;
+    int64_t pass_rows = 0;
+    for (const SavedGroup& b : groups) {
+      if (b.live == 0) continue;
+      if (slots + b.live > kChainViews) slots = 0, pass_rows = 0;
+      slots += b.live;
+      pass_rows += b.rows;
+      rows = std::max(rows, pass_rows);
+    }
+  }
+  const at::Tensor tri_grads = at::zeros({rows * kTriGradStride}, f);
   const at::Tensor row_of = at::full({kChainViews, N}, -1, f.dtype(at::kInt));
-  ChainViews group;
+  ChainViews pass;
+  pass.tri_grads = tri_grads.data_ptr<float>();
+  int64_t pass_rows = 0;
   auto chain = [&] {
-    launch_chain(in.vertices.data_ptr<float>(), N, group, g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(),
+    launch_chain(in.vertices.data_ptr<float>(), N, pass, g.vertices.data_ptr<float>(), g.colors.data_ptr<float>(),
                  g.opacities.data_ptr<float>(), g.sigmas.data_ptr<float>(), stream);
     check_launch("preprocess backward");
-    group.count = 0;
+    pass.count = 0;
+    pass_rows = 0;
   };
-  for (int64_t v = 0; v < V; ++v) {
-    const at::Tensor& visible = views[kViewState * v + 4];
-    const int64_t nv = visible.size(0);
-    if (nv == 0) continue;
-    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
-    at::Tensor tris = views[kViewState * v + 5];  // kept, or recomputed here
-    if (tris.numel() == 0) tris = ScreenData(in, visible, vp, nullptr, false, stream).tris;
-    const at::Tensor& masks = views[kViewState * v + 7];
-    const at::Tensor& ids = views[kViewState * v];
-    const at::Tensor& ranges = views[kViewState * v + 1];
-    BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
-                       grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
-                       views[kViewState * v + 2].data_ptr<float>(), views[kViewState * v + 3].data_ptr<int>(),
-                       PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
-    const int slot = group.count++;
-    group.cam[slot] = vp.cam;
-    group.tri_grads[slot] = tri_grads[slot].data_ptr<float>();
-    group.row_of[slot] = row_of[slot].data_ptr<int>();
-    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()),
-                           views[kViewState * v + 6].data_ptr<int>(), ids.data_ptr<int>(),
-                           reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()), vp, img,
-                           group.tri_grads[slot], stream);
-    check_launch("backward rasterization");
-    launch_row_map(visible.data_ptr<int>(), nv, group.row_of[slot], stream);
-    check_launch("row map");
-    if (group.count == kChainViews) chain();
+  for (const SavedGroup& b : groups) {
+    if (b.live == 0) continue;
+    if (pass.count + b.live > kChainViews) chain();
+    auto state = [&](int64_t v, int i) -> const at::Tensor& { return views[kViewState * v + i]; };
+    at::Tensor tris = state(b.first_view, 5);  // kept, or recomputed here
+    if (tris.numel() == 0) {
+      ScreenData sd(b.rows, false, f);
+      for (int64_t v = b.first_view; v < b.first_view + b.views; ++v)
+        sd.add(in, state(v, 4).data_ptr<int>(), state(v, 4).numel(), state(v, 4).storage_offset(),
+               make_params(in, w2c_cpu, K_cpu, bg_cpu, v), nullptr, stream);
+      tris = sd.tris;
+    }
+    float* group_grads = pass.tri_grads + pass_rows * kTriGradStride;  // rows of the group's list
+    for (int64_t v = b.first_view; v < b.first_view + b.views; ++v) {
+      const at::Tensor& visible = state(v, 4);
+      if (visible.numel() == 0) continue;
+      const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+      const at::Tensor& masks = state(v, 7);
+      BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
+                         grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
+                         state(v, 2).data_ptr<float>(),          state(v, 3).data_ptr<int>(),
+                         PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
+      const int slot = pass.count++;
+      pass.cam[slot] = vp.cam;
+      pass.row_of[slot] = row_of[slot].data_ptr<int>();
+      launch_raster_backward(reinterpret_cast<const int2*>(state(v, 1).data_ptr<int>()), state(v, 6).data_ptr<int>(),
+                             state(v, 0).data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
+                             vp, img, group_grads, stream);
+      check_launch("backward rasterization");
+      launch_row_map(visible.data_ptr<int>(), visible.numel(), (int32_t)(pass_rows + visible.storage_offset()),
+                     pass.row_of[slot], stream);
+      check_launch("row map");
+    }
+    pass_rows += b.rows;
   }
-  if (group.count > 0) chain();
+  if (pass.count > 0) chain();
   return g;
 }
 

@@ -1,8 +1,8 @@
 // Launchers of the rasterizer's CUDA kernels. Plain header (no torch): the
 // .cu files implement these; render/cuda/raster_cuda.cpp calls them with
-// buffers it allocates through libtorch. One view per call (the chain rule:
-// up to kChainViews); everything is enqueued on `stream`, nothing
-// synchronises.
+// buffers it allocates through libtorch. One view per call, except the
+// binning (a bin group of up to kBinViews views) and the chain rule (up to
+// kChainViews); everything is enqueued on `stream`, nothing synchronises.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -67,10 +67,19 @@ void launch_screen(const float* vertices, const float* colors, const float* opac
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
                    PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
 
-// Binning of one view (render/cuda/binning.cu), in this order:
-// depth_bits[k] = the sort key of visible[k], order[k] = k;
-void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, uint32_t* depth_bits, int32_t* order,
-                       cudaStream_t stream);
+// Binning of a bin group (render/cuda/binning.cu): up to kBinViews views
+// binned by one depth sort and one tile sort, which pays the sorts' fixed
+// host cost (a dozen calls each, whatever the size) once for the group. The
+// group's visible list is its views' lists one after another (view j's from
+// row first_j); pair ids index it, and tile ids count on through the views
+// (view j's tile t is j * num_tiles + t), so the tile sort gives each view's
+// lists apart. The depth sort may mix the views: each (view, tile) list still
+// comes out front to back. In this order:
+constexpr int kBinViews = 2;
+// depth_bits[k] = the sort key of visible[k], order[k] = first + k (one
+// view's rows of the group list, from row `first`);
+void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, int32_t first, uint32_t* depth_bits,
+                       int32_t* order, cudaStream_t stream);
 // stable radix sort of order by depth (cub; temp sized with temp == nullptr);
 void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
                    const int32_t* order_in, int32_t* order_out, int64_t nv, cudaStream_t stream);
@@ -81,19 +90,23 @@ void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, 
                          cudaStream_t stream);
 // one (tile id, pair id) pair per touched tile, in depth order (pair ids
 // below: the visible-list index and the tile halves the window reaches);
+// rows from `second` on are the group's second view's (its tile ids are
+// offset by the view's tile count; second = nv for a group of one view);
 void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const PixelTri<float>* tris,
-                      const ViewParams& vp, const int32_t* offsets, uint32_t* pair_tiles, int32_t* pair_ids,
-                      cudaStream_t stream);
-// stable radix sort of the pairs by tile id (the bits num_tiles needs): each
-// tile's pairs stay front to back;
+                      const ViewParams& vp, int32_t second, const int32_t* offsets, uint32_t* pair_tiles,
+                      int32_t* pair_ids, cudaStream_t stream);
+// stable radix sort of the pairs by tile id (num_tiles: the group's, the
+// bits it needs): each tile's pairs stay front to back;
 void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
                   const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
 // ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
 void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
-// The compositing kernels' tile order (block b composites tile
-// tile_order[b]): longest lists first, so that the last wave of blocks holds
-// the short ones (a counting sort into 256 length classes, one block).
-void launch_tile_order(const int2* ranges, int num_tiles, int32_t* tile_order, cudaStream_t stream);
+// Each view's compositing tile order (block b composites tile
+// tile_order[b] of the view; views of num_tiles tiles one after another, in
+// ranges and tile_order): longest lists first, so that the last wave of
+// blocks holds the short ones (a counting sort into 256 length classes, one
+// block a view).
+void launch_tile_order(const int2* ranges, int num_tiles, int views, int32_t* tile_order, cudaStream_t stream);
 
 // Per list entry and tile half (the warps' 8x4 regions, tile_pixel.cuh): the
 // region pixels where the entry's alpha reaches alpha_min (bit = pixel's lane),
@@ -118,7 +131,7 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
   PairMasks masks;  // kept for the backward
 };
 
-// ids index the visible list (tris, rects). max_weight_bits (N, zeroed once
+// ids index the bin group's visible list (tris, rects). max_weight_bits (N, zeroed once
 // per call): each triangle's largest blending weight over the views so far
 // (float bits, atomicMax at PixelTri::index).
 void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
@@ -139,25 +152,27 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
 };
 
 // Accumulates TriGrad<float> into tri_grads: one row of kTriGradStride floats
-// per visible-list entry (the kTriGradSize fields, then zeros: rows of whole
+// per entry of the bin group's visible list (the kTriGradSize fields, then zeros: rows of whole
 // 16-byte vectors, added with vector atomics).
 void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
                             const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
                             float* tri_grads, cudaStream_t stream);
 
 // The chain rule of up to kChainViews views in one pass (preprocess_backward.cu).
-// View v of the group: its camera, its TriGrad rows (visible-list order) and
-// its row map (N entries: triangle i's visible-list index, -1 when culled).
+// View v of the group: its camera and its row map (N entries: triangle i's
+// row of tri_grads, -1 when culled). The views' rows lie one after another
+// in tri_grads (a bin group's views are never split over two passes).
 constexpr int kChainViews = 2;
+static_assert(kBinViews <= kChainViews, "a bin group's views share one gradient buffer and one chain pass");
 struct ChainViews {
   int count = 0;
   CameraView<float> cam[kChainViews];
-  float* tri_grads[kChainViews] = {};
   int32_t* row_of[kChainViews] = {};
+  float* tri_grads = nullptr;
 };
 
-// row_of[visible[k]] = k for k < nv (row_of holds -1 elsewhere).
-void launch_row_map(const int32_t* visible, int64_t nv, int32_t* row_of, cudaStream_t stream);
+// row_of[visible[k]] = first_row + k for k < nv (row_of holds -1 elsewhere).
+void launch_row_map(const int32_t* visible, int64_t nv, int32_t first_row, int32_t* row_of, cudaStream_t stream);
 
 // Chains the group's per-triangle gradients to the inputs of the n triangles
 // (adds into the grads), then zeroes the tri_grads rows and resets the row
