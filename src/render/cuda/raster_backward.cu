@@ -120,19 +120,20 @@ struct WarpStage {  // one warp's staged triangles (slot j), per-pixel and per-f
 __global__ void __launch_bounds__(kBlockSize, 10)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
                            const int32_t* __restrict__ ids, const PixelTri<float>* __restrict__ tris, ViewParams vp,
-                           BackwardImages in, float* __restrict__ tri_grads) {
+                           GroupRays rays, BackwardImages in, float* __restrict__ tri_grads) {
   __shared__ WarpStage stage[kWarps];
-  const TilePixel pix = tile_pixel(vp, tile_order);
+  const TilePixel pix = tile_pixel(vp, rays, tile_order);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[pix.tile];
+  const int2 range = ranges[pix.list];
   const uint32_t* __restrict__ masks = in.masks.bits + pix.warp * in.masks.pairs + range.x;
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
+  const int64_t HW = (int64_t)vp.width * vp.height, p = pix.view * HW + (int64_t)pix.y * vp.width + pix.x;
+  const int64_t p3 = 2 * pix.view * HW + p;  // three channels a view
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;
   int my_last = 0;
   if (pix.inside) {
-    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p], G[4 + c] = in.g_normal[c * HW + p];
+    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p3], G[4 + c] = in.g_normal[c * HW + p3];
     G[3] = in.g_depth[p];
     G[7] = in.g_alpha[p];
     t_final = T = in.t_final[p];
@@ -244,7 +245,7 @@ __global__ void __launch_bounds__(kBlockSize, 10)
       for (unsigned m = half ? mine & (mine - 1u) : mine; m != 0u; m &= m - 1u, m &= m - 1u) {
         const int q = __ffs(m) - 1;
         const float2 c = region_pixel(pix, q);
-        const float2 qr = pixel_ray(vp, c.x, c.y);  // bit-identical to that pixel's own ray in phase 1
+        const float2 qr = pixel_ray(rays, pix.view, c.x, c.y);  // bit-identical to that pixel's own ray in phase 1
         const Fragment<float> f = kept_fragment(t, sh.I[j_own][q], sh.z[j_own][q], c.x, c.y, vp.k);
         const float4 g0 = sh.G[0][q], g1 = sh.G[1][q];
         const float Gq[kCh] = {g0.x, g0.y, g0.z, g0.w, g1.x, g1.y, g1.z, g1.w};
@@ -273,14 +274,14 @@ __global__ void __launch_bounds__(kBlockSize, 10)
 }  // namespace
 
 void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
-                            const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
-                            float* tri_grads, cudaStream_t stream) {
+                            const PixelTri<float>* tris, const ViewParams& vp, const GroupRays& rays,
+                            const BackwardImages& in, float* tri_grads, cudaStream_t stream) {
   // Only the backward: the forward's gathers need the L1 that a larger
   // shared-memory carveout takes away (measured: forward 16.7 -> 24.1 ms).
   cudaFuncSetAttribute(raster_backward_kernel, cudaFuncAttributePreferredSharedMemoryCarveout,
                        cudaSharedmemCarveoutMaxShared);
-  const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
-  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, vp, in, tri_grads);
+  const dim3 grid(rays.views * vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
+  raster_backward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, vp, rays, in, tri_grads);
 }
 
 }  // namespace flat::render::cuda

@@ -254,6 +254,17 @@ struct GroupView {
   ViewParams vp;
 };
 
+// The group's pixel rays (GroupRays), from its views' cameras.
+GroupRays group_rays(const GroupView* group, int n) {
+  GroupRays r;
+  r.views = n;
+  for (int j = 0; j < n; ++j) {
+    const ViewParams& vp = group[j].vp;
+    r.cx[j] = vp.cam.cx, r.cy[j] = vp.cam.cy, r.inv_fx[j] = vp.inv_fx, r.inv_fy[j] = vp.inv_fy;
+  }
+  return r;
+}
+
 // A bin group in the backward state: its views share the ids, screen data and
 // mask tensors (the forward stores them with each view), and each view's
 // visible list is a slice of the group's (its storage offset is its first
@@ -400,31 +411,35 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
         kept_tris = sd.tris;
       }
     }
+    // One compositing launch for the group's views (their images are
+    // consecutive: the views are).
+    const int64_t u0 = group[0].view;
+    const at::Tensor t_final = at::empty({n, H, W}, f), last = at::empty({n, H, W}, f.dtype(at::kInt));
+    const GroupRays rays = group_rays(group, n);
+    ForwardImages img{out.rgb.data_ptr<float>() + u0 * 3 * HW,    out.alpha.data_ptr<float>() + u0 * HW,
+                      out.depth.data_ptr<float>() + u0 * HW,      out.normal.data_ptr<float>() + u0 * 3 * HW,
+                      out.median_depth.data_ptr<float>() + u0 * HW, t_final.data_ptr<float>(),
+                      last.data_ptr<int>(),
+                      PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, pairs}};
+    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), tile_order.data_ptr<int>(),
+                          ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), vp, rays, img,
+                          reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+    check_launch("forward rasterization");
     for (int j = 0; j < n; ++j) {
       const GroupView& g = group[j];
       const int64_t u = g.view;
       const at::Tensor view_ranges = ranges.narrow(0, j * num_tiles, num_tiles);
       const at::Tensor view_order = tile_order.narrow(0, j * num_tiles, num_tiles);
-      at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
-      ForwardImages img{out.rgb.data_ptr<float>() + u * 3 * HW,    out.alpha.data_ptr<float>() + u * HW,
-                        out.depth.data_ptr<float>() + u * HW,      out.normal.data_ptr<float>() + u * 3 * HW,
-                        out.median_depth.data_ptr<float>() + u * HW, t_final.data_ptr<float>(),
-                        last.data_ptr<int>(),
-                        PairMasks{for_backward ? reinterpret_cast<uint32_t*>(masks.data_ptr<int>()) : nullptr, pairs}};
-      launch_raster_forward(reinterpret_cast<const int2*>(view_ranges.data_ptr<int>()), view_order.data_ptr<int>(),
-                            ids_sorted.data_ptr<int>(), sd.tri_ptr(), sd.rect_ptr(), g.vp, img,
-                            reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
-      check_launch("forward rasterization");
       if (load || spdlog::should_log(spdlog::level::debug)) {  // workload counts (host syncs)
-        const ViewLoad l = count_load(g.nv, g.pairs, view_ranges, last);
+        const ViewLoad l = count_load(g.nv, g.pairs, view_ranges, last[j]);
         if (load) load->push_back(l);
         spdlog::debug("raster view {}: {} visible triangles, {} (triangle, tile) pairs, tile list mean {:.1f} max {}, "
                       "entries per pixel mean {:.1f} max {}",
                       u, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
       }
       if (for_backward)
-        views.insert(views.end(), {ids_sorted, view_ranges, t_final, last, visible.narrow(0, g.first, g.nv), kept_tris,
-                                   view_order, masks});
+        views.insert(views.end(), {ids_sorted, view_ranges, t_final[j], last[j], visible.narrow(0, g.first, g.nv),
+                                   kept_tris, view_order, masks});
     }
   }
   if (V == 0) {  // no view waited for the device: the value checks still hold
@@ -492,23 +507,29 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
                make_params(in, w2c_cpu, K_cpu, bg_cpu, v), nullptr, stream);
       tris = sd.tris;
     }
-    float* group_grads = pass.tri_grads + pass_rows * kTriGradStride;  // rows of the group's list
-    for (int64_t v = b.first_view; v < b.first_view + b.views; ++v) {
-      const at::Tensor& visible = state(v, 4);
+    // One compositing launch for the group's views: their ranges, tile orders
+    // and per-pixel maps are slices of the group's tensors, view after view
+    // from the first view's, and their images are consecutive.
+    const int64_t v0 = b.first_view;
+    GroupView group[kBinViews];
+    for (int j = 0; j < b.views; ++j) group[j].vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v0 + j);
+    const at::Tensor& masks = state(v0, 7);
+    BackwardImages img{grad_rgb.data_ptr<float>() + v0 * 3 * HW, grad_alpha.data_ptr<float>() + v0 * HW,
+                       grad_depth.data_ptr<float>() + v0 * HW,  grad_normal.data_ptr<float>() + v0 * 3 * HW,
+                       state(v0, 2).data_ptr<float>(),          state(v0, 3).data_ptr<int>(),
+                       PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
+    launch_raster_backward(reinterpret_cast<const int2*>(state(v0, 1).data_ptr<int>()), state(v0, 6).data_ptr<int>(),
+                           state(v0, 0).data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
+                           group[0].vp, group_rays(group, (int)b.views), img,
+                           pass.tri_grads + pass_rows * kTriGradStride,  // rows of the group's list
+                           stream);
+    check_launch("backward rasterization");
+    for (int j = 0; j < b.views; ++j) {
+      const at::Tensor& visible = state(v0 + j, 4);
       if (visible.numel() == 0) continue;
-      const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
-      const at::Tensor& masks = state(v, 7);
-      BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
-                         grad_depth.data_ptr<float>() + v * HW,  grad_normal.data_ptr<float>() + v * 3 * HW,
-                         state(v, 2).data_ptr<float>(),          state(v, 3).data_ptr<int>(),
-                         PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
       const int slot = pass.count++;
-      pass.cam[slot] = vp.cam;
+      pass.cam[slot] = group[j].vp.cam;
       pass.row_of[slot] = row_of[slot].data_ptr<int>();
-      launch_raster_backward(reinterpret_cast<const int2*>(state(v, 1).data_ptr<int>()), state(v, 6).data_ptr<int>(),
-                             state(v, 0).data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
-                             vp, img, group_grads, stream);
-      check_launch("backward rasterization");
       launch_row_map(visible.data_ptr<int>(), visible.numel(), (int32_t)(pass_rows + visible.storage_offset()),
                      pass.row_of[slot], stream);
       check_launch("row map");

@@ -37,12 +37,13 @@ __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ tile_order,
                           const int32_t* __restrict__ ids,
                           const PixelTri<float>* __restrict__ tris, const TriRect* __restrict__ rects,
-                          ViewParams vp, ForwardImages out, unsigned int* __restrict__ max_weight_bits) {
+                          ViewParams vp, GroupRays rays, ForwardImages out,
+                          unsigned int* __restrict__ max_weight_bits) {
   __shared__ WarpStage stage[kWarps];
-  const TilePixel pix = tile_pixel(vp, tile_order);
+  const TilePixel pix = tile_pixel(vp, rays, tile_order);
   WarpStage& sh = stage[pix.warp];
   const int lane = pix.lane;
-  const int2 range = ranges[pix.tile];
+  const int2 range = ranges[pix.list];
   // This half's coverage masks, indexed by sorted entry (PairMasks).
   uint32_t* const masks = out.masks.bits ? out.masks.bits + pix.warp * out.masks.pairs : nullptr;
   bool done = !pix.inside;
@@ -135,11 +136,12 @@ __global__ void __launch_bounds__(kBlockSize)
     __syncwarp();  // this round's reads of the stage before the next round's writes
   }
   if (!pix.inside) return;
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)pix.y * vp.width + pix.x;
-  for (int c = 0; c < 3; ++c) out.rgb[c * HW + p] = acc[c] + T * vp.background[c];
+  const int64_t HW = (int64_t)vp.width * vp.height, p = pix.view * HW + (int64_t)pix.y * vp.width + pix.x;
+  const int64_t p3 = 2 * pix.view * HW + p;  // three channels a view
+  for (int c = 0; c < 3; ++c) out.rgb[c * HW + p3] = acc[c] + T * vp.background[c];
   out.alpha[p] = 1.f - T;
   out.depth[p] = acc[3];
-  for (int c = 0; c < 3; ++c) out.normal[c * HW + p] = acc[4 + c];
+  for (int c = 0; c < 3; ++c) out.normal[c * HW + p3] = acc[4 + c];
   out.median[p] = median;
   out.t_final[p] = T;
   out.last[p] = last;
@@ -149,9 +151,11 @@ __global__ void __launch_bounds__(kBlockSize)
 
 void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
                            const PixelTri<float>* tris, const TriRect* rects, const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream) {
-  const dim3 grid(vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
-  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, out, max_weight_bits);
+                           const GroupRays& rays, const ForwardImages& out, unsigned int* max_weight_bits,
+                           cudaStream_t stream) {
+  const dim3 grid(rays.views * vp.tiles_x * vp.tiles_y), block(kTileSize, kTileSize);
+  raster_forward_kernel<<<grid, block, 0, stream>>>(ranges, tile_order, ids, tris, rects, vp, rays, out,
+                                                    max_weight_bits);
 }
 
 

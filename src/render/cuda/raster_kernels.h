@@ -120,14 +120,26 @@ struct PairMasks {
   int64_t pairs;
 };
 
-struct ForwardImages {  // one view, channel-major (C,H,W)
+// A compositing launch covers a bin group: block b composites tile
+// tile_order[b] of view b / tiles (tiles = tiles_x * tiles_y of the
+// ViewParams, whose other fields the views share). The views' ranges, tile
+// orders and images lie one after another (ForwardImages, BackwardImages:
+// the first view's; each image is (C,H,W) per view, the next view's C*H*W
+// floats on); only their pixel rays differ (one launch, not one a view: one
+// tail of short tiles a group, and half the launches).
+struct GroupRays {
+  int views = 1;
+  float cx[kBinViews] = {}, cy[kBinViews] = {}, inv_fx[kBinViews] = {}, inv_fy[kBinViews] = {};
+};
+
+struct ForwardImages {  // the group's first view, channel-major (C,H,W)
   float* rgb;
   float* alpha;
   float* depth;
   float* normal;
   float* median;
-  float* t_final;   // (H,W) final transmittance, kept for the backward
-  int32_t* last;    // (H,W) number of list entries processed, kept for the backward
+  float* t_final;   // (H,W) a view: final transmittance, kept for the backward
+  int32_t* last;    // (H,W) a view: number of list entries processed, kept for the backward
   PairMasks masks;  // kept for the backward
 };
 
@@ -136,12 +148,13 @@ struct ForwardImages {  // one view, channel-major (C,H,W)
 // (float bits, atomicMax at PixelTri::index).
 void launch_raster_forward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
                            const PixelTri<float>* tris, const TriRect* rects, const ViewParams& vp,
-                           const ForwardImages& out, unsigned int* max_weight_bits, cudaStream_t stream);
+                           const GroupRays& rays, const ForwardImages& out, unsigned int* max_weight_bits,
+                           cudaStream_t stream);
 
 constexpr int kTriGradStride = 20;  // five 16-byte vectors
 static_assert(kTriGradStride >= kTriGradSize && kTriGradStride % 4 == 0, "padded TriGrad rows");
 
-struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state
+struct BackwardImages {  // the group's first view: upstream gradients and the forward's per-pixel state
   const float* g_rgb;
   const float* g_alpha;
   const float* g_depth;
@@ -155,8 +168,8 @@ struct BackwardImages {  // one view: upstream gradients and the forward's per-p
 // per entry of the bin group's visible list (the kTriGradSize fields, then zeros: rows of whole
 // 16-byte vectors, added with vector atomics).
 void launch_raster_backward(const int2* ranges, const int32_t* tile_order, const int32_t* ids,
-                            const PixelTri<float>* tris, const ViewParams& vp, const BackwardImages& in,
-                            float* tri_grads, cudaStream_t stream);
+                            const PixelTri<float>* tris, const ViewParams& vp, const GroupRays& rays,
+                            const BackwardImages& in, float* tri_grads, cudaStream_t stream);
 
 // The chain rule of up to kChainViews views in one pass (preprocess_backward.cu).
 // View v of the group: its camera and its row map (N entries: triangle i's

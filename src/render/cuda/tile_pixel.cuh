@@ -1,5 +1,6 @@
 // The pixel a compositing thread owns (render/cuda/raster_forward.cu and
-// raster_backward.cu): one 8x8-thread block per 8x8-pixel tile, thread
+// raster_backward.cu): one 8x8-thread block per 8x8-pixel tile of a bin
+// group's views (GroupRays, raster_kernels.h), thread
 // (threadIdx.x, threadIdx.y) on pixel (tile origin + threadIdx). Each of the
 // block's two warps owns one 8x4 half of the tile (its "region": rows 0-3 or
 // 4-7) and works through the tile's list on its own, with no block barrier:
@@ -16,12 +17,18 @@ constexpr unsigned kFullWarp = 0xffffffffu;
 // Camera ray (x, y) with z = 1 through the pixel centre (px, py); multiplied
 // by 1 / f, not divided (an IEEE division is ~10 instructions, and the
 // backward recomputes a ray per fragment). Within an ulp of the CPU's ray.
-__device__ __forceinline__ float2 pixel_ray(const ViewParams& vp, float px, float py) {
-  return make_float2((px - vp.cam.cx) * vp.inv_fx, (py - vp.cam.cy) * vp.inv_fy);
+static_assert(kBinViews == 2, "pixel_ray picks one of two views");
+__device__ __forceinline__ float2 pixel_ray(const GroupRays& rays, int view, float px, float py) {
+  const int v = view ? 1 : 0;  // a select between parameters, not an indexed (local-memory) copy
+  const float cx = v ? rays.cx[1] : rays.cx[0], cy = v ? rays.cy[1] : rays.cy[0];
+  const float ix = v ? rays.inv_fx[1] : rays.inv_fx[0], iy = v ? rays.inv_fy[1] : rays.inv_fy[0];
+  return make_float2((px - cx) * ix, (py - cy) * iy);
 }
 
 struct TilePixel {
-  int tile;      // tile index (row-major); block b composites tile_order[b]
+  int view;      // the view of the group: block b composites view b / tiles
+  int tile;      // tile index in the view (row-major): tile_order[b]
+  int list;      // its entry of the group's ranges (view * tiles + tile)
   int lane;      // pixel index in the warp's region, row-major
   int warp;      // 0: rows 0-3 of the tile, 1: rows 4-7
   int wx0, wy0;  // region origin (pixels)
@@ -31,10 +38,14 @@ struct TilePixel {
   float rx, ry;  // camera ray (x, y), z = 1
 };
 
-__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, const int32_t* __restrict__ tile_order) {
+__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, const GroupRays& rays,
+                                                const int32_t* __restrict__ tile_order) {
   TilePixel p;
+  const int tiles = vp.tiles_x * vp.tiles_y;
   const int tile = tile_order[blockIdx.x];
+  p.view = blockIdx.x / tiles;
   p.tile = tile;
+  p.list = p.view * tiles + tile;
   const int tid = threadIdx.y * kTileSize + threadIdx.x;
   p.lane = tid & 31;
   p.warp = tid >> 5;
@@ -46,7 +57,7 @@ __device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, const int3
   p.inside = p.x < vp.width && p.y < vp.height;
   p.px = p.x + 0.5f;
   p.py = p.y + 0.5f;
-  const float2 r = pixel_ray(vp, p.px, p.py);
+  const float2 r = pixel_ray(rays, p.view, p.px, p.py);
   p.rx = r.x;
   p.ry = r.y;
   return p;
