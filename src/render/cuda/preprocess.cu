@@ -65,7 +65,8 @@ __global__ void __launch_bounds__(kThreads)
     screen_kernel(const float* __restrict__ vertices, const float* __restrict__ colors,
                   const float* __restrict__ opacities, const float* __restrict__ sigmas,
                   const int32_t* __restrict__ visible, int64_t nv, ViewParams vp,
-                  const TriRect* __restrict__ cull_rects, float* __restrict__ tris, TriRect* __restrict__ rects) {
+                  const TriRect* __restrict__ cull_rects, float* __restrict__ tris, TriRect* __restrict__ rects,
+                  int32_t* __restrict__ visible_out) {
   __shared__ float sh_v[kThreads * 9];
   __shared__ float sh_t[kThreads * kTriStride];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
@@ -74,6 +75,7 @@ __global__ void __launch_bounds__(kThreads)
   __syncthreads();
   if ((int)threadIdx.x < rows) {
     const int64_t k = base + threadIdx.x, i = visible[k];
+    if (visible_out) visible_out[k] = (int32_t)i;
     PixelTri<float> t;
     TriRect r{0, 0, 0, 0};
     float key;
@@ -106,10 +108,11 @@ void launch_cull(const float* vertices, const float* opacities, int64_t n, const
 
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
-                   PixelTri<float>* tris, TriRect* rects, cudaStream_t stream) {
+                   PixelTri<float>* tris, TriRect* rects, int32_t* visible_out, cudaStream_t stream) {
   if (nv == 0) return;
   screen_kernel<<<blocks_for(nv), kThreads, 0, stream>>>(vertices, colors, opacities, sigmas, visible, nv, vp,
-                                                         cull_rects, reinterpret_cast<float*>(tris), rects);
+                                                         cull_rects, reinterpret_cast<float*>(tris), rects,
+                                                         visible_out);
 }
 
 }  // namespace flat::render::cuda

@@ -32,11 +32,6 @@ void check_launch(const char* what) {
 
 namespace {
 
-void copy_async(void* dst, const void* src, int64_t bytes, cudaStream_t stream) {
-  const cudaError_t err = bytes > 0 ? cudaMemcpyAsync(dst, src, bytes, cudaMemcpyDeviceToDevice, stream) : cudaSuccess;
-  if (err != cudaSuccess) fail(std::string("rasterize (cuda): device copy failed: ") + cudaGetErrorString(err));
-}
-
 void zero_async(const at::Tensor& t, cudaStream_t stream) {
   const cudaError_t err = t.numel() > 0 ? cudaMemsetAsync(t.data_ptr(), 0, t.nbytes(), stream) : cudaSuccess;
   if (err != cudaSuccess) fail(std::string("rasterize (cuda): memset failed: ") + cudaGetErrorString(err));
@@ -143,11 +138,12 @@ struct ScreenData {
       : tris(at::empty({rows * kTriFloats}, f)), rects(at::empty({with_rects ? rows * 4 : 0}, f.dtype(at::kInt))) {}
   // Rows [first, first + nv): the triangles visible[0..nv) of one view.
   // cull_rects: that view's cull-pass rectangles (nullptr: recomputed).
+  // visible_out: where visible is copied as well (nullptr: nowhere).
   void add(const RasterInputs& in, const int32_t* visible, int64_t nv, int64_t first, const ViewParams& vp,
-           const TriRect* cull_rects, cudaStream_t stream) {
+           const TriRect* cull_rects, int32_t* visible_out, cudaStream_t stream) {
     launch_screen(in.vertices.data_ptr<float>(), in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(),
                   in.sigmas.data_ptr<float>(), visible, nv, vp, cull_rects, tri_ptr() + first,
-                  rects.numel() > 0 ? rect_ptr() + first : nullptr, stream);
+                  rects.numel() > 0 ? rect_ptr() + first : nullptr, visible_out, stream);
     check_launch("screen preprocessing");
   }
   PixelTri<float>* tri_ptr() { return reinterpret_cast<PixelTri<float>*>(tris.data_ptr<float>()); }
@@ -372,8 +368,9 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     v += n;
     const ViewParams& vp = group[0].vp;  // the views differ only in their cameras
     const int num_tiles = vp.tiles_x * vp.tiles_y, group_tiles = n * num_tiles;
-    // Raw copies and memsets below: ATen's clone and zeros cost the host more,
-    // and small renders wait on the host.
+    // Raw memsets below: ATen's zeros costs the host more, and small renders
+    // wait on the host. The screen pass copies each view's visible list into
+    // the group's (no copy launch of its own).
     const at::Tensor visible = at::empty({rows}, f.dtype(at::kInt));  // kept for the backward (4 bytes a triangle)
     ScreenData sd(rows, true, f);
     at::Tensor ranges = at::empty({group_tiles, 2}, f.dtype(at::kInt));
@@ -381,10 +378,9 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     BinScratch bs(rows, pairs, temp_sizes, f, stream);
     for (int j = 0; j < n; ++j) {
       const GroupView& g = group[j];
-      int32_t* view_visible = visible.data_ptr<int>() + g.first;
-      copy_async(view_visible, g.cull->visible.data_ptr(), g.nv * sizeof(int32_t), stream);
-      sd.add(in, view_visible, g.nv, g.first, g.vp, g.cull->rect_ptr(), stream);
-      launch_depth_keys(view_visible, g.nv, g.cull->keys.data_ptr<float>(), (int32_t)g.first, bs.depth_bits + g.first,
+      const int32_t* cull_visible = g.cull->visible.data_ptr<int>();
+      sd.add(in, cull_visible, g.nv, g.first, g.vp, g.cull->rect_ptr(), visible.data_ptr<int>() + g.first, stream);
+      launch_depth_keys(cull_visible, g.nv, g.cull->keys.data_ptr<float>(), (int32_t)g.first, bs.depth_bits + g.first,
                         bs.order + g.first, stream);
       check_launch("depth keys");
       g.cull->released.record(at::cuda::getCurrentCUDAStream());  // depth keys were the scratch's last reader
@@ -504,7 +500,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
       ScreenData sd(b.rows, false, f);
       for (int64_t v = b.first_view; v < b.first_view + b.views; ++v)
         sd.add(in, state(v, 4).data_ptr<int>(), state(v, 4).numel(), state(v, 4).storage_offset(),
-               make_params(in, w2c_cpu, K_cpu, bg_cpu, v), nullptr, stream);
+               make_params(in, w2c_cpu, K_cpu, bg_cpu, v), nullptr, nullptr, stream);
       tris = sd.tris;
     }
     // One compositing launch for the group's views: their ranges, tile orders

@@ -62,10 +62,12 @@ void select_visible(void* temp, size_t& temp_bytes, const int32_t* tile_counts, 
 // do the kernels). cull_rects: the cull pass's rectangles of all triangles,
 // copied instead of recomputed (the forward: binning relies on them); nullptr
 // recomputes them; rects == nullptr writes none (the backward, which reads
-// the forward's coverage masks instead of rectangles).
+// the forward's coverage masks instead of rectangles). visible_out: when
+// given, visible is copied there too (the forward's copy of the cull
+// scratch's list into the bin group's, without a copy of its own).
 void launch_screen(const float* vertices, const float* colors, const float* opacities, const float* sigmas,
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
-                   PixelTri<float>* tris, TriRect* rects, cudaStream_t stream);
+                   PixelTri<float>* tris, TriRect* rects, int32_t* visible_out, cudaStream_t stream);
 
 // Binning of a bin group (render/cuda/binning.cu): up to kBinViews views
 // binned by one depth sort and one tile sort, which pays the sorts' fixed
