@@ -25,8 +25,9 @@ struct RasterSettings {
   double min_inradius = 1e-3;   // pixels; smaller (degenerate) triangles are culled
   double min_cos = 1e-3;        // edge-on cull: |cos(normal, ray to centroid)| below this
   // CUDA only, speed only (the images are the same): views binned by one
-  // depth sort and one tile sort (1 or 2; 2 pays the sorts' host cost once for
-  // two views and needs one view's cull and binning scratch more).
+  // depth sort and one tile sort, and composited by one launch (1 or 2; 2
+  // pays the sorts' host cost once for two views and holds two views' cull
+  // scratch and one view's binning scratch more).
   int views_per_bin = 2;
 
   template <class V>

@@ -2,11 +2,11 @@
 // counts and the pair count), then two stable radix sorts (cub): the visible triangles
 // by depth (depth_sort_key(): 24 bits of the positive centroid depth), and the
 // (triangle, tile) pairs, written in that depth order, by tile id alone
-// (~13 bits), so each tile's list comes out front to back. Sorting once per
-// view by depth and then the pairs by a short key moves ~40% of the bytes of
-// one sort of the pairs by a 64-bit (tile | depth) key. Pair ids are indices
-// into the visible list. Small views are binned two at a time (a bin group,
-// raster_kernels.h): the tile ids then count on through the views.
+// (~13 bits), so each tile's list comes out front to back. Sorting once by
+// depth and then the pairs by a short key moves ~40% of the bytes of one
+// sort of the pairs by a 64-bit (tile | depth) key. Views are binned two at a
+// time (a bin group, raster_kernels.h): pair ids index the group's visible
+// list, and the tile ids count on through the views.
 #include <cub/cub.cuh>
 #include <thrust/iterator/counting_iterator.h>
 

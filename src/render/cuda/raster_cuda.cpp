@@ -4,7 +4,8 @@
 // one group.
 // Per view: cull all triangles and select the visible ones; per group:
 // compute their screen data (the group's list: its views' visible lists one
-// after another), bin and sort; per view again: composite. The forward keeps
+// after another), bin, sort and composite (one launch for the group's views).
+// The forward keeps
 // per view only the sorted ids, the tile ranges, two per-pixel maps and the
 // visible list (and the screen data while it fits kKeepScreenBytes; else the
 // backward recomputes it, one cheap kernel).
@@ -51,8 +52,9 @@ constexpr int64_t kViewState = 8;
 // recomputations of the screen data (~2.5 ms on an H100); larger renders fall
 // back to recomputing, keeping peak memory bounded. 5.25 GiB: anchor-large (24
 // views, 2.5M visible triangles, 242 MB of screen data and 41 MB of masks
-// each) keeps the screen data of 19 of its views, at 7.94 GiB of peak memory
-// (the backward's two gradient buffers included, see backward()).
+// each; kept a bin group at a time) keeps the screen data of 9 of its 12
+// groups (18 views), at 7.92 GiB of peak memory (the backward's gradient
+// buffer, two views' rows, included; see backward()).
 constexpr int64_t kKeepScreenBytes = int64_t(21) << 28;
 static_assert(sizeof(PixelTri<float>) % sizeof(float) == 0, "PixelTri must be a whole number of floats");
 static_assert(sizeof(TriGrad<float>) == kTriGradSize * sizeof(float), "TriGrad layout");
@@ -93,7 +95,8 @@ struct CullScratch {
   at::Tensor host_count, host_visible;  // pinned: the sizes the host needs
   at::cuda::CUDAEvent culled, released;  // sizes ready (side stream); last read done (main stream)
   size_t select_bytes = 0;
-  CullScratch(int64_t n, const at::TensorOptions& f, cudaStream_t stream) {
+  CullScratch(int64_t n, const at::TensorOptions& f, const c10::cuda::CUDAStream& main) {
+    const cudaStream_t stream = main.stream();
     rects = at::empty({n * 4}, f.dtype(at::kInt));
     counts = at::empty({n}, f.dtype(at::kInt));
     keys = at::empty({n}, f);
@@ -104,6 +107,10 @@ struct CullScratch {
     select_temp = at::empty({(int64_t)select_bytes + 1}, f.dtype(at::kByte));
     host_count = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
     host_visible = at::zeros({1}, at::TensorOptions().dtype(at::kInt).pinned_memory(true));
+    // Allocated on the main stream, written on the side stream: the first
+    // cull waits for the main stream's work so far (which may still read
+    // memory freed earlier in the call and handed out again here).
+    released.record(main);
   }
   TriRect* rect_ptr() { return reinterpret_cast<TriRect*>(rects.data_ptr<int>()); }
 
@@ -151,23 +158,25 @@ struct ScreenData {
   int64_t tri_bytes() const { return tris.nbytes(); }
 };
 
-// The temporary storage cub's sorts and scan need, asked for the largest
-// lists a call may bin rather than once per group (each ask costs the host
-// device queries; the sizes only grow with the item count): the depth sort
-// and scan for max_rows items, the tile sort for the largest pair count so
-// far and the group's largest tile count.
+// The temporary storage cub's sorts and scan need, asked again only when a
+// group has more rows or pairs than any before it in the call, not once per
+// group (each ask costs the host device queries; the sizes only grow with
+// the item count). The tile sort's is asked for the largest group's tiles.
 struct TempSizes {
   size_t depth = 0, scan = 0, tile = 0;
-  int64_t tile_pairs = -1;
+  int64_t rows = -1, pairs = -1;
   int max_tiles = 0;
-  TempSizes(int64_t max_rows, int max_group_tiles, cudaStream_t stream) : max_tiles(max_group_tiles) {
-    sort_by_depth(nullptr, depth, nullptr, nullptr, nullptr, nullptr, max_rows, stream);
-    scan_ordered_counts(nullptr, scan, nullptr, nullptr, max_rows, stream);
-  }
-  void fit(int64_t pairs, cudaStream_t stream) {
-    if (pairs <= tile_pairs) return;
-    sort_by_tile(nullptr, tile, nullptr, nullptr, nullptr, nullptr, pairs, max_tiles, stream);
-    tile_pairs = pairs;
+  explicit TempSizes(int max_group_tiles) : max_tiles(max_group_tiles) {}
+  void fit(int64_t group_rows, int64_t group_pairs, cudaStream_t stream) {
+    if (group_rows > rows) {
+      sort_by_depth(nullptr, depth, nullptr, nullptr, nullptr, nullptr, group_rows, stream);
+      scan_ordered_counts(nullptr, scan, nullptr, nullptr, group_rows, stream);
+      rows = group_rows;
+    }
+    if (group_pairs > pairs) {
+      sort_by_tile(nullptr, tile, nullptr, nullptr, nullptr, nullptr, group_pairs, max_tiles, stream);
+      pairs = group_pairs;
+    }
   }
 };
 
@@ -183,7 +192,7 @@ struct BinScratch {
   void* temp;
   size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
   BinScratch(int64_t nv, int64_t count, TempSizes& sizes, const at::TensorOptions& f, cudaStream_t stream) {
-    sizes.fit(count, stream);
+    sizes.fit(nv, count, stream);
     depth_bytes = sizes.depth, scan_bytes = sizes.scan, tile_bytes = sizes.tile;
     auto aligned = [](size_t b) { return (b + 255) / 256 * 256; };
     const size_t per_tri = aligned(nv * sizeof(int32_t)), per_pair = aligned(count * sizeof(int32_t));
@@ -308,7 +317,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
   std::vector<std::unique_ptr<CullScratch>> scratch(ring);
   auto scratch_of = [&](int64_t view) -> CullScratch& {
     std::unique_ptr<CullScratch>& s = scratch[view % ring];
-    if (!s) s = std::make_unique<CullScratch>(N, f, stream);
+    if (!s) s = std::make_unique<CullScratch>(N, f, at::cuda::getCurrentCUDAStream());
     return *s;
   };
   const c10::cuda::CUDAStream side = c10::cuda::getStreamFromPool(false, in.vertices.device().index());
@@ -350,7 +359,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
   int64_t kept_bytes = 0;
   const int64_t HW = H * W;
   const int64_t tiles = ((W + kTileSize - 1) / kTileSize) * ((H + kTileSize - 1) / kTileSize);
-  TempSizes temp_sizes(std::min<int64_t>(group_max * N, kMaxVisible), (int)(group_max * tiles), stream);
+  TempSizes temp_sizes((int)(group_max * tiles));
   for (int64_t v = 0; v < V;) {
     // The group: the next views while there is room and the group's sizes
     // stay within what the sort and the pair ids can index.
@@ -507,6 +516,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     // and per-pixel maps are slices of the group's tensors, view after view
     // from the first view's, and their images are consecutive.
     const int64_t v0 = b.first_view;
+    FLAT_CHECK(b.views <= kBinViews, "rasterize (cuda): backward state has a bin group of more than 2 views");
     GroupView group[kBinViews];
     for (int j = 0; j < b.views; ++j) group[j].vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v0 + j);
     const at::Tensor& masks = state(v0, 7);

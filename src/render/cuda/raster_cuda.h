@@ -1,5 +1,6 @@
 // CUDA back end of the rasterizer (libtorch glue side). Views are processed
-// one after another; per view the forward keeps only what the backward cannot
+// in bin groups of two (RasterSettings::views_per_bin), one group after
+// another; per view the forward keeps only what the backward cannot
 // cheaply recompute (sorted ids, tile ranges, per-pixel final transmittance
 // and last contributor, the list of visible triangles, and the visible
 // triangles' screen data while it fits a memory budget): `views` holds those

@@ -1,8 +1,9 @@
 // Launchers of the rasterizer's CUDA kernels. Plain header (no torch): the
 // .cu files implement these; render/cuda/raster_cuda.cpp calls them with
-// buffers it allocates through libtorch. One view per call, except the
-// binning (a bin group of up to kBinViews views) and the chain rule (up to
-// kChainViews); everything is enqueued on `stream`, nothing synchronises.
+// buffers it allocates through libtorch. Culling and screen data: one view a
+// call; binning and compositing: a bin group (up to kBinViews views); the
+// chain rule: up to kChainViews views. Everything is enqueued on `stream`,
+// nothing synchronises.
 #pragma once
 #include <cstddef>
 #include <cstdint>
