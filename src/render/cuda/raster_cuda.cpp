@@ -259,14 +259,12 @@ struct GroupView {
   ViewParams vp;
 };
 
-// The group's pixel rays (GroupRays), from its views' cameras.
-GroupRays group_rays(const GroupView* group, int n) {
+// The group's pixel rays (GroupRays) from its views' parameters, n of them.
+GroupRays group_rays(const ViewParams* vps, int n) {
   GroupRays r;
   r.views = n;
-  for (int j = 0; j < n; ++j) {
-    const ViewParams& vp = group[j].vp;
-    r.cx[j] = vp.cam.cx, r.cy[j] = vp.cam.cy, r.inv_fx[j] = vp.inv_fx, r.inv_fy[j] = vp.inv_fy;
-  }
+  for (int j = 0; j < n; ++j)
+    r.cx[j] = vps[j].cam.cx, r.cy[j] = vps[j].cam.cy, r.inv_fx[j] = vps[j].inv_fx, r.inv_fy[j] = vps[j].inv_fy;
   return r;
 }
 
@@ -420,7 +418,9 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
     // consecutive: the views are).
     const int64_t u0 = group[0].view;
     const at::Tensor t_final = at::empty({n, H, W}, f), last = at::empty({n, H, W}, f.dtype(at::kInt));
-    const GroupRays rays = group_rays(group, n);
+    ViewParams vps[kBinViews];
+    for (int j = 0; j < n; ++j) vps[j] = group[j].vp;
+    const GroupRays rays = group_rays(vps, n);
     ForwardImages img{out.rgb.data_ptr<float>() + u0 * 3 * HW,    out.alpha.data_ptr<float>() + u0 * HW,
                       out.depth.data_ptr<float>() + u0 * HW,      out.normal.data_ptr<float>() + u0 * 3 * HW,
                       out.median_depth.data_ptr<float>() + u0 * HW, t_final.data_ptr<float>(),
@@ -517,8 +517,8 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     // from the first view's, and their images are consecutive.
     const int64_t v0 = b.first_view;
     FLAT_CHECK(b.views <= kBinViews, "rasterize (cuda): backward state has a bin group of more than 2 views");
-    GroupView group[kBinViews];
-    for (int j = 0; j < b.views; ++j) group[j].vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v0 + j);
+    ViewParams vps[kBinViews];
+    for (int j = 0; j < b.views; ++j) vps[j] = make_params(in, w2c_cpu, K_cpu, bg_cpu, v0 + j);
     const at::Tensor& masks = state(v0, 7);
     BackwardImages img{grad_rgb.data_ptr<float>() + v0 * 3 * HW, grad_alpha.data_ptr<float>() + v0 * HW,
                        grad_depth.data_ptr<float>() + v0 * HW,  grad_normal.data_ptr<float>() + v0 * 3 * HW,
@@ -526,7 +526,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
                        PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
     launch_raster_backward(reinterpret_cast<const int2*>(state(v0, 1).data_ptr<int>()), state(v0, 6).data_ptr<int>(),
                            state(v0, 0).data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
-                           group[0].vp, group_rays(group, (int)b.views), img,
+                           vps[0], group_rays(vps, (int)b.views), img,
                            pass.tri_grads + pass_rows * kTriGradStride,  // rows of the group's list
                            stream);
     check_launch("backward rasterization");
@@ -534,7 +534,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
       const at::Tensor& visible = state(v0 + j, 4);
       if (visible.numel() == 0) continue;
       const int slot = pass.count++;
-      pass.cam[slot] = group[j].vp.cam;
+      pass.cam[slot] = vps[j].cam;
       pass.row_of[slot] = row_of[slot].data_ptr<int>();
       launch_row_map(visible.data_ptr<int>(), visible.numel(), (int32_t)(pass_rows + visible.storage_offset()),
                      pass.row_of[slot], stream);
