@@ -7,7 +7,12 @@
 // written to both and printed loudly.
 //
 //   flat_latents --scenes data/re10k --weights Wan2.1_VAE.safetensors --window 17 --size 176x320 --device cuda --precision bf16
+//   flat_latents --scenes data/synth --vae runs/vae/vae.safetensors       # a VAE trained by flat_train (task: vae)
 //   flat_latents --scenes data/synth --random-weights --seed 0 --dim 8   # pipeline tests only
+//
+// The VAE's width is read from the weights file. At the end the spread of the
+// latents is printed: the mean Pearson correlation between the first windows
+// of different scenes (a collapsed encoder gives about 0.99).
 //
 // Scenes shorter than one window are skipped with a warning; when no scene is
 // long enough the run stops before loading the encoder, with exit code 1.
@@ -25,6 +30,7 @@
 #include "flat/data/scene.h"
 #include "flat/data/scene_frames.h"
 #include "flat/data/scene_latents.h"
+#include "flat/eval/latent_spread.h"
 #include "flat/model/camera_latents.h"
 #include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
@@ -38,7 +44,7 @@ struct Options {
   std::vector<std::string> scenes;
   std::string weights, weights_prefix, size, device = "auto", precision = "fp32", store = "fp32", log_level = "info";
   bool random_weights = false, full = false;
-  int64_t seed = 0, dim = 96, window = 17, step = 0;
+  int64_t seed = 0, dim = 0, window = 17, step = 0;
 };
 
 int64_t window_count(int64_t frames, int64_t window, int64_t step) {
@@ -48,7 +54,7 @@ int64_t window_count(int64_t frames, int64_t window, int64_t step) {
 void run(const Options& o) {
   if (o.random_weights == !o.weights.empty())
     throw cli::UsageError("flat_latents: give exactly one of --weights FILE or --random-weights");
-  if (!o.weights.empty() && o.dim != 96) throw cli::UsageError("flat_latents: --dim applies only to --random-weights");
+  if (!o.weights.empty() && o.dim != 0) throw cli::UsageError("flat_latents: --dim applies only to --random-weights");
   if (o.window < 1 || (o.window - 1) % 4 != 0)
     throw cli::UsageError("flat_latents: --window must be 1+4k frames (17, 49, ...), got " + std::to_string(o.window));
   int64_t H = 0, W = 0;
@@ -60,6 +66,8 @@ void run(const Options& o) {
   }
   const auto device = cli::resolve_device(o.device);
   const int64_t step = o.step > 0 ? o.step : o.window;
+  // The width: --dim for a random encoder (default 96), else the weights file's.
+  const int64_t dim = o.random_weights ? (o.dim > 0 ? o.dim : 96) : model::vae_dim_of_file(o.weights);
 
   // Every scene is read first: a run that would encode nothing stops here.
   std::vector<std::string> dirs;
@@ -88,11 +96,11 @@ void run(const Options& o) {
   // A window's frames plus the encoder's widest activations (dim channels at full size, a
   // chunk of 4 frames when streaming): refuse what cannot fit before allocating.
   const double frames_in_flight = o.full ? double(o.window) : 4.0;
-  cli::check_memory(double(largest) * 4.0 * (3.0 * double(o.window) + 6.0 * double(o.dim) * frames_in_flight),
+  cli::check_memory(double(largest) * 4.0 * (3.0 * double(o.window) + 6.0 * double(dim) * frames_in_flight),
                     "flat_latents: encoding a window of " + std::to_string(o.window) + " frames", device);
 
   model::WanVAEConfig config;
-  config.dim = o.dim;
+  config.dim = dim;
   if (o.random_weights) torch::manual_seed(o.seed);
   model::WanVAE vae(config);
   data::LatentInfo info;
@@ -101,7 +109,7 @@ void run(const Options& o) {
   if (o.random_weights) {
     info.encoder = "random";
     spdlog::warn("=====================================================================");
-    spdlog::warn("flat_latents: RANDOM ENCODER WEIGHTS (seed {}, dim {}). These latents are", o.seed, o.dim);
+    spdlog::warn("flat_latents: RANDOM ENCODER WEIGHTS (seed {}, dim {}). These latents are", o.seed, dim);
     spdlog::warn("NOT the Wan 2.1 latents: use them only to test the pipeline. Recorded as");
     spdlog::warn("encoder=\"random\" in latents.safetensors and scene.json.");
     spdlog::warn("=====================================================================");
@@ -111,7 +119,7 @@ void run(const Options& o) {
     auto report = model::load_weights(*vae, o.weights, spec);
     info.encoder = "pretrained";
     info.weights = fs::path(o.weights).filename().string();
-    spdlog::info("flat_latents: PRETRAINED encoder weights from {} ({})", o.weights, report.summary());
+    spdlog::info("flat_latents: PRETRAINED encoder weights from {} (dim {}; {})", o.weights, dim, report.summary());
   }
   vae->eval();
   vae->to(device, cli::precision_dtype(o.precision));
@@ -120,6 +128,7 @@ void run(const Options& o) {
 
   // Progress per window: one scene can take minutes.
   Progress progress("flat_latents windows", total_windows, 5.0);
+  std::vector<at::Tensor> first_windows;  // for the spread across scenes
   for (auto& scene : scenes) {
     const int64_t h = H ? H : scene.height - scene.height % 8, w = W ? W : scene.width - scene.width % 8;
     data::LatentInfo si = info;
@@ -137,6 +146,7 @@ void run(const Options& o) {
       l.video = vae->encode(video, !o.full)[0].to(at::kCPU, at::kFloat);
       l.camera = model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full)[0].to(at::kCPU, at::kFloat);
       check_finite(l.video, scene.dir + ": window at frame " + std::to_string(start) + ": video latent");
+      if (latents.empty()) first_windows.push_back(l.video);
       latents.push_back(l);
       si.windows.push_back({start, o.window});
       progress.step();
@@ -146,6 +156,14 @@ void run(const Options& o) {
   progress.finish();
   spdlog::info("flat_latents: wrote latents for {} of {} scenes (window {}, encoder {})", scenes.size(), dirs.size(),
                o.window, info.encoder);
+  const auto spread = eval::latent_spread(first_windows);
+  if (spread.pairs > 0)
+    spdlog::info("flat_latents: the first windows' video latents of different scenes correlate {:.3f} on average "
+                 "(min {:.3f}, max {:.3f}, {} pairs){}",
+                 spread.mean_correlation, spread.min_correlation, spread.max_correlation, spread.pairs,
+                 spread.mean_correlation > 0.9 ? ": nearly the same for every scene; a decoder trained on them can "
+                                                 "only learn the average scene"
+                                               : "");
   if (o.random_weights) spdlog::warn("flat_latents: reminder: RANDOM encoder weights; the latents are test data only");
 }
 
@@ -156,11 +174,13 @@ int main(int argc, char** argv) {
   Options o;
   cli::add_common(app, "flat_latents", o.log_level);
   app.add_option("--scenes", o.scenes, "scene folders, or folders holding scene folders")->required();
-  app.add_option("--weights", o.weights, "Wan 2.1 VAE weights: .safetensors (Wan or diffusers naming) or a diffusers folder");
+  app.add_option("--weights,--vae", o.weights,
+                 "Wan 2.1 VAE weights: .safetensors (Wan or diffusers naming), a diffusers folder, or the "
+                 "vae.safetensors of a flat_train VAE stage (its width is read from the file)");
   app.add_option("--weights-prefix", o.weights_prefix, "strip this prefix from the file's keys (default: detected)");
   app.add_flag("--random-weights", o.random_weights, "random encoder (pipeline tests only; recorded as such)");
   app.add_option("--seed", o.seed, "seed for --random-weights");
-  app.add_option("--dim", o.dim, "base width (96 = Wan 2.1; smaller only with --random-weights)")->check(CLI::PositiveNumber);
+  app.add_option("--dim", o.dim, "base width of --random-weights (default 96, as Wan 2.1)")->check(CLI::PositiveNumber);
   app.add_option("--window", o.window, "frames per latent window, 1+4k (17 or 49)");
   app.add_option("--step", o.step, "frames between window starts (0 = the window, no overlap)")->check(CLI::NonNegativeNumber);
   app.add_option("--size", o.size, "frame size HxW to encode at (multiples of 8; default: the scene's, floored to 8)");

@@ -37,11 +37,13 @@ struct Options {
   std::string weights, weights_prefix, in, out, mode = "streaming", device = "auto", precision = "fp32";
   std::string log_level = "info";
   bool random_weights = false, trim = false, no_clamp = false, overwrite = false;
-  int64_t seed = 0, dim = 96;
+  int64_t seed = 0, dim = 0;  // 0: 96 with --random-weights, else the weights file's
 };
 
 void add_common(CLI::App* cmd, Options& o) {
-  cmd->add_option("--weights", o.weights, "VAE weights: .safetensors (Wan or diffusers naming) or a diffusers folder");
+  cmd->add_option("--weights,--vae", o.weights,
+                  "VAE weights: .safetensors (Wan or diffusers naming), a diffusers folder, or the vae.safetensors "
+                  "of a flat_train VAE stage (the width is read from the file)");
   cmd->add_option("--weights-prefix", o.weights_prefix, "strip this prefix from the file's keys (default: detected)");
   cmd->add_flag("--random-weights", o.random_weights, "use randomly initialised weights (testing without a checkpoint)");
   cmd->add_option("--seed", o.seed, "seed for --random-weights")->capture_default_str();
@@ -54,7 +56,7 @@ void add_common(CLI::App* cmd, Options& o) {
   cli::add_device(*cmd, o.device);
   cli::add_precision(*cmd, o.precision);
   cmd->add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
-  cmd->add_option("--dim", o.dim, "base width (96 = pretrained Wan 2.1; smaller only with --random-weights)")
+  cmd->add_option("--dim", o.dim, "base width of --random-weights (default 96, as Wan 2.1)")
       ->check(CLI::PositiveNumber);
   cmd->add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
@@ -64,7 +66,7 @@ void add_common(CLI::App* cmd, Options& o) {
 void check_usage(const Options& o, bool decode) {
   if (o.random_weights == !o.weights.empty())
     throw cli::UsageError("flat_vae: give exactly one of --weights FILE or --random-weights");
-  if (!o.weights.empty() && o.dim != 96) throw cli::UsageError("flat_vae: --dim applies only to --random-weights");
+  if (!o.weights.empty() && o.dim != 0) throw cli::UsageError("flat_vae: --dim applies only to --random-weights");
   const std::string ext = fs::path(o.out).extension().string();
   if (!decode && ext != ".safetensors")
     throw cli::UsageError("flat_vae encode: --out must be a .safetensors file, got '" + o.out + "'");
@@ -78,11 +80,16 @@ void check_usage(const Options& o, bool decode) {
   cli::start_logging(o.log_level, log + ".log");
 }
 
+// The base width: --dim for random weights (default 96), else the weights file's.
+int64_t vae_dim(const Options& o) {
+  return o.random_weights ? (o.dim > 0 ? o.dim : 96) : vae_dim_of_file(o.weights);
+}
+
 // The VAE on the requested device and dtype, plus the metadata describing its weights.
 WanVAE make_vae(const Options& o, Metadata& meta) {
   const auto device = cli::resolve_device(o.device);
   WanVAEConfig config;
-  config.dim = o.dim;
+  config.dim = vae_dim(o);
   if (o.random_weights) torch::manual_seed(o.seed);
   WanVAE vae(config);
   if (o.random_weights) {
@@ -159,7 +166,7 @@ void encode(const Options& o) {
              "flat_vae: height and width must be multiples of 8, got " + shape_str(video));
   // The input plus the encoder's widest activations (dim channels at full size).
   const double frames_in_flight = o.mode == "full" ? double(video.size(2)) : 4.0;
-  cli::check_memory(double(video.numel()) * 4.0 + double(video.size(3) * video.size(4)) * 4.0 * 6.0 * double(o.dim) *
+  cli::check_memory(double(video.numel()) * 4.0 + double(video.size(3) * video.size(4)) * 4.0 * 6.0 * double(vae_dim(o)) *
                                                       frames_in_flight,
                     "flat_vae encode of " + shape_str(video), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
@@ -194,7 +201,7 @@ void decode(const Options& o) {
   // The decoded video (B,3,1+4(T'-1),8h,8w) in float32, twice (output and the last activations).
   const double frames = double(1 + 4 * (latent.size(2) - 1)), pixels = double(latent.size(3) * latent.size(4) * 64);
   cli::check_memory(double(latent.size(0)) * 3.0 * frames * pixels * 4.0 * 2.0 +
-                        pixels * 4.0 * 6.0 * double(o.dim) * (o.mode == "full" ? frames : 4.0),
+                        pixels * 4.0 * 6.0 * double(vae_dim(o)) * (o.mode == "full" ? frames : 4.0),
                     "flat_vae decode of latent " + shape_str(latent), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
   auto weight = vae->conv2->weight;

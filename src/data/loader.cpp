@@ -123,6 +123,13 @@ int64_t Loader::scene_count() const {
   return n;
 }
 
+std::map<std::string, int64_t> Loader::latent_encoders() const {
+  std::map<std::string, int64_t> n;
+  for (const auto& d : datasets_)
+    for (const auto& scene : d.scenes) ++n[scene->latents.present() ? scene->latents.encoder : "none"];
+  return n;
+}
+
 void Loader::mark_bad(const std::string& dir, const std::string& why) {
   std::lock_guard<std::mutex> lock(bad_mutex_);
   if (!bad_.insert(dir).second) return;

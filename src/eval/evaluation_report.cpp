@@ -22,13 +22,17 @@ double mean_of(const std::vector<double>& x) {
 }
 
 void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
-  std::vector<double> psnr, ssim, lpips, l1, cosine;
+  std::vector<double> psnr, ssim, lpips, l1, cosine, oracle, dataset_mean, swap;
   for (const auto* s : scores) {
     if (!s->ok) {
       ++m.failed;
       continue;
     }
     ++m.scenes;
+    if (s->latent_encoder == "random") ++m.random_latent_scenes;
+    if (std::isfinite(s->mean_colour_psnr)) oracle.push_back(s->mean_colour_psnr);
+    if (std::isfinite(s->dataset_mean_psnr)) dataset_mean.push_back(s->dataset_mean_psnr);
+    if (std::isfinite(s->swap_psnr)) swap.push_back(s->swap_psnr);
     psnr.push_back(s->psnr);
     ssim.push_back(s->ssim);
     if (std::isfinite(s->lpips)) lpips.push_back(s->lpips);
@@ -43,6 +47,9 @@ void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
   m.normal_l1 = mean_of(l1);
   m.normal_cosine = mean_of(cosine);
   m.normal_scenes = int64_t(l1.size());
+  m.mean_colour_psnr = mean_of(oracle);
+  m.dataset_mean_psnr = mean_of(dataset_mean);
+  m.swap_psnr = mean_of(swap);
 }
 
 nlohmann::json number(double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr); }
@@ -84,13 +91,14 @@ std::vector<Means> dataset_means(const std::vector<SceneScore>& scores) {
 std::string results_csv(const EvalResults& r) {
   std::ostringstream os;
   os << "dataset,scene,status,views,unseen_views,triangles,psnr,ssim,lpips,normal_l1,normal_cosine,normal_pixels,"
-        "seconds,error\n";
+        "mean_colour_psnr,dataset_mean_psnr,swap_psnr,swap_scene,latent_encoder,seconds,error\n";
   for (const auto& s : r.scores) {
     auto num = [](double x) { return std::isfinite(x) ? fmt::format("{:.6g}", x) : std::string(); };
     os << csv_field(s.dataset) << ',' << csv_field(s.scene) << ',' << (s.ok ? "ok" : "failed") << ',' << s.views
        << ',' << s.unseen_views << ',' << s.triangles << ',' << num(s.psnr) << ',' << num(s.ssim) << ','
        << num(s.lpips) << ',' << num(s.normal_l1) << ',' << num(s.normal_cosine) << ',' << s.normal_pixels << ','
-       << fmt::format("{:.3f}", s.seconds) << ',' << csv_field(s.error) << '\n';
+       << num(s.mean_colour_psnr) << ',' << num(s.dataset_mean_psnr) << ',' << num(s.swap_psnr) << ','
+       << csv_field(s.swap_scene) << ',' << csv_field(s.latent_encoder) << ',' << fmt::format("{:.3f}", s.seconds) << ',' << csv_field(s.error) << '\n';
   }
   return os.str();
 }
@@ -100,7 +108,9 @@ nlohmann::json score_to_json(const SceneScore& s) {
           {"views", s.views}, {"unseen_views", s.unseen_views}, {"triangles", s.triangles},
           {"psnr", number(s.psnr)}, {"ssim", number(s.ssim)}, {"lpips", number(s.lpips)},
           {"normal_l1", number(s.normal_l1)}, {"normal_cosine", number(s.normal_cosine)},
-          {"normal_pixels", s.normal_pixels}, {"seconds", s.seconds}};
+          {"normal_pixels", s.normal_pixels}, {"mean_colour_psnr", number(s.mean_colour_psnr)},
+          {"dataset_mean_psnr", number(s.dataset_mean_psnr)}, {"swap_psnr", number(s.swap_psnr)},
+          {"swap_scene", s.swap_scene}, {"latent_encoder", s.latent_encoder}, {"seconds", s.seconds}};
 }
 
 SceneScore score_from_json(const nlohmann::json& s) {
@@ -119,6 +129,11 @@ SceneScore score_from_json(const nlohmann::json& s) {
   x.normal_l1 = number(s.at("normal_l1"));
   x.normal_cosine = number(s.at("normal_cosine"));
   x.normal_pixels = s.value("normal_pixels", int64_t(0));
+  x.mean_colour_psnr = s.contains("mean_colour_psnr") ? number(s.at("mean_colour_psnr")) : NAN;
+  x.dataset_mean_psnr = s.contains("dataset_mean_psnr") ? number(s.at("dataset_mean_psnr")) : NAN;
+  x.swap_psnr = s.contains("swap_psnr") ? number(s.at("swap_psnr")) : NAN;
+  x.swap_scene = s.value("swap_scene", "");
+  x.latent_encoder = s.value("latent_encoder", "");
   x.seconds = s.value("seconds", 0.0);
   return x;
 }
@@ -131,10 +146,16 @@ nlohmann::json results_json(const EvalResults& r) {
     means.push_back({{"dataset", m.dataset.empty() ? nlohmann::json(nullptr) : nlohmann::json(m.dataset)},
                      {"scenes", m.scenes}, {"failed", m.failed}, {"normal_scenes", m.normal_scenes},
                      {"psnr", number(m.psnr)}, {"ssim", number(m.ssim)}, {"lpips", number(m.lpips)},
-                     {"normal_l1", number(m.normal_l1)}, {"normal_cosine", number(m.normal_cosine)}});
+                     {"normal_l1", number(m.normal_l1)}, {"normal_cosine", number(m.normal_cosine)},
+                     {"mean_colour_psnr", number(m.mean_colour_psnr)},
+                     {"dataset_mean_psnr", number(m.dataset_mean_psnr)}, {"swap_psnr", number(m.swap_psnr)},
+                     {"random_latent_scenes", m.random_latent_scenes}});
   }
+  const auto overall = dataset_means(r.scores).back();
   return {{"format", "flat-eval-1"}, {"name", r.name},     {"model", r.model}, {"settings", r.settings},
           {"ssim", r.ssim},          {"scenes", scenes},   {"means", means},
+          {"latent_encoder", overall.random_latent_scenes > 0 ? "random" : "pretrained"},
+          {"random_latent_scenes", overall.random_latent_scenes},
           {"definitions", metric_definitions(r.ssim)}};
 }
 
@@ -180,7 +201,7 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
   os << " Geometry L1 ↓ | Geometry Cosine ↑ | Scenes |\n|---|";
   for (size_t i = 0; i < datasets.size(); ++i) os << "---:|---:|---:|";
   os << "---:|---:|---:|\n";
-  std::vector<std::string> conventions;
+  std::vector<std::string> conventions, random_runs;
   for (const auto& r : runs) {
     auto means = dataset_means(r.scores);
     os << "| " << r.name << " |";
@@ -198,10 +219,38 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
     const auto& all = means.back();
     os << ' ' << cell(all.normal_l1, 3) << " | " << cell(all.normal_cosine, 3) << " | " << all.scenes
        << '/' << (all.scenes + all.failed) << " |\n";
+    // The baselines on the same views, PSNR only: what ignoring the input reaches.
+    const std::pair<const char*, double Means::*> rows[] = {{"mean-colour oracle", &Means::mean_colour_psnr},
+                                                            {"dataset mean (leave-one-out)", &Means::dataset_mean_psnr},
+                                                            {"swap (renders vs another scene)", &Means::swap_psnr}};
+    for (const auto& [label, field] : rows) {
+      bool any = false;
+      for (const auto& m : means) any = any || std::isfinite(m.*field);
+      if (!any) continue;
+      os << "| ↳ " << label << " |";
+      for (const auto& d : datasets) {
+        const Means* m = nullptr;
+        for (const auto& x : means)
+          if (x.dataset == d && !(&x == &means.back())) m = &x;
+        os << ' ' << (m ? cell(m->*field, 2) : std::string()) << " | | |";
+      }
+      os << " | | |\n";
+    }
+    if (all.random_latent_scenes > 0) random_runs.push_back(r.name + " (" + std::to_string(all.random_latent_scenes) +
+                                                            " of " + std::to_string(all.scenes) + " scenes)");
     if (std::find(conventions.begin(), conventions.end(), r.ssim) == conventions.end()) conventions.push_back(r.ssim);
   }
   os << "\nScenes: scored / attempted; means cover the scored scenes only (failures are listed in each run's "
         "results).\n";
+  os << "\nBaselines (↳ rows, PSNR on the same views): the mean-colour oracle paints each view its own mean colour; "
+        "the dataset mean predicts every view as the other scenes' mean frame of the same index; swap scores each "
+        "scene's renders against the next scene's frames of the same index. A model that ignores its input scores "
+        "its own PSNR about equal to swap.\n";
+  if (!random_runs.empty()) {
+    os << "\n**RANDOM-ENCODER LATENTS: ";
+    for (size_t i = 0; i < random_runs.size(); ++i) os << (i ? "; " : "") << random_runs[i];
+    os << ". These latents carry almost nothing of the scene; such figures are pipeline checks, not results.**\n";
+  }
   if (conventions.size() > 1) os << "\n**Warning: these runs use different SSIM conventions; their SSIM columns do not compare.**\n";
   for (const auto& c : conventions) os << "\n" << metric_definitions(c);
   return os.str();

@@ -1,7 +1,11 @@
 #include "flat/eval/evaluation_run.h"
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -134,8 +138,42 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
   results.model = model_id;
   results.settings = fingerprint;
   results.ssim = ssim_convention_name(o.settings.ssim);
+  // Baselines need the rest of each dataset: its scenes (swap partners) and
+  // its frames by index (the leave-one-out mean). Scenes that cannot be read
+  // fail below, with their error, and take no part in the baselines.
+  std::vector<std::optional<data::Scene>> loaded(scenes.size());
+  std::map<std::string, std::vector<size_t>> members;  // dataset -> readable scenes, in order
+  std::map<std::string, FrameSums> frame_sums;
+  {
+    Progress reading("flat_eval baselines (reading the datasets' frames)", int64_t(scenes.size()));
+    for (size_t i = 0; i < scenes.size(); ++i) {
+      try {
+        auto scene = data::read_scene(scenes[i].dir, /*check_files=*/true);
+        FrameSums sums_of_scene;
+        add_frame_sums(sums_of_scene, scene, settings_run);  // whole or not at all
+        add_frame_sums(frame_sums[scenes[i].dataset], scene, settings_run);
+        loaded[i] = std::move(scene);
+        members[scenes[i].dataset].push_back(i);
+      } catch (const std::exception&) {
+        // Reported when the scene is scored.
+      }
+      reading.step();
+    }
+    reading.finish();
+  }
+  auto partner_of = [&](size_t i) -> const data::Scene* {
+    const auto& list = members[scenes[i].dataset];
+    const auto at = std::find(list.begin(), list.end(), i);
+    if (at == list.end()) return nullptr;
+    const auto p = swap_partner(size_t(at - list.begin()), list.size());
+    return p ? &*loaded[list[*p]] : nullptr;
+  };
+
   Progress progress("flat_eval", int64_t(scenes.size()));
-  for (const auto& ref : scenes) {
+  double psnr_sum = 0, swap_sum = 0;
+  int64_t psnr_count = 0, swap_count = 0;
+  for (size_t index = 0; index < scenes.size(); ++index) {
+    const auto& ref = scenes[index];
     const std::string file = score_file(o.out_dir, ref);
     SceneScore score;
     bool reused = false;
@@ -145,8 +183,11 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     }
     if (!reused) {
       try {
-        auto scene = data::read_scene(ref.dir, /*check_files=*/true);
-        score = evaluate_scene(pipe, scene, settings_run, lpips);
+        auto scene = loaded[index] ? *loaded[index] : data::read_scene(ref.dir, /*check_files=*/true);
+        BaselineInputs inputs;
+        inputs.swap_with = partner_of(index);
+        if (loaded[index]) inputs.frame_sums = &frame_sums[ref.dataset];
+        score = evaluate_scene(pipe, scene, settings_run, lpips, inputs);
       } catch (const std::exception& e) {
         score = SceneScore{};
         score.scene = fs::path(ref.dir).filename().string();
@@ -161,7 +202,11 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     summary.scored += (!reused && score.ok) ? 1 : 0;
     summary.failed += score.ok ? 0 : 1;
     results.scores.push_back(score);
-    progress.step(1, {{"psnr", score.psnr}});
+    if (score.ok) psnr_sum += score.psnr, ++psnr_count;
+    if (score.ok && std::isfinite(score.swap_psnr)) swap_sum += score.swap_psnr, ++swap_count;
+    // Running means over the scenes scored so far (not the last scene's).
+    progress.step(1, {{"mean psnr", psnr_count ? psnr_sum / double(psnr_count) : NAN},
+                      {"mean swap", swap_count ? swap_sum / double(swap_count) : NAN}});
   }
   progress.finish();
   summary.scenes = int64_t(scenes.size());

@@ -44,16 +44,38 @@ std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettin
   return frames;
 }
 
+namespace {
+
+// The evaluation size: the settings', else the latents' frame size.
+std::pair<int64_t, int64_t> evaluation_size(const data::Scene& scene, const EvalSettings& s) {
+  return {s.height > 0 ? s.height : scene.latents.height, s.width > 0 ? s.width : scene.latents.width};
+}
+
+}  // namespace
+
+void add_frame_sums(FrameSums& sums, const data::Scene& scene, const EvalSettings& s) {
+  const auto frames = evaluation_views(scene, s);
+  const auto [H, W] = evaluation_size(scene, s);
+  for (size_t c0 = 0; c0 < frames.size(); c0 += size_t(s.render_chunk)) {
+    const std::vector<int64_t> part(frames.begin() + long(c0),
+                                    frames.begin() + long(std::min(frames.size(), c0 + size_t(s.render_chunk))));
+    auto gt = data::load_frames(scene, part, false, false);
+    data::fit_frames(gt, scene.cameras(part).intrinsics, H, W);
+    for (size_t k = 0; k < part.size(); ++k) sums.add(part[k], gt.images[int64_t(k)].to(at::kFloat));
+  }
+}
+
 SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& s,
-                          loss::Lpips lpips) {
+                          loss::Lpips lpips, const BaselineInputs& baselines) {
   const auto t0 = std::chrono::steady_clock::now();
   torch::NoGradGuard no_grad;
   SceneScore r;
   r.scene = scene.name;
   r.dir = scene.dir;
+  r.latent_encoder = scene.latents.encoder;
   const auto frames = evaluation_views(scene, s);
   const auto& win = scene.latents.windows[size_t(s.window)];
-  const int64_t H = s.height > 0 ? s.height : scene.latents.height, W = s.width > 0 ? s.width : scene.latents.width;
+  const auto [H, W] = evaluation_size(scene, s);
   const auto device = pipeline.decoder()->conv2->weight.device();
 
   // Decode the window.
@@ -77,7 +99,8 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   r.triangles = pipeline::prune(tri, pipeline.config().prune_opacity).vertices.size(0);
 
   // Render and score the views, a chunk at a time.
-  std::vector<double> psnr, ssim, lp;
+  std::vector<double> psnr, ssim, lp, mean_colour, dataset_mean, swap;
+  if (baselines.swap_with) r.swap_scene = baselines.swap_with->name;
   double l1_sum = 0, cos_sum = 0;
   for (size_t c0 = 0; c0 < frames.size(); c0 += size_t(s.render_chunk)) {
     const std::vector<int64_t> part(frames.begin() + long(c0),
@@ -93,9 +116,30 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
     auto rgb = v.rgb.to(at::kCPU, at::kFloat).clamp(0, 1);
     auto target = gt.images.to(at::kFloat);
     auto p = eval::psnr(rgb, target), q = eval::ssim(rgb, target, s.ssim);
+    const auto oracle = mean_colour_psnr(target);
     for (int64_t k = 0; k < rgb.size(0); ++k) {
       psnr.push_back(p[k].item<double>());
       ssim.push_back(q[k].item<double>());
+      mean_colour.push_back(oracle[k].item<double>());
+      if (baselines.frame_sums)
+        if (auto m = baselines.frame_sums->leave_one_out(part[size_t(k)], target[k]))
+          dataset_mean.push_back(eval::psnr(m->unsqueeze(0), target[k].unsqueeze(0))[0].item<double>());
+    }
+    // Swap: the same renders against the other scene's frames of the same index.
+    if (baselines.swap_with) {
+      std::vector<int64_t> shared;
+      std::vector<int64_t> rows;
+      for (size_t k = 0; k < part.size(); ++k)
+        if (part[k] < baselines.swap_with->size()) {
+          shared.push_back(part[k]);
+          rows.push_back(int64_t(k));
+        }
+      if (!shared.empty()) {
+        auto other = data::load_frames(*baselines.swap_with, shared, false, false);
+        data::fit_frames(other, baselines.swap_with->cameras(shared).intrinsics, H, W);
+        auto sp = eval::psnr(rgb.index_select(0, at::tensor(rows)), other.images.to(at::kFloat));
+        for (int64_t k = 0; k < sp.size(0); ++k) swap.push_back(sp[k].item<double>());
+      }
     }
     if (!lpips.is_empty()) {
       auto d = eval::lpips(lpips, v.rgb.to(at::kFloat).clamp(0, 1), target.to(device));
@@ -121,6 +165,9 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   r.psnr = mean(psnr);
   r.ssim = mean(ssim);
   r.lpips = mean(lp);
+  r.mean_colour_psnr = mean(mean_colour);
+  r.dataset_mean_psnr = mean(dataset_mean);
+  r.swap_psnr = mean(swap);
   if (r.normal_pixels > 0) {
     r.normal_l1 = l1_sum / double(r.normal_pixels);
     r.normal_cosine = cos_sum / double(r.normal_pixels);

@@ -36,6 +36,7 @@ InferInput from_scene(const InputSpec& spec) {
   in.width = scene.latents.width;
   in.input.video_latents = w.video.unsqueeze(0).to(at::kFloat);
   in.input.camera_latents = w.camera.defined() ? w.camera.unsqueeze(0).to(at::kFloat) : at::Tensor();
+  in.latent_encoder = scene.latents.encoder.empty() ? "unknown" : scene.latents.encoder;
   in.label = "scene " + scene.name + ", window " + std::to_string(spec.window) + " (frames " +
              std::to_string(win.start) + ".." + std::to_string(win.start + win.count - 1) + ")";
   return in;

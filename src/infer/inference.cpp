@@ -70,6 +70,9 @@ InferSummary run_inference(const InferOptions& o) {
   auto spec = o.input;
   spec.need_camera_latents = trained.config.model.camera;
   auto input = load_infer_input(spec);
+  if (input.latent_encoder == "random")
+    s.notes.push_back("RANDOM-ENCODER LATENTS: the input latents come from a random-weight encoder and carry almost "
+                      "nothing of the scene; this output is a pipeline check, not a result");
   const int64_t T = input.cameras.size();
   const int64_t H = o.height > 0 ? o.height : input.height, W = o.width > 0 ? o.width : input.width;
   spdlog::info("input: {}: {} latent frames -> {} frames of {}x{}", input.label, input.input.video_latents.size(2), T,
@@ -185,6 +188,7 @@ InferSummary run_inference(const InferOptions& o) {
   s.out_dir = o.out_dir;
   nlohmann::json j = {{"model", trained.describe()},
                       {"input", input.label},
+                      {"latent_encoder", input.latent_encoder},
                       {"device", device.str()},
                       {"precision", bf16 ? "bf16" : "fp32"},
                       {"streaming", o.streaming},

@@ -3,7 +3,9 @@
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
+#include "flat/core/safetensors.h"
 #include "flat/core/shape.h"
+#include "flat/model/weights.h"
 
 namespace flat::model {
 namespace {
@@ -46,6 +48,18 @@ int64_t latent_frames(int64_t video_frames, const std::string& what) {
   return 1 + (video_frames - 1) / 4;
 }
 
+int64_t vae_dim_of_file(const std::string& path, const WanVAEConfig& like) {
+  const std::string file = resolve_weights_file(path);
+  auto mapped = safetensors::MappedFile::open(file);
+  const auto& header = mapped->header();
+  for (const char* name : {"encoder.conv1.weight", "encoder.conv_in.weight"})
+    if (const auto* e = header.find(name); e && e->shape.size() == 5) return e->shape[0];
+  for (const char* name : {"decoder.conv1.weight", "decoder.conv_in.weight"})
+    if (const auto* e = header.find(name); e && e->shape.size() == 5 && !like.dim_mult.empty())
+      return e->shape[0] / like.dim_mult.back();
+  fail(file + ": not a Wan 2.1 VAE file (no encoder.conv1.weight or decoder.conv1.weight, in either naming)");
+}
+
 WanVAEImpl::WanVAEImpl(const WanVAEConfig& config) : config_(config) {
   config_.check();
   encoder = register_module("encoder", Encoder3d(config_));
@@ -73,6 +87,38 @@ at::Tensor WanVAEImpl::encode_moments(const at::Tensor& video, bool streaming) {
     h = encoder->forward(video);
   }
   return conv1->forward(h);
+}
+
+void WanVAEImpl::fold_latent_statistics(const at::Tensor& mean, const at::Tensor& std) {
+  const int64_t z = config_.z_dim;
+  FLAT_CHECK(z == 16, "fold_latent_statistics: the Wan 2.1 constants have 16 channels, this VAE has " +
+                          std::to_string(z));
+  FLAT_CHECK(mean.numel() == z && std.numel() == z, "fold_latent_statistics: mean and std need 16 values each, got " +
+                                                        shape_str(mean) + " and " + shape_str(std));
+  FLAT_CHECK(at::isfinite(mean).all().item<bool>() && (std > 0).all().item<bool>(),
+             "fold_latent_statistics: mean must be finite and std positive");
+  torch::NoGradGuard no_grad;
+  auto& w1 = conv1->weight;  // (2z, 2z, 1,1,1)
+  auto& b1 = conv1->bias;
+  auto& w2 = conv2->weight;  // (z, z, 1,1,1)
+  auto& b2 = conv2->bias;
+  const auto opts = w1.options().dtype(at::kDouble);
+  // mu' = a * mu + c per channel.
+  const auto a = latent_std(opts).view({z}) / std.to(opts).view({z});
+  const auto c = latent_mean(opts).view({z}) - mean.to(opts).view({z}) * a;
+  auto W1 = w1.to(at::kDouble), B1 = b1.to(at::kDouble);
+  W1.narrow(0, 0, z).mul_(a.view({z, 1, 1, 1, 1}));
+  B1.narrow(0, 0, z).mul_(a).add_(c);
+  B1.narrow(0, z, z).add_(2.0 * a.log());  // log-variance scales with a^2
+  // conv2 sees (x' - c) / a where it saw x.
+  auto W2 = w2.to(at::kDouble), B2 = b2.to(at::kDouble);
+  const auto w2_flat = W2.reshape({z, z});
+  B2.sub_(at::matmul(w2_flat, c / a));
+  W2.div_(a.view({1, z, 1, 1, 1}));
+  w1.copy_(W1);
+  b1.copy_(B1);
+  w2.copy_(W2);
+  b2.copy_(B2);
 }
 
 at::Tensor WanVAEImpl::encode(const at::Tensor& video, bool streaming) {

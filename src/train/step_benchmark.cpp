@@ -79,7 +79,7 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
   TrainingSession session(cfg);
   data::Loader loader(cfg.data);
   StepBenchmark r;
-  r.parameters_m = double(model::count_parameters(*session.decoder)) / 1e6;
+  r.parameters_m = double(model::count_parameters(session.model())) / 1e6;
   std::vector<double> data, dec_f, ren_f, loss_f, rl_b, dec_b, opt, whole, unsynced;
   reset_peak_memory(session.device);
   for (int64_t i = 0; i < warmup + steps; ++i) {
@@ -109,7 +109,7 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
     unsynced.push_back(ms_since(t0));
   }
   r.peak_gib = peak_memory_gib(session.device);
-  if (cfg.loss.lambda_perc > 0) {
+  if (cfg.loss.lambda_perc > 0 && !session.vae_task()) {
     // LPIPS alone on images of the step's size and view count.
     const auto& d = cfg.data;
     auto a = torch::rand({d.target_views, 3, d.height, d.width}, torch::TensorOptions().device(session.device))

@@ -180,10 +180,8 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
 
   // ---- model, objective, optimiser ------------------------------------------------
   TrainingSession session(cfg, device);
-  auto& decoder = session.decoder;
+  torch::nn::Module& net = session.model();  // the trained module
   auto& optimiser = *session.optimiser;
-  auto& pipe = *session.pipeline;
-  auto& objective = *session.objective;
   const ModelSignature& signature = session.signature;
   const bool bf16 = session.bf16;
 
@@ -202,7 +200,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run.root);
     } else {
       auto ckpt = read_checkpoint(latest);
-      load_model_weights(*decoder, ckpt.model, ckpt.signature, signature, latest + "/model.safetensors");
+      load_model_weights(net, ckpt.model, ckpt.signature, signature, latest + "/model.safetensors");
       optimiser.load_state(ckpt.optimiser, latest + "/optimizer.safetensors");
       restore_rng(ckpt.rng, latest + "/rng.safetensors");
       state.step = ckpt.state.step;
@@ -216,7 +214,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   if (dp) {
     // Every rank starts from rank 0's weights (the same seed and checkpoint
     // give them already; this makes sure), then averages its gradients.
-    dp->share_weights(*decoder);
+    dp->share_weights(net);
     session.use_data_parallel(dp.get());
   }
 
@@ -244,6 +242,21 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   } else {
     spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
   }
+  // Provenance: latents of a random-weight encoder carry almost nothing of the
+  // scene; every figure made from them says so.
+  std::string random_latents;
+  if (!session.vae_task()) {
+    for (const auto* l : {&loader, val_loader.get()}) {
+      if (!l) continue;
+      const auto enc = l->latent_encoders();
+      if (enc.count("random"))
+        random_latents += (random_latents.empty() ? "" : "; ") + std::to_string(enc.at("random")) + " of " +
+                          std::to_string(l->scene_count()) + (l == &loader ? " training" : " held-out") + " scenes";
+    }
+  }
+  // The "same output for every scene" baseline: the training set's mean image.
+  at::Tensor dataset_mean;
+  if (val_loader && !session.vae_task()) dataset_mean = training_mean_image(cfg.data, 32);
   // Everything that reads user files has succeeded: only now does a new run
   // folder appear (a run that fails to start leaves nothing behind).
   std::unique_ptr<MetricsLog> metrics;
@@ -253,11 +266,26 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     config::save_text(run.config_file(), config_yaml);
     metrics = std::make_unique<MetricsLog>(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
   }
-  const int64_t params = model::count_parameters(*decoder);
-  spdlog::info("flat_train: stage '{}', steps {} to {}, run folder {}{}", cfg.stage, state.step, cfg.steps, run.root,
+  const int64_t params = model::count_parameters(net);
+  spdlog::info("flat_train: stage '{}' (task {}), steps {} to {}, run folder {}{}", cfg.stage, cfg.task, state.step,
+               cfg.steps, run.root,
                summary.last_checkpoint.empty() ? "" : " (resumed from " + summary.last_checkpoint + ")");
-  spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
-               cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
+  if (session.vae_task())
+    spdlog::info("Wan VAE: {:.3f} M parameters (dim {}, z_dim {}), frames {}x{}, windows of {}, device {}, precision {}; "
+                 "loss {} L1 + {} L2 + {} LPIPS + {} KL",
+                 double(params) / 1e6, cfg.pipeline.model.vae.dim, cfg.pipeline.model.vae.z_dim, cfg.data.height,
+                 cfg.data.width, cfg.data.input_frames, cfg.device, bf16 ? "bf16 autocast" : "fp32", cfg.vae.l1,
+                 cfg.vae.l2, cfg.vae.lpips, cfg.vae.kl);
+  else
+    spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
+                 cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
+  if (!random_latents.empty()) {
+    spdlog::warn("=====================================================================");
+    spdlog::warn("RANDOM-ENCODER LATENTS: {} hold latents of a random-weight encoder.", random_latents);
+    spdlog::warn("They carry almost nothing of the scene: the figures of this run are");
+    spdlog::warn("pipeline checks, not results. Train a VAE (task: vae) or use Wan's.");
+    spdlog::warn("=====================================================================");
+  }
   if (dp)
     spdlog::info("data parallel: {} ranks, global batch {} ({} per rank), {} gradient bucket(s) of <= {} MB{}",
                  env.world_size, cfg.data.batch_size, train_data.batch_size, dp->buckets(),
@@ -266,8 +294,11 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   auto run_validation = [&](int64_t step) {
     if (!val_loader) return;
     const auto t0 = std::chrono::steady_clock::now();
-    auto r = validate(pipe, *val_loader, cfg.validation.scenes, objective.lpips_network(), cfg.validation.grid_views,
-                      dp ? &dp->group() : nullptr);
+    auto r = session.vae_task()
+                 ? validate_vae(session.vae, *val_loader, cfg.validation.scenes, session.vae_lpips,
+                                cfg.validation.grid_views, dp ? &dp->group() : nullptr)
+                 : validate(*session.pipeline, *val_loader, cfg.validation.scenes, session.objective->lpips_network(),
+                            cfg.validation.grid_views, dp ? &dp->group() : nullptr, dataset_mean);
     if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
     summary.last_val_psnr = r.psnr;
     summary.mean_colour_psnr = r.mean_colour_psnr;
@@ -279,17 +310,28 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
       grid = write_validation_grid(r.grid, run.renders() + name);
     }
-    spdlog::info("validation @ step {}: PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, LPIPS {}, normal "
-                 "cosine {:.3f} over {} views of {} held-out samples ({:.1f} s){}",
-                 step, r.psnr, r.mean_colour_psnr, r.ssim, std::isnan(r.lpips) ? "n/a" : std::to_string(r.lpips),
-                 r.normal_cosine, r.views, r.samples,
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
-                 grid.empty() ? "" : "; grid " + grid);
+    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const std::string lp = std::isnan(r.lpips) ? "n/a" : fmt::format("{:.3f}", r.lpips);
+    if (session.vae_task())
+      spdlog::info("validation @ step {}: reconstruction PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, "
+                   "LPIPS {}; latents of different samples correlate {:.3f} on average; {} frames of {} held-out "
+                   "windows ({:.1f} s){}",
+                   step, r.psnr, r.mean_colour_psnr, r.ssim, lp, r.latent_correlation, r.views, r.samples, secs,
+                   grid.empty() ? "" : "; grid " + grid);
+    else
+      spdlog::info("validation @ step {}: PSNR {:.2f} dB | baselines: mean colour {:.2f}, dataset mean {:.2f}, swap "
+                   "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out samples "
+                   "({:.1f} s){}{}",
+                   step, r.psnr, r.mean_colour_psnr, r.dataset_mean_psnr, r.swap_psnr, r.ssim, lp, r.normal_cosine,
+                   r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,
+                   random_latents.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
+    summary.swap_psnr = r.swap_psnr;
+    summary.dataset_mean_psnr = r.dataset_mean_psnr;
   };
   auto write_checkpoint = [&] {
     if (!root) return;
     summary.last_checkpoint =
-        save_checkpoint(run.checkpoints(), state, *decoder, signature, optimiser, cfg.checkpoint.keep);
+        save_checkpoint(run.checkpoints(), state, net, signature, optimiser, cfg.checkpoint.keep);
     spdlog::info("checkpoint: {}", summary.last_checkpoint);
   };
   // The clean end on every rank (not after an error: a peer may be gone).
@@ -308,17 +350,18 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     return summary;
   };
 
-  if (state.step >= cfg.steps) {
-    spdlog::info("flat_train: the run already finished its {} steps; nothing to do", cfg.steps);
-    summary.steps_done = state.step;
-    return finish();
-  }
+  // A run resumed at or past its last step trains no more, but its final
+  // file is written (again): a run stopped by a signal right at its end, or
+  // resumed with --set steps=<its step>, still gets model.safetensors (or
+  // vae.safetensors).
+  const bool finished = state.step >= cfg.steps;
+  if (finished) spdlog::info("flat_train: the run already did its {} steps; writing its final outputs", cfg.steps);
   if (state.step == 0) run_validation(0);
 
   // ---- the loop ------------------------------------------------------------------
   StopSignals signals(env.distributed());
   std::optional<Progress> progress;
-  if (root) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
+  if (root && !finished) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
   while (state.step < cfg.steps) {
     const int64_t step = state.step;
     const auto t0 = std::chrono::steady_clock::now();
@@ -389,18 +432,44 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   summary.steps_done = state.step;
   summary.skipped_steps = state.skipped_steps;
   if (!root) return finish();
-  summary.model_file = run.root + "/model.safetensors";
-  auto meta = pipeline::signature_metadata(signature);
-  meta.insert({{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)}});
-  model::save_weights(*decoder, summary.model_file, model::WeightNaming::wan, meta);
+  if (session.vae_task()) {
+    // The latent statistics of the training windows, folded into the file
+    // that flat_latents, flat_vae and init.from: wan_vae read.
+    data::LoaderConfig stats_data = train_data;
+    stats_data.batch_size = 1;
+    stats_data.workers = 0;
+    data::Loader stats_loader(stats_data);
+    const auto stats = measure_latent_statistics(session.vae, stats_loader, cfg.vae.stats_samples);
+    summary.model_file = run.root + "/vae.safetensors";
+    write_vae_file(session.vae, stats, summary.model_file,
+                   {{"producer", "flat_train"}, {"stage", cfg.stage}, {"task", "vae"},
+                    {"step", std::to_string(state.step)}});
+    spdlog::info("flat_train: VAE written to {} (Wan 2.1 key names; latent mean {:.3f}..{:.3f}, std {:.3f}..{:.3f} "
+                 "over {} training windows, folded in)",
+                 summary.model_file, stats.mean.min().item<double>(), stats.mean.max().item<double>(),
+                 stats.std.min().item<double>(), stats.std.max().item<double>(), stats.samples);
+  } else {
+    summary.model_file = run.root + "/model.safetensors";
+    auto meta = pipeline::signature_metadata(signature);
+    meta.insert({{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)}});
+    if (!random_latents.empty()) meta.insert({{"latent_encoder", "random"}});
+    model::save_weights(net, summary.model_file, model::WeightNaming::wan, meta);
+  }
   spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg.stage, state.step,
                state.skipped_steps);
-  if (!std::isnan(summary.last_val_psnr))
-    spdlog::info("held-out PSNR: {:.2f} dB -> {:.2f} dB (mean-colour baseline {:.2f} dB)", summary.first_val_psnr,
-                 summary.last_val_psnr, summary.mean_colour_psnr);
+  if (!std::isnan(summary.last_val_psnr)) {
+    if (session.vae_task())
+      spdlog::info("held-out reconstruction PSNR: {:.2f} dB -> {:.2f} dB (mean-colour baseline {:.2f} dB)",
+                   summary.first_val_psnr, summary.last_val_psnr, summary.mean_colour_psnr);
+    else
+      spdlog::info("held-out PSNR: {:.2f} dB -> {:.2f} dB | baselines: mean colour {:.2f} dB, dataset mean {:.2f} dB, "
+                   "swap {:.2f} dB{}",
+                   summary.first_val_psnr, summary.last_val_psnr, summary.mean_colour_psnr, summary.dataset_mean_psnr,
+                   summary.swap_psnr, random_latents.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
+  }
   spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
-               "model.safetensors)",
-               run.root);
+               "{})",
+               run.root, session.vae_task() ? "vae.safetensors" : "model.safetensors");
   return finish();
 }
 

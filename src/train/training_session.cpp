@@ -25,8 +25,21 @@ double total_norm(const std::vector<at::Tensor>& grads) {
 TrainingSession::TrainingSession(const TrainConfig& cfg)
     : TrainingSession(cfg, at::Device(cfg.device == "cuda" ? at::kCUDA : at::kCPU)) {}
 
-TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on)
-    : decoder(cfg.pipeline.model, cfg.pipeline.triangles.channels()), grad_clip_(cfg.optim.grad_clip) {
+ModelSignature vae_signature(const model::WanVAEConfig& config) {
+  config::Describer d("vae.");
+  auto c = config;
+  c.visit(d);
+  std::string yaml = "task: vae\n";
+  for (const auto& row : d.rows) yaml += row.key + ": " + row.value + "\n";
+  return {yaml, ""};
+}
+
+torch::nn::Module& TrainingSession::model() {
+  if (vae_task()) return *vae;
+  return *decoder;
+}
+
+TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) : grad_clip_(cfg.optim.grad_clip) {
   device = on;
   if (device.is_cuda() && !torch::cuda::is_available())
     fail("device: cuda requested but no CUDA device is available (set device: cpu)");
@@ -34,6 +47,37 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on)
     fail("device: " + device.str() + " requested but only " + std::to_string(torch::cuda::device_count()) +
          " CUDA device(s) are visible");
   bf16 = cfg.precision == "bf16" && device.is_cuda();
+  schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
+  const AdamWOptions adamw{cfg.optim.beta1, cfg.optim.beta2, cfg.optim.eps, cfg.optim.weight_decay, cfg.optim.fused,
+                           cfg.optim.name == "adamw8bit" ? 8 : 32};
+  if (cfg.task == "vae") {
+    vae = model::WanVAE(cfg.pipeline.model.vae);
+    vae_loss = cfg.vae;
+    signature = vae_signature(cfg.pipeline.model.vae);
+    if (cfg.init.from == "wan_vae") {
+      auto report = model::load_weights(*vae, cfg.init.path);
+      spdlog::info("init: the whole VAE from {}", report.summary());
+    } else if (cfg.init.from == "checkpoint") {
+      const std::string file = resolve_model_file(cfg.init.path);
+      Metadata meta;
+      auto tensors = load_safetensors(file, &meta);
+      load_model_weights(*vae, tensors, {meta.count("model_signature") ? meta["model_signature"] : "", ""}, signature,
+                         file);
+      spdlog::info("init: VAE weights of the earlier stage from {}", file);
+    }
+    if (cfg.init.from == "scratch") initialise_vae_for_training(vae);
+    vae->to(device);
+    if (cfg.vae.lpips > 0) {
+      vae_lpips = loss::Lpips();
+      vae_lpips->load(cfg.loss.lpips_weights);
+      vae_lpips->to(device);
+      vae_lpips->eval();
+      for (auto& p : vae_lpips->parameters()) p.requires_grad_(false);
+    }
+    optimiser = std::make_unique<AdamW>(vae->named_parameters().pairs(), adamw);
+    return;
+  }
+  decoder = model::SceneDecoder(cfg.pipeline.model, cfg.pipeline.triangles.channels());
   signature = pipeline::model_signature(cfg.pipeline);
   if (cfg.init.from == "wan_vae") {
     auto report = decoder->load_pretrained_vae(cfg.init.path);
@@ -49,18 +93,14 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on)
   decoder->to(device);
   pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
   objective = std::make_unique<loss::Objective>(cfg.loss, device);
-  optimiser = std::make_unique<AdamW>(decoder->named_parameters().pairs(),
-                                      AdamWOptions{cfg.optim.beta1, cfg.optim.beta2, cfg.optim.eps,
-                                                   cfg.optim.weight_decay, cfg.optim.fused,
-                                                   cfg.optim.name == "adamw8bit" ? 8 : 32});
-  schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
+  optimiser = std::make_unique<AdamW>(decoder->named_parameters().pairs(), adamw);
 }
 
 void TrainingSession::use_data_parallel(DataParallel* dp) {
   dp_ = dp;
   if (!dp_) return;
   std::vector<at::Tensor> params;
-  for (const auto& p : decoder->parameters())
+  for (const auto& p : model().parameters())
     if (p.requires_grad()) params.push_back(p);
   dp_->reduce_gradients_of(params);
 }
@@ -69,7 +109,8 @@ StepOutcome TrainingSession::step(const data::Batch& batch, int64_t step, StepTi
   StepOutcome out;
   optimiser->zero_grad();
   if (dp_) dp_->before_backward();
-  out.result = forward_backward(*pipeline, *objective, batch, bf16, times);
+  out.result = vae_task() ? vae_forward_backward(vae, vae_loss, vae_lpips, batch, bf16, times)
+                          : forward_backward(*pipeline, *objective, batch, bf16, times);
   out.stop_signal = stop_signal;
   if (dp_) {
     // Every rank comes here, also one whose loss was not finite (no backward):

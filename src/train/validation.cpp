@@ -4,7 +4,9 @@
 
 #include <torch/torch.h>
 
+#include "flat/core/error.h"
 #include "flat/core/image_io.h"
+#include "flat/core/shape.h"
 #include "flat/core/tensor_io.h"
 #include "flat/eval/image_metrics.h"
 #include "flat/eval/normal_metrics.h"
@@ -26,11 +28,36 @@ at::Tensor normal_image(const at::Tensor& n) { return (n * 0.5 + 0.5).clamp(0, 1
 }  // namespace
 
 Scalars ValidationResult::scalars() const {
-  return {{"val_psnr", psnr},
-          {"val_ssim", ssim},
-          {"val_lpips", lpips},
-          {"val_normal_cosine", normal_cosine},
-          {"val_mean_colour_psnr", mean_colour_psnr}};
+  Scalars out = {{"val_psnr", psnr},
+                 {"val_ssim", ssim},
+                 {"val_lpips", lpips},
+                 {"val_normal_cosine", normal_cosine},
+                 {"val_mean_colour_psnr", mean_colour_psnr}};
+  // The baselines that apply to the stage (NaN: not measured here).
+  for (const auto& [name, value] : Scalars{{"val_dataset_mean_psnr", dataset_mean_psnr},
+                                           {"val_swap_psnr", swap_psnr},
+                                           {"val_latent_correlation", latent_correlation}})
+    if (!std::isnan(value)) out.push_back({name, value});
+  return out;
+}
+
+at::Tensor training_mean_image(const data::LoaderConfig& config, int64_t samples) {
+  data::LoaderConfig c = config;
+  c.batch_size = 1;
+  c.workers = 0;
+  c.depth = false;
+  c.normals = false;
+  c.input_images = false;
+  c.latents = false;
+  data::Loader loader(c);
+  at::Tensor sum;
+  int64_t n = 0;
+  for (int64_t i = 0; i < samples; ++i) {
+    auto t = loader.batch(i).target_images[0].to(at::kDouble);  // (V,3,H,W)
+    sum = sum.defined() ? sum + t.sum(0) : t.sum(0);
+    n += t.size(0);
+  }
+  return (sum / double(std::max<int64_t>(n, 1))).to(at::kFloat);
 }
 
 at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Batch& batch, int64_t b,
@@ -77,10 +104,11 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 }
 
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
-                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group) {
+                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group,
+                          const at::Tensor& dataset_mean) {
   torch::NoGradGuard no_grad;
   ValidationResult r;
-  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0;
+  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0;
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
@@ -98,6 +126,15 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
       if (!lpips.is_empty()) lp += eval::lpips(lpips, rgb, target, 512, 4).sum().item<double>();
       auto mean_colour = target.mean({2, 3}, true).expand_as(target);
       base += eval::psnr(mean_colour, target).sum().item<double>();
+      if (dataset_mean.defined())
+        mean_image += eval::psnr(dataset_mean.to(device).unsqueeze(0).expand_as(target), target).sum().item<double>();
+      // Swap: the same renders against the next sample's views (same view index).
+      if (samples > 1) {
+        auto other = loader.batch((i + 1) % samples).target_images[0].to(device, at::kFloat);
+        FLAT_CHECK(other.sizes() == target.sizes(), "validation: the swap baseline needs samples of the same views "
+                                                    "and size, got " + shape_str(other) + " and " + shape_str(target));
+        swap += eval::psnr(rgb, other).sum().item<double>();
+      }
       if (batch.target_normals.defined() && batch.normals_present[b].item<bool>()) {
         auto acc = eval::normal_accuracy(views.normal, batch.target_normals[b].to(device, at::kFloat),
                                          views.alpha > 0.5);
@@ -113,8 +150,11 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   }
   if (group) {
     auto sums = distributed::sum_over_ranks(
-        *group, {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples)}, device);
+        *group,
+        {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples), mean_image, swap},
+        device);
     psnr = sums[0], ssim = sums[1], lp = sums[2], base = sums[3], cosine = sums[4];
+    mean_image = sums[8], swap = sums[9];
     normal_pixels = int64_t(std::llround(sums[5]));
     r.views = int64_t(std::llround(sums[6]));
     r.samples = int64_t(std::llround(sums[7]));
@@ -124,6 +164,8 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   r.ssim = ssim / v;
   r.lpips = lpips.is_empty() ? NAN : lp / v;
   r.mean_colour_psnr = base / v;
+  r.dataset_mean_psnr = dataset_mean.defined() ? mean_image / v : NAN;
+  r.swap_psnr = samples > 1 ? swap / v : NAN;
   r.normal_cosine = normal_pixels > 0 ? cosine / double(normal_pixels) : NAN;
   return r;
 }

@@ -197,3 +197,62 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   REQUIRE_THROWS_WITH(eval::run_evaluation(bad), FLAT_CONTAINS("nowhere"));
   CHECK(!fs::exists(bad.out_dir));
 }
+
+// The swap baseline must be able to expose a model that ignores its input:
+// one whose output is the same for every scene scores its swap exactly as its
+// own PSNR (a cyclic pairing permutes the same terms), while one whose output
+// depends on the scene does not.
+TEST_CASE("flat_eval baselines: a constant model's swap score equals its own; provenance is in every output",
+          "[eval]") {
+  const auto dir = test::scratch_dir("eval_baselines");
+  for (int i = 0; i < 3; ++i)
+    test::write_scene_with_latents((dir / ("set/room_" + std::to_string(i))).string(), uint64_t(10 + i));
+  // The constant model: every head weight and bias zero, so every triangle is
+  // grey (sigmoid(0) = 0.5), rendered over a grey background: 0.5 everywhere.
+  const std::string constant = (dir / "constant.safetensors").string();
+  test::write_tiny_model(constant);
+  {
+    Metadata meta;
+    auto tensors = load_safetensors(constant, &meta);
+    int zeroed = 0;
+    for (auto& [name, t] : tensors)
+      if (name.rfind("heads.", 0) == 0) t.zero_(), ++zeroed;
+    REQUIRE(zeroed > 0);
+    save_safetensors(constant, tensors, meta);
+  }
+  const std::string varying = (dir / "varying.safetensors").string();
+  test::write_tiny_model(varying, 8, 7);
+
+  auto evaluate = [&](const std::string& model, const std::string& out) {
+    eval::EvalRunOptions o;
+    o.model = model;
+    o.overrides = {"raster.background=[0.5, 0.5, 0.5]"};
+    o.datasets = {"synth=" + (dir / "set").string()};
+    o.out_dir = (dir / out).string();
+    o.device = "cpu";
+    o.settings.max_views = 5;
+    o.log_level = "warn";
+    auto s = eval::run_evaluation(o);
+    REQUIRE(s.scored == 3);
+    return eval::dataset_means(eval::read_results_json(o.out_dir + "/results.json").scores).back();
+  };
+  const auto c = evaluate(constant, "out_constant");
+  INFO("constant model: PSNR " << c.psnr << ", swap " << c.swap_psnr << ", dataset mean " << c.dataset_mean_psnr
+                               << ", mean colour " << c.mean_colour_psnr);
+  REQUIRE(std::isfinite(c.swap_psnr));
+  CHECK(c.swap_psnr == Approx(c.psnr).epsilon(1e-5));
+  CHECK(std::isfinite(c.dataset_mean_psnr));
+  CHECK(c.mean_colour_psnr > c.psnr);  // a grey image is no better than each view's own colour
+  const auto v = evaluate(varying, "out_varying");
+  INFO("varying model: PSNR " << v.psnr << ", swap " << v.swap_psnr);
+  CHECK(std::abs(v.swap_psnr - v.psnr) > 1e-3);
+
+  // Provenance: the fixtures' latents are random, and every output says so.
+  CHECK(c.random_latent_scenes == 3);
+  const std::string table = read_text(dir / "out_constant/table.md");
+  CHECK(table.find("RANDOM-ENCODER LATENTS") != std::string::npos);
+  CHECK(table.find("↳ swap") != std::string::npos);
+  const auto json = nlohmann::json::parse(read_text(dir / "out_constant/results.json"));
+  CHECK(json.at("latent_encoder") == "random");
+  CHECK(json.at("scenes")[0].at("swap_scene") == "room_1");
+}

@@ -2,11 +2,14 @@
 // metric wrapper.
 #include <cmath>
 
+#include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
+#include "flat/eval/latent_spread.h"
 #include "flat/eval/normal_metrics.h"
 #include "test_support.h"
 
 using namespace flat::eval;
+namespace eval = flat::eval;
 
 namespace {
 
@@ -88,4 +91,55 @@ TEST_CASE("LPIPS metric wrapper: chunked, no gradient", "[eval]") {
   auto d = lpips(net, a, b, 0, 2);
   CHECK(!d.requires_grad());
   CHECK(flat::test::rel_error(d, net->forward(a.detach(), b)) < 1e-6);
+}
+
+TEST_CASE("latent spread: correlation across scenes after per-channel standardisation", "[eval]") {
+  torch::manual_seed(3);
+  const auto channel_offsets = torch::arange(16, at::kFloat).view({16, 1, 1, 1}) * 10.0;
+  auto shared = torch::randn({16, 3, 6, 10});
+  // Collapsed: one pattern for every scene, with a little scene noise.
+  std::vector<at::Tensor> collapsed;
+  for (int i = 0; i < 4; ++i) collapsed.push_back(shared + 0.05 * torch::randn({16, 3, 6, 10}) + channel_offsets);
+  auto c = eval::latent_spread(collapsed);
+  REQUIRE(c.pairs == 6);
+  CHECK(c.mean_correlation > 0.99);
+  // Independent scenes: near zero, even though every latent carries the same
+  // large per-channel offsets (which alone would correlate them near 1).
+  std::vector<at::Tensor> independent;
+  for (int i = 0; i < 4; ++i) independent.push_back(torch::randn({16, 3, 6, 10}) + channel_offsets);
+  auto d = eval::latent_spread(independent);
+  CHECK(std::abs(d.mean_correlation) < 0.15);
+  CHECK(d.min_correlation <= d.mean_correlation);
+  CHECK(d.max_correlation >= d.mean_correlation);
+  // A scene and its negation (around the set's channel means) anti-correlate.
+  auto a = torch::randn({16, 3, 6, 10});
+  auto n = eval::latent_spread({a, -a});
+  CHECK(n.mean_correlation == Approx(-1.0).epsilon(1e-9));
+  // Different shapes are not compared.
+  auto u = eval::latent_spread({a, torch::randn({16, 2, 6, 10})});
+  CHECK(u.pairs == 0);
+  CHECK(std::isnan(u.mean_correlation));
+}
+
+TEST_CASE("baselines: leave-one-out frame mean, cyclic swap partners, mean-colour oracle", "[eval]") {
+  eval::FrameSums sums;
+  auto x = torch::full({3, 4, 5}, 0.2), y = torch::full({3, 4, 5}, 0.6), z = torch::full({3, 4, 5}, 1.0);
+  sums.add(0, x);
+  sums.add(0, y);
+  sums.add(0, z);
+  sums.add(1, x);
+  auto loo = sums.leave_one_out(0, x);
+  REQUIRE(loo.has_value());
+  CHECK(flat::test::rel_error(*loo, torch::full({3, 4, 5}, 0.8)) < 1e-6);  // (0.6 + 1.0) / 2
+  CHECK_FALSE(sums.leave_one_out(1, x).has_value());  // no other scene has frame 1
+  CHECK_FALSE(sums.leave_one_out(2, x).has_value());
+  REQUIRE_THROWS_WITH(sums.add(0, torch::zeros({3, 2, 2})), FLAT_CONTAINS("frame 0"));
+  CHECK(*eval::swap_partner(0, 3) == 1);
+  CHECK(*eval::swap_partner(2, 3) == 0);
+  CHECK_FALSE(eval::swap_partner(0, 1).has_value());
+  // The oracle of a view of one colour is exact (zero error: infinite PSNR).
+  auto flat_view = torch::full({1, 3, 4, 4}, 0.3);
+  auto two = torch::cat({torch::zeros({1, 3, 4, 2}), torch::ones({1, 3, 4, 2})}, 3);  // mean 0.5, MSE 0.25
+  CHECK(eval::mean_colour_psnr(two)[0].item<double>() == Approx(10.0 * std::log10(4.0)).epsilon(1e-6));
+  CHECK(eval::mean_colour_psnr(flat_view)[0].item<double>() > 60.0);
 }

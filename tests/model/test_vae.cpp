@@ -3,6 +3,7 @@
 #include <iostream>
 
 #include "flat/core/error.h"
+#include "flat/core/tensor_io.h"
 #include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
 #include "test_support.h"
@@ -124,4 +125,55 @@ TEST_CASE("Sub-pixel upsample conv equals nearest x2 + 3x3 conv", "[model][vae]"
     REQUIRE(got.sizes() == ref.sizes());
     CHECK(flat::test::rel_error(got, ref) < 1e-6);
   }
+}
+
+// The VAE stage writes its latent statistics into conv1 and conv2 so that the
+// file stays a plain Wan VAE: Wan-normalised latents of the folded VAE must
+// equal the raw VAE's mu standardised by the statistics, and its decode of
+// them the raw VAE's decode of mu.
+TEST_CASE("fold_latent_statistics: Wan-normalised latents of the folded VAE are the standardised raw ones",
+          "[model][vae]") {
+  torch::NoGradGuard no_grad;
+  WanVAEConfig c;
+  c.dim = 4;
+  torch::manual_seed(5);
+  WanVAE raw(c);
+  raw->eval();
+  WanVAE folded(c);
+  load_state(*folded, state_tensors(*raw), {}, "raw");
+  folded->eval();
+  const auto mean = torch::randn({16}, at::kDouble) * 2.0;
+  const auto std = torch::rand({16}, at::kDouble) * 3.0 + 0.2;
+  folded->fold_latent_statistics(mean, std);
+  auto video = torch::rand({1, 3, 5, 16, 24}) * 2 - 1;
+  auto mu = raw->encode_moments(video, false).narrow(1, 0, 16);
+  auto expected = (mu - mean.to(at::kFloat).view({1, 16, 1, 1, 1})) / std.to(at::kFloat).view({1, 16, 1, 1, 1});
+  auto got = folded->encode(video, false);
+  CHECK(flat::test::rel_error(got, expected) < 1e-5);
+  // Decoding them gives the raw VAE's decode of mu.
+  auto raw_video = raw->decoder->forward(raw->conv2->forward(mu));
+  auto folded_video = folded->decode(got, false, /*clamp=*/false);
+  CHECK(flat::test::rel_error(folded_video, raw_video) < 1e-5);
+  // The log-variance moves with the scale: var' = var * (wan_std / std)^2.
+  auto lv_raw = raw->encode_moments(video, false).narrow(1, 16, 16);
+  auto lv_folded = folded->encode_moments(video, false).narrow(1, 16, 16);
+  auto shift = 2.0 * (latent_std(at::kDouble).view({16}) / std).log();
+  CHECK(flat::test::rel_error(lv_folded - lv_raw, shift.to(at::kFloat).view({1, 16, 1, 1, 1}).expand_as(lv_raw)) <
+        1e-4);
+  // Not the identity: without folding the latents differ.
+  CHECK(flat::test::rel_error(raw->encode(video, false), expected) > 0.1);
+  REQUIRE_THROWS_WITH(folded->fold_latent_statistics(mean, -std), FLAT_CONTAINS("std positive"));
+}
+
+TEST_CASE("vae_dim_of_file reads the width from either naming, and names a file that is no VAE", "[model][vae]") {
+  const auto dir = flat::test::scratch_dir("vae_dim");
+  WanVAEConfig c;
+  c.dim = 4;
+  WanVAE vae(c);
+  save_weights(*vae, (dir / "wan.safetensors").string(), WeightNaming::wan);
+  save_weights(*vae, (dir / "diffusers.safetensors").string(), WeightNaming::diffusers);
+  CHECK(vae_dim_of_file((dir / "wan.safetensors").string()) == 4);
+  CHECK(vae_dim_of_file((dir / "diffusers.safetensors").string()) == 4);
+  flat::save_safetensors((dir / "other.safetensors").string(), {{"x", torch::zeros({2})}});
+  REQUIRE_THROWS_WITH(vae_dim_of_file((dir / "other.safetensors").string()), FLAT_CONTAINS("other.safetensors"));
 }

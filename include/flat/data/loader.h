@@ -138,6 +138,10 @@ class Loader {
   Sample sample(int64_t index);
 
   int64_t scene_count() const;
+  // Scenes by how their latents were made ("pretrained", "random"; "none"
+  // without latents): provenance for logs, so that a figure trained or
+  // scored on random-encoder latents never passes for a result.
+  std::map<std::string, int64_t> latent_encoders() const;
   int64_t skipped_scenes() const { return skipped_; }
   int64_t next_batch_index() const { return next_give_; }
   const LoaderConfig& config() const { return config_; }

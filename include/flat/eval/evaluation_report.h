@@ -26,6 +26,9 @@ struct Means {
   std::string dataset;  // "" = all datasets
   int64_t scenes = 0, failed = 0, normal_scenes = 0;
   double psnr = NAN, ssim = NAN, lpips = NAN, normal_l1 = NAN, normal_cosine = NAN;
+  // Baselines (baselines.h), means over the scored scenes that have them.
+  double mean_colour_psnr = NAN, dataset_mean_psnr = NAN, swap_psnr = NAN;
+  int64_t random_latent_scenes = 0;  // scored scenes whose latents came from a random encoder
 };
 
 // Means over the scenes that were scored (failures counted, not averaged):

@@ -17,6 +17,7 @@
 #include <ATen/ATen.h>
 
 #include "flat/data/scene.h"
+#include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
 #include "flat/loss/lpips.h"
 #include "flat/pipeline/scene_pipeline.h"
@@ -44,8 +45,23 @@ struct SceneScore {
   double psnr = NAN, ssim = NAN, lpips = NAN;
   double normal_l1 = NAN, normal_cosine = NAN;
   int64_t normal_pixels = 0;
+  // Baselines on the same views (baselines.h): PSNR of the mean-colour
+  // oracle, of the other scenes' mean image, and of these renders against
+  // the ground truth of `swap_scene` (NaN where not measured).
+  double mean_colour_psnr = NAN, dataset_mean_psnr = NAN, swap_psnr = NAN;
+  std::string swap_scene;
+  std::string latent_encoder;  // "pretrained" | "random": how the scene's latents were made
   double seconds = 0;
 };
+
+// What the baselines need from the rest of the dataset (either may be null).
+struct BaselineInputs {
+  const data::Scene* swap_with = nullptr;  // the scene whose frames the renders are swapped against
+  const FrameSums* frame_sums = nullptr;   // the dataset's frames by index, this scene's included
+};
+
+// The frames scored for `scene`, fitted to the evaluation size, added to `sums`.
+void add_frame_sums(FrameSums& sums, const data::Scene& scene, const EvalSettings& settings);
 
 // Frame indices of the evaluation views (throws when there are none).
 std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettings& settings);
@@ -53,6 +69,6 @@ std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettin
 // lpips: an empty holder leaves LPIPS NaN. Throws flat::Error on a bad scene
 // (the caller records it as a failure).
 SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& settings,
-                          loss::Lpips lpips);
+                          loss::Lpips lpips, const BaselineInputs& baselines = {});
 
 }  // namespace flat::eval

@@ -30,6 +30,9 @@ struct InferInput {
   camera::Cameras cameras;     // the T input cameras (CPU, float32)
   int64_t height = 0, width = 0;  // frame size: 8x the latent's
   std::string label;              // "scene room_000001, window 0" / the latent file
+  // How the latents were made: "pretrained", "random" (a random-weight
+  // encoder: the output is a pipeline check, not a result) or "unknown".
+  std::string latent_encoder = "unknown";
 };
 
 // Throws flat::Error naming the file and shapes on any mismatch.

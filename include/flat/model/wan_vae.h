@@ -31,6 +31,12 @@ at::Tensor denormalise_latent(const at::Tensor& z_n);
 int64_t video_frames(int64_t latent_frames);
 int64_t latent_frames(int64_t video_frames, const std::string& what);
 
+// The base width `dim` of the VAE (or VAE decoder) in a weights file, read
+// from its header alone: encoder.conv1 (dim,3,..) or decoder.conv1
+// (dim*dim_mult.back(),16,..), either naming. Throws naming the file when it
+// holds neither.
+int64_t vae_dim_of_file(const std::string& path, const WanVAEConfig& like = {});
+
 class WanVAEImpl : public torch::nn::Module {
  public:
   explicit WanVAEImpl(const WanVAEConfig& config = {});
@@ -45,6 +51,15 @@ class WanVAEImpl : public torch::nn::Module {
   at::Tensor encode_moments(const at::Tensor& video, bool streaming = true);
 
   const WanVAEConfig& config() const { return config_; }
+
+  // Re-parameterises conv1 (its mu and log-variance rows) and conv2 so that
+  // normalising with Wan 2.1's constants (normalise_latent) equals
+  // normalising this VAE's raw mu with `mean` and `std` ((16,) each, measured
+  // on data): mu' = (mu - mean) / std * wan_std + wan_mean, and conv2 undoes
+  // it. encode() then gives latents of zero mean and unit spread per channel,
+  // decode() of them the same video, and the file stays a plain Wan 2.1 VAE
+  // that every tool reads unchanged. Exact up to float rounding.
+  void fold_latent_statistics(const at::Tensor& mean, const at::Tensor& std);
 
   Encoder3d encoder{nullptr};
   CausalConv3d conv1{nullptr};  // 1x1x1, after the encoder

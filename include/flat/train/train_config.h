@@ -36,6 +36,31 @@ struct InitConfig {
   void check() const;
 };
 
+// The VAE stage (task: vae): the whole Wan 2.1 VAE (pipeline.model.vae's
+// architecture) trained as a video autoencoder on the scenes' frames, so that
+// its latents carry the scene and its decoder already maps them back to
+// pixels (the premise of the paper's Feedforward Scene Decoder). The loss is
+// l1 |x^ - x| + l2 (x^ - x)^2 + lpips LPIPS(x^, x) + kl KL(q(z|x) || N(0,1)),
+// means over pixels and latent elements, on frames in [-1,1].
+struct VaeStageConfig {
+  double l1 = 1.0;
+  double l2 = 0.0;
+  double lpips = 0.0;  // needs loss.lpips_weights
+  double kl = 1e-6;
+  // Training windows the per-channel latent statistics are measured on at the
+  // end (folded into the written VAE file, wan_vae.h).
+  int64_t stats_samples = 64;
+  template <class V>
+  void visit(V& v) {
+    v.field("l1", l1, config::non_negative(), "weight of the mean absolute reconstruction error");
+    v.field("l2", l2, config::non_negative(), "weight of the mean squared reconstruction error");
+    v.field("lpips", lpips, config::non_negative(), "weight of LPIPS on the reconstructed frames");
+    v.field("kl", kl, config::non_negative(), "weight of the KL term (mean over latent elements)");
+    v.field("stats_samples", stats_samples, config::positive(),
+            "training windows the latent mean/std are measured on at the end");
+  }
+};
+
 struct OptimConfig {
   std::string name = "adamw";  // "adamw" (fp32 state) | "adamw8bit" (block-wise 8-bit moments; paper, stage 4)
   double lr = 1e-4;            // paper
@@ -138,6 +163,7 @@ struct DebugConfig {
 struct TrainConfig {
   std::string run_dir = "runs/train";
   std::string stage = "stage1";  // a name for logs and checkpoints
+  std::string task = "scene";    // scene: the scene decoder on latents; vae: the Wan VAE on frames
   int64_t steps = 20000;         // paper, stage 1
   std::string device = "cuda";
   std::string precision = "bf16";  // bf16: autocast on CUDA, fp32 master weights; fp32
@@ -153,12 +179,15 @@ struct TrainConfig {
   data::LoaderConfig data;
   pipeline::PipelineConfig pipeline;
   loss::LossConfig loss;
+  VaeStageConfig vae;
   DebugConfig debug;
 
   template <class V>
   void visit(V& v) {
     v.field("run_dir", run_dir, "run folder (config, logs, metrics, checkpoints, renders)");
     v.field("stage", stage, "stage name (logs, checkpoints)");
+    v.field("task", task, config::one_of({"scene", "vae"}),
+            "scene: train the scene decoder on latents | vae: train the Wan VAE on the frames (its own stage)");
     v.field("steps", steps, config::positive(), "optimisation steps of this stage");
     v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
     v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
@@ -174,6 +203,7 @@ struct TrainConfig {
     v.section("data", data);
     v.section("pipeline", pipeline);
     v.section("loss", loss);
+    v.section("vae", vae);
     v.section("debug", debug);
   }
   void check() const;

@@ -10,6 +10,7 @@
 //     checkpoints/step_*/  the newest checkpoint.keep checkpoints (checkpoint.h)
 //     renders/val_step_*.png  validation grids
 //     model.safetensors    the final weights (Wan key names), for flat_infer
+//     vae.safetensors      instead, for task: vae: the trained Wan VAE (vae_stage.h)
 //
 // Checkpoints are written every checkpoint.every steps, at the end, and when
 // SIGINT or SIGTERM arrives (the run then stops with exit code 128 + signal;
@@ -38,6 +39,7 @@ struct TrainSummary {
   int64_t first_step = 0, steps_done = 0;
   int64_t skipped_steps = 0;
   double first_val_psnr = NAN, last_val_psnr = NAN, mean_colour_psnr = NAN;
+  double dataset_mean_psnr = NAN, swap_psnr = NAN;  // the last validation's baselines
   std::string run_dir, last_checkpoint, model_file;
 };
 

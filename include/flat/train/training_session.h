@@ -1,8 +1,10 @@
-// What one training process holds while it trains: the scene decoder (with
-// its initial weights: scratch, Wan VAE or an earlier stage), the pipeline,
-// the objective, the optimiser and the learning-rate schedule, and the one
-// optimisation step built from them. The trainer's loop and flat_bench train
-// both drive this, so the timed step is the trained step.
+// What one training process holds while it trains: the model of the stage's
+// task (task: scene, the scene decoder with its pipeline and objective; task:
+// vae, the Wan VAE and its reconstruction loss, vae_stage.h) with its initial
+// weights (scratch, a Wan VAE file or an earlier stage), the optimiser and the
+// learning-rate schedule, and the one optimisation step built from them. The
+// trainer's loop and flat_bench train both drive this, so the timed step is
+// the trained step.
 #pragma once
 #include <memory>
 
@@ -13,6 +15,7 @@
 #include "flat/train/lr_schedule.h"
 #include "flat/train/train_config.h"
 #include "flat/train/train_step.h"
+#include "flat/train/vae_stage.h"
 
 namespace flat::train {
 
@@ -46,9 +49,20 @@ class TrainingSession {
   // session's steps); call after the weights are final (init, resume, shared).
   void use_data_parallel(DataParallel* dp);
 
-  model::SceneDecoder decoder;
+  // The module being trained (the scene decoder or the VAE): what checkpoints
+  // hold and what the optimiser updates.
+  torch::nn::Module& model();
+  bool vae_task() const { return !vae.is_empty(); }
+
+  // task: scene
+  model::SceneDecoder decoder{nullptr};
   std::unique_ptr<pipeline::ScenePipeline> pipeline;
   std::unique_ptr<loss::Objective> objective;
+  // task: vae
+  model::WanVAE vae{nullptr};
+  loss::Lpips vae_lpips{nullptr};  // loaded when vae.lpips > 0
+  VaeStageConfig vae_loss;
+
   std::unique_ptr<AdamW> optimiser;
   LrSchedule schedule;
   ModelSignature signature;
@@ -61,5 +75,8 @@ class TrainingSession {
 };
 
 using pipeline::model_signature;
+
+// The VAE stage's architecture signature (checkpoints of task: vae).
+ModelSignature vae_signature(const model::WanVAEConfig& config);
 
 }  // namespace flat::train

@@ -1,0 +1,113 @@
+#!/usr/bin/env bash
+# The GPU recipe of "Latents that carry the scene" (docs/training.md): a small
+# reproduction of the paper's pipeline on synthetic rooms at 176x320.
+#   data   build; ROOMS training + VAL held-out rooms (never trained on);
+#          the VAE stage (configs/recipe/vae.yaml); latents of every room from
+#          the trained encoder (windows of 17, and of 49 for stage 2) and, for
+#          the control, from a random-weight encoder of the same width.
+#   train  stage 1 (configs/recipe/stage1.yaml) and its two controls side by
+#          side on the one GPU: random-encoder latents, and a decoder trained
+#          from scratch on the trained VAE's latents; then stage 2 from stage 1;
+#          flat_eval of each on the held-out rooms, with the baselines.
+# Usage on the GPU machine (repo root, .deps carried): bash scripts/gpu_recipe.sh data|train
+# The two phases fit one device call each; `train` needs the folders `data`
+# left (the same warm machine). Every training is bounded by `timeout -s TERM`
+# (it checkpoints and stops; flat_eval then reads the newest checkpoint).
+# Logs and tables go to $OUT; a summary is printed last.
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+PHASE="${1:-data}"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+R="$ROOT/runs/recipe"
+ROOMS="${RECIPE_ROOMS:-256}"; VAL="${RECIPE_VAL_ROOMS:-16}"; FRAMES="${RECIPE_FRAMES:-49}"; SIZE=176x320
+DIM="${RECIPE_DIM:-32}"
+VAE_STEPS="${RECIPE_VAE_STEPS:-2000}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-240}"
+S1_STEPS="${RECIPE_S1_STEPS:-1500}"; S1_SECONDS="${RECIPE_S1_SECONDS:-270}"
+S2_STEPS="${RECIPE_S2_STEPS:-300}"; S2_SECONDS="${RECIPE_S2_SECONDS:-150}"
+T0=$(date +%s)
+summary=()
+note() { summary+=("$(printf '%4d s  %s' $(( $(date +%s) - T0 )) "$1")"); echo "[recipe $(( $(date +%s) - T0 )) s] $1"; }
+cd "$ROOT"
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+
+if [ "$PHASE" = "data" ]; then
+  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF \
+    -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
+    || { tail -30 "$OUT/configure.log"; exit 1; }
+  ninja -C "$BUILD" flat_synth flat_latents flat_train flat_eval >"$OUT/build.log" 2>&1 \
+    || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  note "built"
+  rm -rf "$R"; mkdir -p "$R/data"
+  # Rooms in parallel batches (each process 2 threads: unbounded ones starve each other).
+  P=8; per=$(( (ROOMS + P - 1) / P ))
+  for k in $(seq 0 $((P - 1))); do
+    n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
+    OMP_NUM_THREADS=2 "$BUILD/flat_synth" --out "$R/data/train" --scenes $n --first-index $((k * per)) --seed 7 \
+      --family room --frames "$FRAMES" --size $SIZE --motion mixed --log-level warn >"$OUT/synth_$k.log" 2>&1 &
+  done
+  OMP_NUM_THREADS=2 "$BUILD/flat_synth" --out "$R/data/val" --scenes "$VAL" --seed 1001 --family room \
+    --frames "$FRAMES" --size $SIZE --motion mixed --log-level warn >"$OUT/synth_val.log" 2>&1 &
+  wait
+  note "rooms: $(ls "$R/data/train" | wc -l) training, $(ls "$R/data/val" | wc -l) held-out, $FRAMES frames of $SIZE"
+  timeout -s TERM "$VAE_SECONDS" "$BUILD/flat_train" --config configs/recipe/vae.yaml --set steps="$VAE_STEPS" \
+    --set pipeline.model.vae.dim="$DIM" >"$OUT/vae.log" 2>&1
+  note "VAE stage rc=$?: $(grep -oE 'reconstruction PSNR .*' "$OUT/vae.log" | tail -1 | cut -c1-160)"
+  if [ ! -f "$R/vae/vae.safetensors" ]; then
+    # Stopped by the time bound: the newest checkpoint, its statistics measured and folded by a 0-step resume.
+    "$BUILD/flat_train" --resume "$R/vae" --set steps="$(ls "$R/vae/checkpoints" | tail -1 | sed 's/step_0*//')" \
+      >>"$OUT/vae.log" 2>&1
+    note "VAE file from the newest checkpoint: $(ls "$R/vae/vae.safetensors" 2>&1)"
+  fi
+  # Windows of 49 for stage 2 and random-encoder latents for the control: the
+  # same rooms hard-linked (flat_latents replaces files by renaming them).
+  cp -al "$R/data" "$R/data49"; cp -al "$R/data" "$R/data_random"
+  for split in train val; do
+    "$BUILD/flat_latents" --scenes "$R/data/$split" --vae "$R/vae/vae.safetensors" --window 17 --step 16 \
+      --device cuda --log-level warn >"$OUT/latents_$split.log" 2>&1 &
+    "$BUILD/flat_latents" --scenes "$R/data49/$split" --vae "$R/vae/vae.safetensors" --window 49 \
+      --device cuda --log-level warn >"$OUT/latents49_$split.log" 2>&1 &
+    "$BUILD/flat_latents" --scenes "$R/data_random/$split" --random-weights --seed 0 --dim "$DIM" --window 17 \
+      --step 16 --device cuda --log-level warn >"$OUT/latents_random_$split.log" 2>&1 &
+  done
+  wait
+  note "latents: trained encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_train.log" | tail -1); random encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_random_train.log" | tail -1)"
+  grep -E "correlate|error" "$OUT"/latents*.log | cut -c1-220
+fi
+
+if [ "$PHASE" = "train" ]; then
+  [ -f "$R/vae/vae.safetensors" ] || { echo "no $R/vae/vae.safetensors: run the data phase first (same warm machine)"; exit 1; }
+  common=(--set pipeline.model.vae.dim="$DIM" --set steps="$S1_STEPS")
+  timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
+    >"$OUT/stage1.log" 2>&1 &
+  timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
+    --set run_dir="$R/control_scratch" --set init.from=scratch --set "init.path=''" >"$OUT/control_scratch.log" 2>&1 &
+  timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
+    --set run_dir="$R/control_random" --set "data.datasets=[{root: $R/data_random/train}]" \
+    --set "validation.datasets=[{root: $R/data_random/val}]" >"$OUT/control_random.log" 2>&1 &
+  wait
+  for r in stage1 control_scratch control_random; do
+    note "$r: $(grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$OUT/$r.log" | tail -1 | cut -c1-200)"
+  done
+  timeout -s TERM "$S2_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage2.yaml --set pipeline.model.vae.dim="$DIM" \
+    --set steps="$S2_STEPS" --set data.unseen_fraction=0 >"$OUT/stage2.log" 2>&1
+  note "stage2 rc=$?: $(grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$OUT/stage2.log" | tail -1 | cut -c1-200)"
+  # Held-out rooms, every frame of each (17 scored views spread over the 49).
+  for r in stage1 control_scratch control_random stage2; do
+    data="$R/data/val"; [ "$r" = control_random ] && data="$R/data_random/val"; [ "$r" = stage2 ] && data="$R/data49/val"
+    "$BUILD/flat_eval" --model "$R/$r" --scenes "heldout=$data" --out "$R/eval_$r" --name "$r" --max-views 17 \
+      --device cuda >"$OUT/eval_$r.log" 2>&1 &
+  done
+  wait
+  "$BUILD/flat_eval" --compare "$R/eval_stage1" "$R/eval_stage2" "$R/eval_control_scratch" "$R/eval_control_random" \
+    > "$OUT/table.md" 2>&1
+  cat "$OUT/table.md" | head -20
+  for r in stage1 control_scratch control_random stage2; do
+    cp "$R/eval_$r/results.json" "$OUT/results_$r.json" 2>/dev/null
+  done
+  # The validation grids: the last of stage 1 and of the scratch control.
+  tar czf "$OUT/renders.tgz" -C "$R" $(cd "$R" && ls -d */renders 2>/dev/null) vae/metrics stage1/metrics \
+    control_scratch/metrics control_random/metrics stage2/metrics 2>/dev/null
+fi
+echo "==== recipe summary ($PHASE) ===="
+for s in "${summary[@]}"; do echo "$s"; done
