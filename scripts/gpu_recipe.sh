@@ -22,7 +22,8 @@ BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 R="$ROOT/runs/recipe"
 ROOMS="${RECIPE_ROOMS:-256}"; VAL="${RECIPE_VAL_ROOMS:-16}"; FRAMES="${RECIPE_FRAMES:-49}"; SIZE=176x320
 DIM="${RECIPE_DIM:-32}"
-VAE_STEPS="${RECIPE_VAE_STEPS:-2000}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-240}"
+VAE_IMAGE_STEPS="${RECIPE_VAE_IMAGE_STEPS:-3000}"; VAE_IMAGE_SECONDS="${RECIPE_VAE_IMAGE_SECONDS:-120}"
+VAE_STEPS="${RECIPE_VAE_STEPS:-1000}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-90}"
 S1_STEPS="${RECIPE_S1_STEPS:-1500}"; S1_SECONDS="${RECIPE_S1_SECONDS:-270}"
 S2_STEPS="${RECIPE_S2_STEPS:-300}"; S2_SECONDS="${RECIPE_S2_SECONDS:-150}"
 T0=$(date +%s)
@@ -32,7 +33,7 @@ cd "$ROOT"
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
 if [ "$PHASE" = "data" ]; then
-  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF \
+  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF \
     -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
     || { tail -30 "$OUT/configure.log"; exit 1; }
   ninja -C "$BUILD" flat_synth flat_latents flat_train flat_eval >"$OUT/build.log" 2>&1 \
@@ -50,13 +51,18 @@ if [ "$PHASE" = "data" ]; then
     --frames "$FRAMES" --size $SIZE --motion mixed --log-level warn >"$OUT/synth_val.log" 2>&1 &
   wait
   note "rooms: $(ls "$R/data/train" | wc -l) training, $(ls "$R/data/val" | wc -l) held-out, $FRAMES frames of $SIZE"
+  # The VAE: single frames first, then windows (as Wan trained its VAE).
+  timeout -s TERM "$VAE_IMAGE_SECONDS" "$BUILD/flat_train" --config configs/recipe/vae_image.yaml \
+    --set steps="$VAE_IMAGE_STEPS" --set pipeline.model.vae.dim="$DIM" >"$OUT/vae_image.log" 2>&1
+  note "VAE stage, single frames, rc=$?: $(grep -oE 'validation @ step [0-9]+: reconstruction PSNR [0-9.]+ dB' "$OUT/vae_image.log" | tail -1)"
   timeout -s TERM "$VAE_SECONDS" "$BUILD/flat_train" --config configs/recipe/vae.yaml --set steps="$VAE_STEPS" \
     --set pipeline.model.vae.dim="$DIM" >"$OUT/vae.log" 2>&1
-  note "VAE stage rc=$?: $(grep -oE 'reconstruction PSNR .*' "$OUT/vae.log" | tail -1 | cut -c1-160)"
+  note "VAE stage, windows of 9, rc=$?: $(grep -oE 'validation @ step [0-9]+: reconstruction PSNR .*correlate [0-9.-]+' "$OUT/vae.log" | tail -1 | cut -c1-200)"
   if [ ! -f "$R/vae/vae.safetensors" ]; then
-    # Stopped by the time bound: the newest checkpoint, its statistics measured and folded by a 0-step resume.
+    # Stopped by the time bound: a resume at the newest checkpoint's step trains
+    # no more and writes the file (statistics measured and folded in).
     "$BUILD/flat_train" --resume "$R/vae" --set steps="$(ls "$R/vae/checkpoints" | tail -1 | sed 's/step_0*//')" \
-      >>"$OUT/vae.log" 2>&1
+      --set optim.warmup_steps=0 >>"$OUT/vae.log" 2>&1
     note "VAE file from the newest checkpoint: $(ls "$R/vae/vae.safetensors" 2>&1)"
   fi
   # Windows of 49 for stage 2 and random-encoder latents for the control: the

@@ -26,9 +26,13 @@ rm -rf "$RUN/data"
 "$B/flat_synth" --out "$RUN/data/train" --scenes 24 --seed 7 --family room --frames 17 --size 48x80 --motion mixed
 "$B/flat_synth" --out "$RUN/data/val" --scenes 8 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed
 stamp
-echo "== 2/6 VAE stage: configs/tiny/vae.yaml, a dim-8 Wan 2.1 VAE trained on the training rooms' frames"
+echo "== 2/6 VAE stage: a dim-8 Wan 2.1 VAE trained on the training rooms' frames, single frames first"
+echo "   (configs/tiny/vae_image.yaml), then windows of 5 frames (configs/tiny/vae.yaml)"
+"$B/flat_train" --config configs/tiny/vae_image.yaml --overwrite \
+  --set "run_dir=$RUN/vae_image" \
+  --set "data.datasets=[{root: $RUN/data/train}]" --set "validation.datasets=[{root: $RUN/data/val}]"
 "$B/flat_train" --config configs/tiny/vae.yaml --overwrite \
-  --set "run_dir=$RUN/vae" \
+  --set "run_dir=$RUN/vae" --set "init.path=$RUN/vae_image" \
   --set "data.datasets=[{root: $RUN/data/train}]" --set "validation.datasets=[{root: $RUN/data/val}]"
 stamp
 echo "== 3/6 latents from the trained encoder (windows of 9 frames every 4)"
