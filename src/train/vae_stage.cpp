@@ -44,6 +44,14 @@ void initialise_vae_for_training(model::WanVAE& vae) {
     } else if (ends_with(name, ".weight") && p.dim() >= 2) {
       if (ends_with(name, "residual.6.weight") || ends_with(name, "proj.weight")) {
         p.zero_();  // the residual branch starts at zero: the block is the identity
+      } else if (ends_with(name, "time_conv.weight")) {
+        // Temporal resampling starts as "the newest frame" (its last causal
+        // tap), for each output half of an upsample (C -> 2C: the frame
+        // repeated): a VAE trained on single frames, which never runs these,
+        // then decodes a still video as repeated frames instead of noise.
+        p.zero_();
+        const int64_t c = p.size(1), taps = p.size(2);
+        for (int64_t o = 0; o < p.size(0); ++o) p[o][o % c][taps - 1].fill_(1.0);
       } else {
         const double fan_in = double(p[0].numel());
         p.normal_(0.0, 1.0 / std::sqrt(fan_in));
