@@ -49,7 +49,7 @@ if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_trai
     "$BUILD/flat_synth" --out "$S/tiny/val" --scenes 1 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed &&
     "$BUILD/flat_latents" --scenes "$S/tiny/train" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
     "$BUILD/flat_latents" --scenes "$S/tiny/val" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
-    "$BUILD/flat_train" --config configs/tiny/stage1.yaml --set run_dir="$S/tiny/run" --set device=cuda --set steps=60 \
+    "$BUILD/flat_train" --config configs/tiny/stage1.yaml --set run_dir="$S/tiny/run" --set device=cuda --set steps=60 --set init.from=scratch --set "init.path=''" \
       --set "data.datasets=[{root: $S/tiny/train}]" --set "validation.datasets=[{root: $S/tiny/val}]" --set validation.every=60; } \
     >"$OUT/train_tiny.log" 2>&1
   summary+=("flat_train tiny (cuda) rc=$?: $(grep -oE 'held-out PSNR.*' "$OUT/train_tiny.log" | tail -1)")
