@@ -108,7 +108,7 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
                           const at::Tensor& dataset_mean) {
   torch::NoGradGuard no_grad;
   ValidationResult r;
-  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0;
+  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0, swap_views = 0;
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
@@ -128,12 +128,20 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
       base += eval::psnr(mean_colour, target).sum().item<double>();
       if (dataset_mean.defined())
         mean_image += eval::psnr(dataset_mean.to(device).unsqueeze(0).expand_as(target), target).sum().item<double>();
-      // Swap: the same renders against the next sample's views (same view index).
-      if (samples > 1) {
-        auto other = loader.batch((i + 1) % samples).target_images[0].to(device, at::kFloat);
+      // Swap: the same renders against the views of the next sample of
+      // another scene (same view index); samples are drawn with replacement,
+      // and a sample of the same scene is no swap.
+      data::Batch partner;
+      for (int64_t k = 1; k < samples && !partner.target_images.defined(); ++k) {
+        data::Batch candidate = loader.batch((i + k) % samples);
+        if (candidate.scenes[0] != batch.scenes[b]) partner = std::move(candidate);
+      }
+      if (partner.target_images.defined()) {
+        auto other = partner.target_images[0].to(device, at::kFloat);
         FLAT_CHECK(other.sizes() == target.sizes(), "validation: the swap baseline needs samples of the same views "
                                                     "and size, got " + shape_str(other) + " and " + shape_str(target));
         swap += eval::psnr(rgb, other).sum().item<double>();
+        swap_views += double(target.size(0));
       }
       if (batch.target_normals.defined() && batch.normals_present[b].item<bool>()) {
         auto acc = eval::normal_accuracy(views.normal, batch.target_normals[b].to(device, at::kFloat),
@@ -151,10 +159,11 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   if (group) {
     auto sums = distributed::sum_over_ranks(
         *group,
-        {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples), mean_image, swap},
+        {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples), mean_image, swap,
+         swap_views},
         device);
     psnr = sums[0], ssim = sums[1], lp = sums[2], base = sums[3], cosine = sums[4];
-    mean_image = sums[8], swap = sums[9];
+    mean_image = sums[8], swap = sums[9], swap_views = sums[10];
     normal_pixels = int64_t(std::llround(sums[5]));
     r.views = int64_t(std::llround(sums[6]));
     r.samples = int64_t(std::llround(sums[7]));
@@ -165,7 +174,7 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   r.lpips = lpips.is_empty() ? NAN : lp / v;
   r.mean_colour_psnr = base / v;
   r.dataset_mean_psnr = dataset_mean.defined() ? mean_image / v : NAN;
-  r.swap_psnr = samples > 1 ? swap / v : NAN;
+  r.swap_psnr = swap_views > 0 ? swap / swap_views : NAN;
   r.normal_cosine = normal_pixels > 0 ? cosine / double(normal_pixels) : NAN;
   return r;
 }

@@ -7,9 +7,10 @@
 //   mean-colour oracle: every view painted its own mean colour;
 //   dataset mean: every view predicted as the training set's mean image (the
 //     best "same output for every scene");
-//   swap: each sample's renders scored against the next sample's ground truth
-//     (cyclically, same view index); a model that ignores its latents scores
-//     the same on its own scene and on the swapped one.
+//   swap: each sample's renders scored against the ground truth of the next
+//     sample (cyclically) that shows another scene, same view index; a model
+//     that ignores its latents scores the same on its own scene and on the
+//     swapped one.
 // Writes an image grid for a person to look at.
 #pragma once
 #include <cstdint>
@@ -31,7 +32,7 @@ struct ValidationResult {
   double normal_cosine = NAN;  // NaN where no sample has reference normals
   double mean_colour_psnr = 0; // the mean-colour baseline on the same views
   double dataset_mean_psnr = NAN;  // the training set's mean image on the same views
-  double swap_psnr = NAN;          // renders against the next sample's ground truth
+  double swap_psnr = NAN;          // renders against the next other-scene sample's ground truth
   double latent_correlation = NAN; // VAE stage: mean Pearson correlation of the samples' latents
   int64_t samples = 0, views = 0;
   at::Tensor grid;             // (3,H',W') in [0,1]: one row per view (see grid())
