@@ -20,6 +20,17 @@ double total_norm(const std::vector<at::Tensor>& grads) {
   return at::stack(norms).to(at::kDouble).norm().item<double>();
 }
 
+// init.from: checkpoint: the model weights of an earlier stage (run folder,
+// checkpoint folder or model file), checked against this stage's signature.
+void load_earlier_stage(torch::nn::Module& model, const std::string& path, const ModelSignature& signature) {
+  const std::string file = resolve_model_file(path);
+  Metadata meta;
+  auto tensors = load_safetensors(file, &meta);
+  load_model_weights(model, tensors, {meta.count("model_signature") ? meta["model_signature"] : "", ""}, signature,
+                     file);
+  spdlog::info("init: model weights of the earlier stage from {}", file);
+}
+
 }  // namespace
 
 TrainingSession::TrainingSession(const TrainConfig& cfg)
@@ -58,12 +69,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
       auto report = model::load_weights(*vae, cfg.init.path);
       spdlog::info("init: the whole VAE from {}", report.summary());
     } else if (cfg.init.from == "checkpoint") {
-      const std::string file = resolve_model_file(cfg.init.path);
-      Metadata meta;
-      auto tensors = load_safetensors(file, &meta);
-      load_model_weights(*vae, tensors, {meta.count("model_signature") ? meta["model_signature"] : "", ""}, signature,
-                         file);
-      spdlog::info("init: VAE weights of the earlier stage from {}", file);
+      load_earlier_stage(*vae, cfg.init.path, signature);
     }
     if (cfg.init.from == "scratch") initialise_vae_for_training(vae);
     vae->to(device);
@@ -83,12 +89,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
     auto report = decoder->load_pretrained_vae(cfg.init.path);
     spdlog::info("init: {}", report.summary());
   } else if (cfg.init.from == "checkpoint") {
-    const std::string file = resolve_model_file(cfg.init.path);
-    Metadata meta;
-    auto tensors = load_safetensors(file, &meta);
-    load_model_weights(*decoder, tensors, {meta.count("model_signature") ? meta["model_signature"] : "", ""}, signature,
-                       file);
-    spdlog::info("init: model weights of the earlier stage from {}", file);
+    load_earlier_stage(*decoder, cfg.init.path, signature);
   }
   decoder->to(device);
   pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
