@@ -22,10 +22,12 @@ BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 R="$ROOT/runs/recipe"
 ROOMS="${RECIPE_ROOMS:-256}"; VAL="${RECIPE_VAL_ROOMS:-16}"; FRAMES="${RECIPE_FRAMES:-49}"; SIZE=176x320
 DIM="${RECIPE_DIM:-32}"
-VAE_IMAGE_STEPS="${RECIPE_VAE_IMAGE_STEPS:-3000}"; VAE_IMAGE_SECONDS="${RECIPE_VAE_IMAGE_SECONDS:-120}"
-VAE_STEPS="${RECIPE_VAE_STEPS:-1000}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-90}"
-S1_STEPS="${RECIPE_S1_STEPS:-1500}"; S1_SECONDS="${RECIPE_S1_SECONDS:-270}"
-S2_STEPS="${RECIPE_S2_STEPS:-300}"; S2_SECONDS="${RECIPE_S2_SECONDS:-150}"
+# Steps of record (docs/training.md, 2026-11-25); the seconds bound each run
+# (it checkpoints and stops on SIGTERM) so that a phase fits one device call.
+VAE_IMAGE_STEPS="${RECIPE_VAE_IMAGE_STEPS:-1200}"; VAE_IMAGE_SECONDS="${RECIPE_VAE_IMAGE_SECONDS:-120}"
+VAE_STEPS="${RECIPE_VAE_STEPS:-500}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-90}"
+S1_STEPS="${RECIPE_S1_STEPS:-800}"; S1_SECONDS="${RECIPE_S1_SECONDS:-200}"
+S2_STEPS="${RECIPE_S2_STEPS:-200}"; S2_SECONDS="${RECIPE_S2_SECONDS:-95}"
 T0=$(date +%s)
 summary=()
 note() { summary+=("$(printf '%4d s  %s' $(( $(date +%s) - T0 )) "$1")"); echo "[recipe $(( $(date +%s) - T0 )) s] $1"; }
@@ -67,23 +69,27 @@ if [ "$PHASE" = "data" ]; then
   fi
   # Windows of 49 for stage 2 and random-encoder latents for the control: the
   # same rooms hard-linked (flat_latents replaces files by renaming them).
+  # Two processes at a time, threads bounded: six unbounded ones on 16 cores
+  # took over 10 minutes (2026-11-25); two of 8 threads take 40 s a set.
   cp -al "$R/data" "$R/data49"; cp -al "$R/data" "$R/data_random"
-  for split in train val; do
-    "$BUILD/flat_latents" --scenes "$R/data/$split" --vae "$R/vae/vae.safetensors" --window 17 --step 16 \
-      --device cuda --log-level warn >"$OUT/latents_$split.log" 2>&1 &
-    "$BUILD/flat_latents" --scenes "$R/data49/$split" --vae "$R/vae/vae.safetensors" --window 49 \
-      --device cuda --log-level warn >"$OUT/latents49_$split.log" 2>&1 &
-    "$BUILD/flat_latents" --scenes "$R/data_random/$split" --random-weights --seed 0 --dim "$DIM" --window 17 \
-      --step 16 --device cuda --log-level warn >"$OUT/latents_random_$split.log" 2>&1 &
-  done
-  wait
+  latents() {  # folder, log, flat_latents arguments...
+    local d=$1 log=$2; shift 2
+    for split in train val; do
+      OMP_NUM_THREADS=8 "$BUILD/flat_latents" --scenes "$d/$split" "$@" --device cuda >"$OUT/${log}_$split.log" 2>&1 &
+    done
+    wait
+  }
+  latents "$R/data" latents --vae "$R/vae/vae.safetensors" --window 17 --step 32
+  latents "$R/data49" latents49 --vae "$R/vae/vae.safetensors" --window 49
+  latents "$R/data_random" latents_random --random-weights --seed 0 --dim "$DIM" --window 17 --step 32
   note "latents: trained encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_train.log" | tail -1); random encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_random_train.log" | tail -1)"
-  grep -E "correlate|error" "$OUT"/latents*.log | cut -c1-220
+  grep -hE "correlate|error" "$OUT"/latents*.log | cut -c1-220
 fi
 
 if [ "$PHASE" = "train" ]; then
   [ -f "$R/vae/vae.safetensors" ] || { echo "no $R/vae/vae.safetensors: run the data phase first (same warm machine)"; exit 1; }
-  common=(--set pipeline.model.vae.dim="$DIM" --set steps="$S1_STEPS")
+  export OMP_NUM_THREADS=4  # three trainings side by side on 16 cores
+  common=(--set pipeline.model.vae.dim="$DIM" --set steps="$S1_STEPS" --set threads=4 --set data.workers=3)
   timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
     >"$OUT/stage1.log" 2>&1 &
   timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
@@ -98,10 +104,10 @@ if [ "$PHASE" = "train" ]; then
   timeout -s TERM "$S2_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage2.yaml --set pipeline.model.vae.dim="$DIM" \
     --set steps="$S2_STEPS" --set data.unseen_fraction=0 >"$OUT/stage2.log" 2>&1
   note "stage2 rc=$?: $(grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$OUT/stage2.log" | tail -1 | cut -c1-200)"
-  # Held-out rooms, every frame of each (17 scored views spread over the 49).
+  # Held-out rooms: 9 views of each spread over its 49 frames.
   for r in stage1 control_scratch control_random stage2; do
     data="$R/data/val"; [ "$r" = control_random ] && data="$R/data_random/val"; [ "$r" = stage2 ] && data="$R/data49/val"
-    "$BUILD/flat_eval" --model "$R/$r" --scenes "heldout=$data" --out "$R/eval_$r" --name "$r" --max-views 17 \
+    "$BUILD/flat_eval" --model "$R/$r" --scenes "heldout=$data" --out "$R/eval_$r" --name "$r" --max-views 9 \
       --device cuda >"$OUT/eval_$r.log" 2>&1 &
   done
   wait

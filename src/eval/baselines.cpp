@@ -21,6 +21,21 @@ void FrameSums::add(int64_t frame, const at::Tensor& image) {
   it->second.second += 1;
 }
 
+void FrameSums::add(const FrameSums& other) {
+  for (const auto& [frame, sum] : other.sums_) {
+    auto it = sums_.find(frame);
+    if (it == sums_.end()) {
+      sums_[frame] = {sum.first.clone(), sum.second};
+      continue;
+    }
+    FLAT_CHECK(it->second.first.sizes() == sum.first.sizes(),
+               "FrameSums: frame " + std::to_string(frame) + " of size " + shape_str(sum.first) +
+                   " differs from the dataset's " + shape_str(it->second.first));
+    it->second.first += sum.first;
+    it->second.second += sum.second;
+  }
+}
+
 std::optional<at::Tensor> FrameSums::leave_one_out(int64_t frame, const at::Tensor& own) const {
   auto it = sums_.find(frame);
   if (it == sums_.end() || it->second.second < 2 || it->second.first.sizes() != own.sizes()) return std::nullopt;

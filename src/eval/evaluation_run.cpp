@@ -151,7 +151,7 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
         auto scene = data::read_scene(scenes[i].dir, /*check_files=*/true);
         FrameSums sums_of_scene;
         add_frame_sums(sums_of_scene, scene, settings_run);  // whole or not at all
-        add_frame_sums(frame_sums[scenes[i].dataset], scene, settings_run);
+        frame_sums[scenes[i].dataset].add(sums_of_scene);
         loaded[i] = std::move(scene);
         members[scenes[i].dataset].push_back(i);
       } catch (const std::exception&) {

@@ -136,6 +136,7 @@ ValidationResult validate_vae(model::WanVAE& vae, data::Loader& loader, int64_t 
   const auto device = vae->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
   std::vector<at::Tensor> latents;
+  int64_t grid_rows = 0;
   for (int64_t i = first; i < samples; i += stride) {
     data::Batch batch = loader.batch(i);
     const at::Tensor video = vae_video(batch, device);
@@ -150,16 +151,15 @@ ValidationResult validate_vae(model::WanVAE& vae, data::Loader& loader, int64_t 
       base += eval::psnr(target.mean({2, 3}, true).expand_as(target), target).sum().item<double>();
       r.views += target.size(0);
       latents.push_back(mu[b].cpu());
-      if (i == 0 && b == 0 && grid_views > 0) {
-        const int64_t V = std::min<int64_t>(grid_views, target.size(0));
-        std::vector<at::Tensor> rows;
-        for (int64_t v = 0; v < V; ++v) {
-          std::vector<at::Tensor> tiles;
-          for (const auto& c : {target, rgb})
-            tiles.push_back(at::constant_pad_nd(c[v].to(at::kCPU, at::kFloat), {0, 2, 0, 2}, 1.0));
-          rows.push_back(at::cat(tiles, 2));
-        }
-        r.grid = at::cat(rows, 1).contiguous();
+      // Grid rows: the last frame of each of this rank's first windows (input | reconstruction).
+      if (grid_rows < grid_views) {
+        const int64_t last = target.size(0) - 1;
+        std::vector<at::Tensor> tiles;
+        for (const auto& c : {target, rgb})
+          tiles.push_back(at::constant_pad_nd(c[last].to(at::kCPU, at::kFloat), {0, 2, 0, 2}, 1.0));
+        auto row = at::cat(tiles, 2);
+        r.grid = r.grid.defined() ? at::cat({r.grid, row}, 1).contiguous() : row.contiguous();
+        ++grid_rows;
       }
     }
     r.samples += video.size(0);

@@ -109,6 +109,7 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   torch::NoGradGuard no_grad;
   ValidationResult r;
   double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0, swap_views = 0;
+  int64_t grid_rows = 0;
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
@@ -152,7 +153,13 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
         }
       }
       r.views += target.size(0);
-      if (i == 0 && b == 0 && grid_views > 0) r.grid = validation_grid(views, batch, b, grid_views);
+      // Grid rows: the first view of each of this rank's first samples, so
+      // that a reader sees whether each held-out scene gets its own layout.
+      if (grid_rows < grid_views) {
+        auto row = validation_grid(views, batch, b, 1);
+        r.grid = r.grid.defined() ? at::cat({r.grid, row}, 1) : row;
+        ++grid_rows;
+      }
     }
     r.samples += soup.batch();
   }

@@ -134,6 +134,13 @@ TEST_CASE("baselines: leave-one-out frame mean, cyclic swap partners, mean-colou
   CHECK_FALSE(sums.leave_one_out(1, x).has_value());  // no other scene has frame 1
   CHECK_FALSE(sums.leave_one_out(2, x).has_value());
   REQUIRE_THROWS_WITH(sums.add(0, torch::zeros({3, 2, 2})), FLAT_CONTAINS("frame 0"));
+  // Merging sets equals adding their frames one by one.
+  eval::FrameSums a, b;
+  a.add(0, x);
+  b.add(0, y);
+  b.add(0, z);
+  a.add(b);
+  CHECK(flat::test::rel_error(*a.leave_one_out(0, y), torch::full({3, 4, 5}, 0.6)) < 1e-6);  // (0.2 + 1.0) / 2
   CHECK(*eval::swap_partner(0, 3) == 1);
   CHECK(*eval::swap_partner(2, 3) == 0);
   CHECK_FALSE(eval::swap_partner(0, 1).has_value());

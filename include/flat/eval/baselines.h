@@ -25,6 +25,7 @@ namespace flat::eval {
 class FrameSums {
  public:
   void add(int64_t frame, const at::Tensor& image);  // image (3,H,W) in [0,1]
+  void add(const FrameSums& other);                   // every frame of another set
   // The mean of the other scenes' frame `frame` (own excluded), or nothing when
   // no other scene has that frame at that size.
   std::optional<at::Tensor> leave_one_out(int64_t frame, const at::Tensor& own) const;

@@ -104,13 +104,14 @@ struct ValidationConfig {
   std::vector<data::DatasetSource> datasets;  // held-out scenes (empty: no validation)
   int64_t every = 1000;                       // steps (and before the first and after the last)
   int64_t scenes = 4;                         // held-out samples per validation
-  int64_t grid_views = 4;                     // views in the PNG grid (0 = none)
+  int64_t grid_views = 4;                     // samples in the PNG grid, one view each (0 = none)
   template <class V>
   void visit(V& v) {
     v.list("datasets", datasets);
     v.field("every", every, config::positive(), "validate every N steps");
     v.field("scenes", scenes, config::positive(), "held-out samples per validation");
-    v.field("grid_views", grid_views, config::non_negative(), "views in the validation image grid (0 = none)");
+    v.field("grid_views", grid_views, config::non_negative(),
+            "held-out samples in the validation image grid, one view each (0 = none)");
   }
 };
 

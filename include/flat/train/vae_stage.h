@@ -50,7 +50,8 @@ StepResult vae_forward_backward(model::WanVAE& vae, const VaeStageConfig& cfg, l
 // Reconstructs the input windows of samples 0..samples-1 from their mean
 // latent (no sampling) and scores every frame: PSNR, SSIM, LPIPS, the
 // mean-colour baseline, and the spread of the latents across samples
-// (eval/latent_spread.h). Grid: per frame, input | reconstruction.
+// (eval/latent_spread.h). Grid: the last frame of each of the first
+// `grid_views` windows, input | reconstruction.
 ValidationResult validate_vae(model::WanVAE& vae, data::Loader& loader, int64_t samples, loss::Lpips lpips,
                               int64_t grid_views, distributed::ProcessGroup* group = nullptr);
 

@@ -35,7 +35,7 @@ struct ValidationResult {
   double swap_psnr = NAN;          // renders against the next other-scene sample's ground truth
   double latent_correlation = NAN; // VAE stage: mean Pearson correlation of the samples' latents
   int64_t samples = 0, views = 0;
-  at::Tensor grid;             // (3,H',W') in [0,1]: one row per view (see grid())
+  at::Tensor grid;             // (3,H',W') in [0,1]: one row per sample (its first view)
   Scalars scalars() const;     // "val_psnr", "val_ssim", ...
 };
 
@@ -50,6 +50,8 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 // rank calls it) rank r scores batches r, r + W, ... and the sums are added
 // over the ranks: every rank gets the scores of all samples, rank 0 the grid
 // (of batch 0).
+// The grid holds the first view of each of the first `grid_views` samples
+// (one row each), so that different held-out scenes can be told apart.
 // dataset_mean: (3,H,W) in [0,1], the training set's mean image at the
 // validation size (training_mean_image), or undefined (no such baseline).
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
