@@ -8,6 +8,7 @@
 #include "flat/core/autocast_scope.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
 #include "flat/eval/latent_spread.h"
 #include "flat/model/weights.h"
@@ -148,7 +149,7 @@ ValidationResult validate_vae(model::WanVAE& vae, data::Loader& loader, int64_t 
       psnr += eval::psnr(rgb, target).sum().item<double>();
       ssim += eval::ssim(rgb, target).sum().item<double>();
       if (!lpips.is_empty()) lp += eval::lpips(lpips, rgb, target, 512, 4).sum().item<double>();
-      base += eval::psnr(target.mean({2, 3}, true).expand_as(target), target).sum().item<double>();
+      base += eval::mean_colour_psnr(target).sum().item<double>();
       r.views += target.size(0);
       latents.push_back(mu[b].cpu());
       // Grid rows: the last frame of each of this rank's first windows (input | reconstruction).

@@ -1,6 +1,8 @@
 #include "flat/train/validation.h"
 
 #include <cmath>
+#include <map>
+#include <utility>
 
 #include <torch/torch.h>
 
@@ -8,6 +10,7 @@
 #include "flat/core/image_io.h"
 #include "flat/core/shape.h"
 #include "flat/core/tensor_io.h"
+#include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
 #include "flat/eval/normal_metrics.h"
 
@@ -113,8 +116,20 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
+  // Each sample's scene and target images, loaded once whether it is scored
+  // here or only a swap partner.
+  std::map<int64_t, std::pair<std::string, at::Tensor>> held_out;
+  auto targets_of = [&](int64_t index) -> const std::pair<std::string, at::Tensor>& {
+    auto it = held_out.find(index);
+    if (it == held_out.end()) {
+      data::Batch other = loader.batch(index);
+      it = held_out.emplace(index, std::make_pair(other.scenes[0], other.target_images[0])).first;
+    }
+    return it->second;
+  };
   for (int64_t i = first; i < samples; i += stride) {
     data::Batch batch = loader.batch(i);
+    held_out.emplace(i, std::make_pair(batch.scenes[0], batch.target_images[0]));
     pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
     auto soup = pipeline.decode(in);
     for (int64_t b = 0; b < soup.batch(); ++b) {
@@ -125,20 +140,19 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
       psnr += eval::psnr(rgb, target).sum().item<double>();
       ssim += eval::ssim(rgb, target).sum().item<double>();
       if (!lpips.is_empty()) lp += eval::lpips(lpips, rgb, target, 512, 4).sum().item<double>();
-      auto mean_colour = target.mean({2, 3}, true).expand_as(target);
-      base += eval::psnr(mean_colour, target).sum().item<double>();
+      base += eval::mean_colour_psnr(target).sum().item<double>();
       if (dataset_mean.defined())
         mean_image += eval::psnr(dataset_mean.to(device).unsqueeze(0).expand_as(target), target).sum().item<double>();
       // Swap: the same renders against the views of the next sample of
       // another scene (same view index); samples are drawn with replacement,
       // and a sample of the same scene is no swap.
-      data::Batch partner;
-      for (int64_t k = 1; k < samples && !partner.target_images.defined(); ++k) {
-        data::Batch candidate = loader.batch((i + k) % samples);
-        if (candidate.scenes[0] != batch.scenes[b]) partner = std::move(candidate);
+      at::Tensor partner;
+      for (int64_t k = 1; k < samples && !partner.defined(); ++k) {
+        const auto& candidate = targets_of((i + k) % samples);
+        if (candidate.first != batch.scenes[b]) partner = candidate.second;
       }
-      if (partner.target_images.defined()) {
-        auto other = partner.target_images[0].to(device, at::kFloat);
+      if (partner.defined()) {
+        auto other = partner.to(device, at::kFloat);
         FLAT_CHECK(other.sizes() == target.sizes(), "validation: the swap baseline needs samples of the same views "
                                                     "and size, got " + shape_str(other) + " and " + shape_str(target));
         swap += eval::psnr(rgb, other).sum().item<double>();
