@@ -25,13 +25,25 @@
 namespace flat::config {
 namespace {
 
-// " (line N)" for nodes that came from a parsed file; "" for nodes built in
-// code (overrides), whose line would mean nothing, and for empty values, which
-// yaml-cpp marks at the token after them (often the next line).
+// " (line N, column C)" for nodes that came from a parsed file; "" for nodes
+// built in code (overrides), whose place would mean nothing, and for empty
+// values, which yaml-cpp marks at the token after them (often the next line).
 std::string line_of(const YAML::Node& n) {
   const YAML::Mark m = n.Mark();
   if (n.IsNull() || m.is_null() || m.line < 0) return "";
-  return " (line " + std::to_string(m.line + 1) + ")";
+  return " (line " + std::to_string(m.line + 1) + ", column " + std::to_string(m.column + 1) + ")";
+}
+
+// A copy of `n` whose maps are new nodes (writing into them never reaches
+// the source, e.g. through an alias) while keys, scalars and lists are the
+// source's own nodes, never written into: they keep their marks, so errors
+// name the real line and column. (YAML::Clone marks every node it makes
+// line 1, column 1.)
+YAML::Node copy_tree(const YAML::Node& n) {
+  if (!n.IsMap()) return n;
+  YAML::Node m(YAML::NodeType::Map);
+  for (const auto& kv : n) m.force_insert(kv.first, copy_tree(kv.second));
+  return m;
 }
 
 // How a node that had the wrong type looks to the user: 'text', a list, a map.
@@ -146,9 +158,19 @@ YAML::Node unmarked_copy(const YAML::Node& n) {
 
 // Sets parent[key] = value as a new entry. Assigning through operator= would
 // write into the existing node, which a YAML alias may share with other keys.
+// The key keeps its node (and so its line) when it was there.
 void replace_entry(YAML::Node& parent, const std::string& key, const YAML::Node& value) {
+  YAML::Node key_node;  // (a default Node counts as defined: `found` says whether it was set)
+  bool found = false;
+  for (const auto& kv : parent)
+    if (kv.first.IsScalar() && kv.first.Scalar() == key) {
+      key_node = kv.first;
+      found = true;
+      break;
+    }
   parent.remove(key);
-  parent[key] = value;
+  if (found) parent.force_insert(key_node, value);
+  else parent[key] = value;
 }
 
 void apply_override(YAML::Node& root, const std::string& ov, const std::string& label) {
@@ -182,7 +204,7 @@ void apply_override(YAML::Node& root, const std::string& ov, const std::string& 
     if (!child || child.IsNull()) {
       replace_entry(cur, parts[i], YAML::Node(YAML::NodeType::Map));
     } else if (child.IsMap()) {
-      replace_entry(cur, parts[i], YAML::Clone(child));  // unshare before writing into it
+      replace_entry(cur, parts[i], copy_tree(child));  // unshare before writing into it
     } else {
       fail(what + ": '" + path + "' is " + describe(child) + line_of(child) + ", not a section of keys");
     }
@@ -441,15 +463,23 @@ void rethrow_checked(const Where& where, const std::string& message) {
 }
 
 YAML::Node merge(const YAML::Node& base, const YAML::Node& overlay) {
-  if (!overlay.IsDefined() || overlay.IsNull()) return YAML::Clone(base);
-  if (!base.IsMap() || !overlay.IsMap()) return YAML::Clone(overlay);
-  YAML::Node out = YAML::Clone(base);
+  if (!overlay.IsDefined() || overlay.IsNull()) return copy_tree(base);
+  if (!base.IsMap() || !overlay.IsMap()) return copy_tree(overlay);
+  YAML::Node out = copy_tree(base);
+  std::vector<std::string> from_overlay;
   for (const auto& kv : overlay) {
     const std::string key = kv.first.Scalar();
+    // A key the overlay gives twice stays twice, for the reader to refuse with both lines.
+    if (std::find(from_overlay.begin(), from_overlay.end(), key) != from_overlay.end()) {
+      out.force_insert(kv.first, copy_tree(kv.second));
+      continue;
+    }
+    from_overlay.push_back(key);
     const YAML::Node& view = out;  // const lookup never inserts
     YAML::Node mine = view[key];
-    YAML::Node merged = mine ? merge(mine, kv.second) : YAML::Clone(kv.second);
-    replace_entry(out, key, merged);
+    YAML::Node merged = mine ? merge(mine, kv.second) : copy_tree(kv.second);
+    out.remove(key);
+    out.force_insert(kv.first, merged);  // the overlay's key node: its line
   }
   return out;
 }

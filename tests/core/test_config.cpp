@@ -102,11 +102,11 @@ struct BadCase {
 const std::vector<BadCase>& bad_cases() {
   static const std::vector<BadCase> cases = {
       {"unknown_key_suggestion", "name: x\nraster:\n  esp: 0.2\n", {},
-       {"unknown key 'raster.esp' (line 3)", "did you mean 'raster.eps'?"}},
+       {"unknown key 'raster.esp' (line 3, column 3)", "did you mean 'raster.eps'?"}},
       {"unknown_key_in_list_item", "name: x\nviews:\n  - name: a\n    wieght: 2\n", {},
        {"unknown key 'views[0].wieght'", "did you mean 'views[0].weight'?"}},
       {"unknown_key_no_suggestion", "name: x\nzzzzzz: 1\n", {}, {"unknown key 'zzzzzz'"}},
-      {"int_wrong_type", "name: x\nseed: abc\n", {}, {"'seed': expected an integer, got 'abc' (line 2)"}},
+      {"int_wrong_type", "name: x\nseed: abc\n", {}, {"'seed': expected an integer, got 'abc' (line 2, column 7)"}},
       {"int_rejects_fraction", "name: x\nseed: 1.5\n", {}, {"'seed': expected an integer, got '1.5'"}},
       {"int_out_of_range", "name: x\nseed: 3000000000\n", {},
        {"'seed': expected an integer in [-2147483648, 2147483647], got '3000000000'"}},
@@ -139,12 +139,12 @@ const std::vector<BadCase>& bad_cases() {
       {"top_level_list", "- a\n- b\n", {}, {"top level must be a map of keys"}},
       {"top_level_scalar", "just text\n", {}, {"top level must be a map of keys"}},
       {"section_not_map", "name: x\nraster: [1, 2]\n", {},
-       {"'raster': expected a section (a map of keys), got a list (line 2)"}},
+       {"'raster': expected a section (a map of keys), got a list (line 2, column 9)"}},
       {"section_scalar", "name: x\noptim: 3\n", {}, {"'optim': expected a section (a map of keys), got '3'"}},
       {"list_not_sequence", "name: x\nviews: abc\n", {}, {"'views': expected a list, got 'abc'"}},
       {"list_item_not_map", "name: x\nviews:\n  - 3\n", {}, {"'views[0]': expected a section (a map of keys), got '3'"}},
       {"vector_not_sequence", "name: x\noptim:\n  milestones: 5\n", {}, {"'optim.milestones': expected a list, got '5'"}},
-      {"duplicate_key", "name: x\nseed: 1\nseed: 2\n", {}, {"duplicate key 'seed' (line 3), first given (line 2)"}},
+      {"duplicate_key", "name: x\nseed: 1\nseed: 2\n", {}, {"duplicate key 'seed' (line 3, column 1), first given (line 2, column 1)"}},
       {"duplicate_key_nested", "name: x\nraster:\n  eps: 0.1\n  eps: 0.2\n", {}, {"duplicate key 'raster.eps'"}},
       {"override_no_equals", "name: x\n", {"seed"}, {"override 'seed': expected key.path=value"}},
       {"override_empty_key", "name: x\n", {"=3"}, {"override '=3': empty key"}},
@@ -182,11 +182,11 @@ TEST_CASE("config: an unknown key far from every known key gets no suggestion", 
 
 TEST_CASE("config: every unknown key is listed, each with its path", "[config]") {
   const auto message = error_of([] { config::parse<TestCfg>("name: x\nsed: 1\nrastr: {}\n", "t.yaml"); });
-  CHECK(message.find("t.yaml: unknown key 'sed' (line 2), did you mean 'seed'?") != std::string::npos);
-  CHECK(message.find("t.yaml: unknown key 'rastr' (line 3), did you mean 'raster'?") != std::string::npos);
+  CHECK(message.find("t.yaml: unknown key 'sed' (line 2, column 1), did you mean 'seed'?") != std::string::npos);
+  CHECK(message.find("t.yaml: unknown key 'rastr' (line 3, column 1), did you mean 'raster'?") != std::string::npos);
   // Nested sections name the full path of their unknown keys.
   const auto nested = error_of([] { config::parse<TestCfg>("name: x\nraster:\n  windw: ts\n", "t.yaml"); });
-  CHECK(nested.find("unknown key 'raster.windw' (line 3), did you mean 'raster.window'?") != std::string::npos);
+  CHECK(nested.find("unknown key 'raster.windw' (line 3, column 3), did you mean 'raster.window'?") != std::string::npos);
 }
 
 TEST_CASE("config: absent, empty and partial sections keep their defaults", "[config]") {
@@ -391,6 +391,31 @@ TEST_CASE("config: files layer over defaults key by key, lists replace, --set co
   const auto typo = error_of([&] { config::load_layered<LayeredCfg>(defaults, "<defaults>", {file}); });
   CHECK(typo.find(file) != std::string::npos);
   CHECK(typo.find("depth.nearr") != std::string::npos);
+}
+
+TEST_CASE("config: errors give the real line and column, also through layering and --set", "[config]") {
+  const auto dir = flat::test::scratch_dir("config_marks");
+  const std::string file = (dir / "stage.yaml").string();
+  // As flat_train reads a stage file: layered over defaults ("" or a text), then --set.
+  write_text(file, "name: x\n# a comment\n\n\n\n\n\n\nsteps: many\n");
+  for (const std::string defaults : {"", "name: tiny\nsteps: 3\n"}) {
+    const auto msg = error_of([&] { config::load_layered<LayeredCfg>(defaults, "<defaults>", {file}, {"views=[3]"}); });
+    INFO(msg);
+    CHECK(msg.find("'steps': expected an integer, got 'many' (line 9, column 8)") != std::string::npos);
+  }
+  write_text(file, "name: x\nsteps: 1\nsteps: 2\n");
+  for (const std::string defaults : {"", "steps: 3\n"}) {
+    const auto msg = error_of([&] { config::load_layered<LayeredCfg>(defaults, "<defaults>", {file}); });
+    INFO(msg);
+    CHECK(msg.find("duplicate key 'steps' (line 3, column 1), first given (line 2, column 1)") != std::string::npos);
+  }
+  // A key inside a section that the defaults also give, and that a --set writes into.
+  write_text(file, "name: x\ndepth:\n  far: 9\n  nearr: 1\n");
+  const auto msg = error_of([&] {
+    config::load_layered<LayeredCfg>("depth: {near: 2, far: 4}\n", "<defaults>", {file}, {"depth.far=7"});
+  });
+  INFO(msg);
+  CHECK(msg.find("unknown key 'depth.nearr' (line 4, column 3)") != std::string::npos);
 }
 
 TEST_CASE("config: the describer lists every key with its default", "[config]") {
