@@ -11,7 +11,7 @@
 // rank; --nproc N starts N such processes itself (distributed/local_launcher.h).
 //
 // Exit codes: 0 finished, 1 runtime error (message names the file or key; a
-// failed rank), 2 usage error, 128 + signal when stopped by SIGINT/SIGTERM
+// failed rank), 2 usage error, 128 + signal when stopped by SIGINT/SIGTERM/SIGHUP
 // (checkpoint written).
 #include <cstdlib>
 #include <iostream>
@@ -37,7 +37,9 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--resume", resume_dir, "continue the run in this folder from its newest checkpoint");
   app.add_option("--set", overrides, "override a key: --set steps=500 --set optim.lr=2e-4")->take_all();
-  app.add_flag("--overwrite", overwrite, "delete what run_dir holds and start afresh");
+  app.add_flag("--overwrite", overwrite,
+               "start afresh in a run_dir that holds a run (replaced only once the new run has loaded everything; "
+               "a folder that is not a run folder is refused)");
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error (default: the config's log.level)")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   app.add_option("--device", device, "auto | cpu | cuda: overrides the config's device (auto = cuda when present)")

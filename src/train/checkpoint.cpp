@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
@@ -57,6 +58,39 @@ void maybe_kill_for_test(int64_t step) {
   if (v && std::to_string(step) == v) std::raise(SIGKILL);
 }
 
+// "'<key>': N non-finite value(s)" for the first floating tensor of `m` that
+// holds NaN or Inf; "" when all are finite.
+std::string first_nonfinite(const TensorMap& m) {
+  for (const auto& [name, t] : m) {
+    if (!t.defined() || !t.is_floating_point() || t.numel() == 0) continue;
+    const int64_t bad = (~at::isfinite(t)).sum().item<int64_t>();
+    if (bad > 0) return "'" + name + "': " + std::to_string(bad) + " non-finite value(s) (NaN or Inf)";
+  }
+  return "";
+}
+
+// The consecutive_skips a checkpoint was written with; -1 when unreadable.
+int64_t consecutive_skips_of(const std::string& dir) {
+  try {
+    std::ifstream in(dir + "/trainer.json");
+    return nlohmann::json::parse(in).at("consecutive_skips").get<int64_t>();
+  } catch (const std::exception&) {
+    return -1;
+  }
+}
+
+void remove_incomplete(const std::string& checkpoints_dir) {
+  std::error_code ec;
+  if (!fs::is_directory(checkpoints_dir, ec)) return;
+  for (const auto& e : fs::directory_iterator(checkpoints_dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind(kIncomplete, 0) == 0) {
+      spdlog::warn("checkpoints: removing '{}', left by a write that did not finish", e.path().string());
+      fs::remove_all(e.path(), ec);
+    }
+  }
+}
+
 std::string read_text(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(path + ": cannot open for reading");
@@ -86,16 +120,7 @@ std::vector<std::string> list_checkpoints(const std::string& checkpoints_dir) {
 }
 
 std::string latest_checkpoint(const std::string& checkpoints_dir) {
-  std::error_code ec;
-  if (fs::is_directory(checkpoints_dir, ec)) {
-    for (const auto& e : fs::directory_iterator(checkpoints_dir, ec)) {
-      const std::string name = e.path().filename().string();
-      if (name.rfind(kIncomplete, 0) == 0) {
-        spdlog::warn("checkpoints: removing '{}', left by a write that did not finish", e.path().string());
-        fs::remove_all(e.path(), ec);
-      }
-    }
-  }
+  remove_incomplete(checkpoints_dir);
   auto all = list_checkpoints(checkpoints_dir);
   return all.empty() ? std::string() : all.back();
 }
@@ -103,11 +128,19 @@ std::string latest_checkpoint(const std::string& checkpoints_dir) {
 std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
                             const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
                             int64_t keep) {
+  const std::string name = step_name(state.step);
+  const std::string final_dir = checkpoints_dir + "/" + name;
+  // A checkpoint of NaN weights would only ever be resumed into NaN steps.
+  TensorMap weights;
+  for (const auto& p : model.named_parameters()) weights[p.key()] = p.value();
+  for (const auto& b : model.named_buffers()) weights[b.key()] = b.value();
+  const std::string bad = first_nonfinite(weights);
+  if (!bad.empty())
+    fail(final_dir + ": not written: the model's weights hold NaN or Inf (" + bad +
+         "); the checkpoints already there are left as they were");
   std::error_code ec;
   fs::create_directories(checkpoints_dir, ec);
   if (ec) fail(checkpoints_dir + ": cannot create the checkpoint folder (" + ec.message() + ")");
-  const std::string name = step_name(state.step);
-  const std::string final_dir = checkpoints_dir + "/" + name;
   const std::string tmp = checkpoints_dir + "/" + kIncomplete + name + "." + std::to_string(::getpid());
   fs::remove_all(tmp, ec);
   fs::create_directories(tmp, ec);
@@ -134,8 +167,14 @@ std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerSta
   if (ec) fail(final_dir + ": cannot move the finished checkpoint into place (" + ec.message() + ")");
   fsync_dir(checkpoints_dir);
 
+  // The newest `keep`, and the newest good one (written while no step was
+  // being skipped) whatever its age: never pruned to make room for a worse one.
   auto all = list_checkpoints(checkpoints_dir);
-  for (size_t i = 0; i + size_t(keep) < all.size(); ++i) fs::remove_all(all[i], ec);
+  std::string last_good;
+  for (auto it = all.rbegin(); it != all.rend() && last_good.empty(); ++it)
+    if (consecutive_skips_of(*it) == 0) last_good = *it;
+  for (size_t i = 0; i + size_t(keep) < all.size(); ++i)
+    if (all[i] != last_good) fs::remove_all(all[i], ec);
   return final_dir;
 }
 
@@ -163,6 +202,49 @@ LoadedCheckpoint read_checkpoint(const std::string& dir) {
   c.optimiser = load_safetensors(dir + "/optimizer.safetensors");
   c.rng = load_safetensors(dir + "/rng.safetensors");
   return c;
+}
+
+std::optional<LoadedCheckpoint> load_newest_intact_checkpoint(const std::string& checkpoints_dir,
+                                                               std::vector<std::string>* skipped) {
+  remove_incomplete(checkpoints_dir);
+  // Every step_N folder, trainer.json or not (one without it is named, not passed over in silence).
+  std::vector<std::pair<int64_t, std::string>> found;
+  std::error_code ec;
+  if (fs::is_directory(checkpoints_dir, ec))
+    for (const auto& e : fs::directory_iterator(checkpoints_dir, ec)) {
+      const int64_t step = step_of(e.path().filename().string());
+      if (step >= 0 && e.is_directory()) found.push_back({step, e.path().string()});
+    }
+  std::sort(found.rbegin(), found.rend());
+  std::vector<std::pair<std::string, std::string>> broken;  // folder, why
+  for (const auto& [step, dir] : found) {
+    std::string why;
+    try {
+      LoadedCheckpoint c = read_checkpoint(dir);
+      why = first_nonfinite(c.model);
+      if (!why.empty()) why = dir + "/model.safetensors: " + why;
+      else if (!(why = first_nonfinite(c.optimiser)).empty()) why = dir + "/optimizer.safetensors: " + why;
+      if (why.empty()) {
+        for (const auto& [bad_dir, reason] : broken) {
+          const std::string aside = bad_dir + ".broken-" + std::to_string(::getpid());
+          fs::rename(bad_dir, aside, ec);
+          spdlog::warn("resume: skipped checkpoint {}: {}; {}", bad_dir, reason,
+                       ec ? "left in place (cannot move it aside: " + ec.message() + ")"
+                          : "moved to " + aside + " for inspection");
+          if (skipped) skipped->push_back(bad_dir + ": " + reason);
+        }
+        if (!broken.empty()) spdlog::warn("resume: falling back to {}, the newest intact checkpoint", dir);
+        return c;
+      }
+    } catch (const std::exception& e) {
+      why = e.what();
+    }
+    broken.push_back({dir, why});
+  }
+  if (broken.empty()) return std::nullopt;
+  std::string list;
+  for (const auto& [dir, why] : broken) list += "\n  " + dir + ": " + why;
+  fail(checkpoints_dir + ": no intact checkpoint to resume from; every one fails:" + list);
 }
 
 TensorMap capture_rng() {

@@ -1,9 +1,12 @@
 #include "flat/train/trainer.h"
 
+#include <unistd.h>
+
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdlib>
 #include <ctime>
 #include <filesystem>
 #include <optional>
@@ -66,18 +69,21 @@ extern "C" void on_stop_signal(int sig) {
   std::raise(sig);
 }
 
+// SIGHUP (a closed terminal or SSH session) is a stop request too.
 struct StopSignals {
   using Handler = void (*)(int);
-  Handler old_int, old_term;
+  Handler old_int, old_term, old_hup;
   explicit StopSignals(bool merge_repeats) {
     g_stop_signal.store(0);
     g_merge_repeats.store(merge_repeats);
     old_int = std::signal(SIGINT, on_stop_signal);
     old_term = std::signal(SIGTERM, on_stop_signal);
+    old_hup = std::signal(SIGHUP, on_stop_signal);
   }
   ~StopSignals() {
     std::signal(SIGINT, old_int);
     std::signal(SIGTERM, old_term);
+    std::signal(SIGHUP, old_hup);
   }
 };
 
@@ -95,6 +101,16 @@ void setup_rank_logging(const std::string& level, const distributed::Distributed
   spdlog::set_default_logger(logger);
 }
 
+// The test hook of kSignalInValidationEnv: "<step>" or "<step>:<signal>".
+void signal_for_test(int64_t step) {
+  const char* v = std::getenv(kSignalInValidationEnv);
+  if (!v) return;
+  const std::string text = v;
+  const auto colon = text.find(':');
+  if (text.substr(0, colon) != std::to_string(step)) return;
+  std::raise(colon == std::string::npos ? SIGKILL : std::atoi(text.c_str() + colon + 1));
+}
+
 // checkpoints/step_00000040 -> 40.
 int64_t ckpt_step(const std::string& dir) {
   const std::string name = fs::path(dir).filename().string();
@@ -109,7 +125,22 @@ bool holds_a_run(const std::string& dir) {
   return false;
 }
 
-void prepare_run_folder(const std::string& dir, StartMode mode) {
+// What --overwrite may replace: a folder that is recognisably a run of
+// flat_train (its config.yaml beside at least one of the folders a run
+// makes), or an empty one. Anything else may be the user's own files.
+bool is_run_folder(const std::string& dir) {
+  std::error_code ec;
+  if (fs::is_empty(dir, ec) && !ec) return true;
+  if (!fs::is_regular_file(fs::path(dir) / "config.yaml", ec)) return false;
+  for (const char* sub : {"checkpoints", "logs", "metrics"})
+    if (fs::is_directory(fs::path(dir) / sub, ec)) return true;
+  return false;
+}
+
+// Checks made before anything is loaded; nothing is changed here. An
+// --overwrite'd run folder is only replaced by replace_run_folder, once the
+// new run has loaded everything.
+void check_run_folder(const std::string& dir, StartMode mode) {
   std::error_code ec;
   if (mode == StartMode::fresh && holds_a_run(dir)) {
     const auto n = list_checkpoints(dir + "/checkpoints").size();
@@ -119,9 +150,28 @@ void prepare_run_folder(const std::string& dir, StartMode mode) {
   }
   if (mode == StartMode::overwrite && fs::exists(dir, ec)) {
     FLAT_CHECK(fs::is_directory(dir, ec), "run folder '" + dir + "' exists and is not a folder");
-    fs::remove_all(dir, ec);
-    if (ec) fail("run folder '" + dir + "': cannot remove it for --overwrite (" + ec.message() + ")");
+    if (!is_run_folder(dir))
+      fail("run folder '" + dir + "' is not a flat_train run folder (no config.yaml beside checkpoints/, logs/ or "
+           "metrics/); --overwrite replaces only a run folder, so nothing in it was touched: choose another "
+           "run_dir, or move its files away yourself");
   }
+}
+
+// --overwrite: the old run folder goes only now, when the new run has loaded
+// its config, data and model and is about to write: it is renamed aside
+// (one rename, so a failure before it left the old run whole), then deleted.
+void replace_run_folder(const std::string& dir) {
+  std::error_code ec;
+  if (!fs::exists(dir, ec)) return;
+  if (!is_run_folder(dir))  // checked at the start; it may have changed since
+    fail("run folder '" + dir + "' is no longer a flat_train run folder; --overwrite left it as it is");
+  std::string root = dir;
+  while (root.size() > 1 && root.back() == '/') root.pop_back();
+  const std::string old = root + ".old-" + std::to_string(::getpid());
+  fs::rename(root, old, ec);
+  if (ec) fail("run folder '" + dir + "': cannot move the old run aside for --overwrite (" + ec.message() + ")");
+  fs::remove_all(old, ec);
+  if (ec) spdlog::warn("--overwrite: the old run was moved to {} but cannot be deleted ({})", old, ec.message());
 }
 
 }  // namespace
@@ -146,11 +196,15 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // ranks log warnings and errors to stderr with their rank.
   const bool root = env.rank == 0;
   if (root) {
-    prepare_run_folder(cfg.run_dir, mode);
+    check_run_folder(cfg.run_dir, mode);
     setup_logging(cfg.log.level);
   } else {
     setup_rank_logging(cfg.log.level, env);
   }
+  // From here to the end a stop request is honoured: one that comes during
+  // start-up or a validation is acted on after the next step (a checkpoint,
+  // then exit 128 + signal).
+  StopSignals signals(env.distributed());
   TrainSummary summary;
   summary.run_dir = cfg.run_dir;
   const RunDir run{cfg.run_dir};  // paths only: created once everything below has loaded
@@ -190,8 +244,11 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   state.stage = cfg.stage;
   state.config_yaml = config_yaml;
   if (mode == StartMode::resume) {
-    // Rank 0 picks the checkpoint (and clears a half-written one); every rank loads it.
-    std::string latest = root ? latest_checkpoint(run.checkpoints()) : std::string();
+    // Rank 0 picks the newest intact checkpoint (clearing a half-written one,
+    // naming and setting aside broken ones); every rank loads it.
+    std::optional<LoadedCheckpoint> loaded;
+    if (root) loaded = load_newest_intact_checkpoint(run.checkpoints());
+    std::string latest = loaded ? loaded->dir : std::string();
     if (dp) {
       const int64_t step = dp->broadcast(latest.empty() ? -1 : ckpt_step(latest));
       latest = step < 0 ? std::string() : checkpoint_folder(run.checkpoints(), step);
@@ -199,7 +256,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     if (latest.empty()) {
       spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run.root);
     } else {
-      auto ckpt = read_checkpoint(latest);
+      auto ckpt = loaded ? std::move(*loaded) : read_checkpoint(latest);
       load_model_weights(net, ckpt.model, ckpt.signature, signature, latest + "/model.safetensors");
       optimiser.load_state(ckpt.optimiser, latest + "/optimizer.safetensors");
       restore_rng(ckpt.rng, latest + "/rng.safetensors");
@@ -261,6 +318,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // folder appear (a run that fails to start leaves nothing behind).
   std::unique_ptr<MetricsLog> metrics;
   if (root) {
+    if (mode == StartMode::overwrite) replace_run_folder(run.root);
     RunDir::create(run.root);
     setup_logging(cfg.log.level, run.logs() + "/train.log");
     config::save_text(run.config_file(), config_yaml);
@@ -299,6 +357,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
                                 cfg.validation.grid_views, dp ? &dp->group() : nullptr)
                  : validate(*session.pipeline, *val_loader, cfg.validation.scenes, session.objective->lpips_network(),
                             cfg.validation.grid_views, dp ? &dp->group() : nullptr, dataset_mean);
+    signal_for_test(step);
     if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
     summary.last_val_psnr = r.psnr;
     summary.mean_colour_psnr = r.mean_colour_psnr;
@@ -356,11 +415,17 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // vae.safetensors).
   const bool finished = state.step >= cfg.steps;
   if (finished) spdlog::info("flat_train: the run already did its {} steps; writing its final outputs", cfg.steps);
-  if (state.step == 0) run_validation(0);
+  // Validation at the first step: step 0 of a new run; for a resumed run,
+  // the one due right after its checkpoint (its row went with the lost work,
+  // or was never written when the kill came during it): recomputed from the
+  // same weights, so val.jsonl keeps every row.
+  if (state.step == 0 || (mode == StartMode::resume &&
+                          (state.step % cfg.validation.every == 0 || state.step == cfg.steps)))
+    run_validation(state.step);
 
   // ---- the loop ------------------------------------------------------------------
-  StopSignals signals(env.distributed());
   std::optional<Progress> progress;
+  int64_t applied_steps = 0;  // of this session
   if (root && !finished) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
   while (state.step < cfg.steps) {
     const int64_t step = state.step;
@@ -379,6 +444,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
                    dp->started_in_backward(), dp->buckets());
     if (ok) {
+      ++applied_steps;
       state.consecutive_skips = 0;
     } else {
       ++state.skipped_steps;
@@ -425,6 +491,16 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
       return finish();
     }
     if (state.step % cfg.validation.every == 0 || last) run_validation(state.step);
+  }
+  // A session whose every step was skipped learned nothing: not a success,
+  // and no final model file (its checkpoints hold the unchanged weights).
+  if (state.step > summary.first_step && applied_steps == 0) {
+    if (progress) progress->abandon();
+    fail("every one of the " + std::to_string(state.step - summary.first_step) + " steps of this session (" +
+         std::to_string(summary.first_step) + " to " + std::to_string(state.step - 1) +
+         ") had a non-finite loss or gradient and was skipped: nothing was learned, no final model written. Check "
+         "the data and the learning rate; the last good checkpoint is " +
+         (summary.last_checkpoint.empty() ? std::string("none") : summary.last_checkpoint));
   }
   if (progress) progress->finish();
 

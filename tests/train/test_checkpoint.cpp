@@ -80,3 +80,64 @@ TEST_CASE("checkpoints: truncated files and other models are refused by name", "
                       FLAT_CONTAINS("pipeline.model.vae.dim: checkpoint 3, this config 5"));
   REQUIRE_THROWS_WITH(resolve_model_file(dir + "/../nowhere"), FLAT_CONTAINS("nowhere"));
 }
+
+TEST_CASE("checkpoints: NaN weights are never written; the last good one is never pruned for a worse one",
+          "[train]") {
+  const std::string dir = flat::test::fresh_dir("ckpt_nan").string() + "/checkpoints";
+  torch::manual_seed(2);
+  Tiny model(3);
+  AdamW opt(model.named_parameters().pairs(), {});
+  const ModelSignature sig{"pipeline.model.vae.dim: 3\n"};
+  // step 2 good; steps 4 and 6 written while steps were being skipped (consecutive_skips > 0).
+  save_checkpoint(dir, {2, "tiny", 0, 0, ""}, model, sig, opt, 1);
+  save_checkpoint(dir, {4, "tiny", 2, 2, ""}, model, sig, opt, 1);
+  save_checkpoint(dir, {6, "tiny", 4, 4, ""}, model, sig, opt, 1);
+  auto all = list_checkpoints(dir);
+  REQUIRE(all.size() == 2);
+  CHECK(fs::path(all[0]).filename() == "step_00000002");  // the last good one, kept beyond `keep`
+  CHECK(fs::path(all[1]).filename() == "step_00000006");
+  // A good one written later makes the old good one prunable again.
+  save_checkpoint(dir, {8, "tiny", 4, 0, ""}, model, sig, opt, 1);
+  all = list_checkpoints(dir);
+  REQUIRE(all.size() == 1);
+  CHECK(fs::path(all[0]).filename() == "step_00000008");
+
+  {
+    torch::NoGradGuard no_grad;
+    model.w[0][1] = NAN;
+  }
+  REQUIRE_THROWS_WITH(save_checkpoint(dir, {10, "tiny", 4, 0, ""}, model, sig, opt, 1),
+                      FLAT_CONTAINS("step_00000010: not written") && FLAT_CONTAINS("'w'"));
+  CHECK_FALSE(fs::exists(dir + "/step_00000010"));
+  all = list_checkpoints(dir);
+  REQUIRE(all.size() == 1);
+  CHECK(fs::path(all[0]).filename() == "step_00000008");  // nothing pruned either
+}
+
+TEST_CASE("checkpoints: resume takes the newest intact one, naming and setting aside the others", "[train]") {
+  const std::string dir = flat::test::fresh_dir("ckpt_intact").string() + "/checkpoints";
+  Tiny model(3);
+  AdamW opt(model.named_parameters().pairs(), {});
+  const ModelSignature sig{"pipeline.model.vae.dim: 3\n"};
+  CHECK_FALSE(load_newest_intact_checkpoint(dir).has_value());  // no folder: a fresh start
+  for (int64_t step : {2, 4, 6}) save_checkpoint(dir, {step, "tiny", 0, 0, ""}, model, sig, opt, 3);
+  fs::remove(dir + "/step_00000006/trainer.json");
+  const std::string f4 = dir + "/step_00000004/model.safetensors";
+  fs::resize_file(f4, fs::file_size(f4) - 3);
+  std::vector<std::string> skipped;
+  auto c = load_newest_intact_checkpoint(dir, &skipped);
+  REQUIRE(c.has_value());
+  CHECK(c->state.step == 2);
+  REQUIRE(skipped.size() == 2);
+  CHECK_THAT(skipped[0], FLAT_CONTAINS("step_00000006/trainer.json: missing"));
+  CHECK_THAT(skipped[1], FLAT_CONTAINS(f4));
+  CHECK(list_checkpoints(dir).size() == 1);
+  int aside = 0;
+  for (const auto& e : fs::directory_iterator(dir)) aside += e.path().filename().string().find(".broken-") != std::string::npos;
+  CHECK(aside == 2);
+  // None intact: an error naming each, and nothing moved.
+  const std::string f2 = dir + "/step_00000002/model.safetensors";
+  fs::resize_file(f2, fs::file_size(f2) - 3);
+  REQUIRE_THROWS_WITH(load_newest_intact_checkpoint(dir), FLAT_CONTAINS("no intact checkpoint") && FLAT_CONTAINS(f2));
+  CHECK(fs::exists(dir + "/step_00000002"));
+}

@@ -8,7 +8,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include "cli/cli_fixtures.h"
 #include "data/data_test_dirs.h"
+#include "flat/core/tensor_io.h"
 #include "process.h"
 #include "test_support.h"
 #include "train_fixtures.h"
@@ -87,20 +89,26 @@ TEST_CASE("flat_train: a tiny run lowers its loss and writes a complete run fold
 TEST_CASE("flat_train: killed with SIGKILL anywhere, --resume continues bit for bit", "[train]") {
   const auto reference = losses(reference_run());
   REQUIRE(reference.size() == 8);
+  std::vector<int64_t> reference_val_steps;
+  for (const auto& r : rows(reference_run(), "val")) reference_val_steps.push_back(r.at("step").get<int64_t>());
+  REQUIRE(reference_val_steps == std::vector<int64_t>{0, 4, 8});
   struct KillPoint {
     const char* name;
     int64_t after_rows;      // SIGKILL once train.jsonl has this many rows (0: use the env hook)
     const char* kill_in_checkpoint;
+    const char* kill_in_validation = nullptr;
   };
   for (const auto& k : {KillPoint{"before the first checkpoint", 1, nullptr},
                         KillPoint{"between checkpoints", 3, nullptr},
                         KillPoint{"inside the write of checkpoint 4", 0, "4"},
+                        KillPoint{"inside the validation of step 4", 0, nullptr, "4"},
                         KillPoint{"after the last step's rows", 8, nullptr}}) {
     SECTION(k.name) {
       const std::string d = fresh_dir("train_kill").string();
       const std::string cfg = write_config(d, 8);
       std::vector<std::string> env;
       if (k.kill_in_checkpoint) env.push_back(std::string("FLAT_TEST_KILL_IN_CHECKPOINT=") + k.kill_in_checkpoint);
+      if (k.kill_in_validation) env.push_back(std::string("FLAT_TEST_SIGNAL_IN_VALIDATION=") + k.kill_in_validation);
       auto child = spawn({binary("flat_train"), "--config", cfg}, d + "/log1.txt", env);
       REQUIRE(child.pid > 0);
       if (k.after_rows > 0) {
@@ -112,6 +120,10 @@ TEST_CASE("flat_train: killed with SIGKILL anywhere, --resume continues bit for 
       INFO(read_file(d + "/log1.txt"));
       // The last case may finish before the kill lands; every other must die by it.
       if (k.after_rows != 8) REQUIRE(killed == 128 + SIGKILL);
+      if (k.kill_in_validation) {
+        CHECK(fs::exists(d + "/run/checkpoints/step_00000004/trainer.json"));  // killed after the checkpoint
+        for (const auto& r : rows(d + "/run", "val")) CHECK(r.at("step").get<int64_t>() < 4);
+      }
       if (k.kill_in_checkpoint) {
         bool incomplete = false;
         for (const auto& e : fs::directory_iterator(d + "/run/checkpoints"))
@@ -123,6 +135,15 @@ TEST_CASE("flat_train: killed with SIGKILL anywhere, --resume continues bit for 
       INFO(read_file(d + "/log2.txt"));
       REQUIRE(rc == 0);
       CHECK(losses(d + "/run") == reference);
+      // The validation history survives the kill: every row, once, with the
+      // uninterrupted run's figures (the row due at the checkpoint resumed
+      // from is recomputed from the same weights).
+      std::vector<int64_t> val_steps;
+      for (const auto& r : rows(d + "/run", "val")) val_steps.push_back(r.at("step").get<int64_t>());
+      CHECK(val_steps == reference_val_steps);
+      const auto val = rows(d + "/run", "val"), val_ref = rows(reference_run(), "val");
+      for (size_t i = 0; i < std::min(val.size(), val_ref.size()); ++i)
+        CHECK(val[i].at("val_psnr").dump() == val_ref[i].at("val_psnr").dump());
       // TensorBoard shows one run too: the earlier session's lost steps are dropped.
       const int tb = check_tensorboard(d + "/run", d + "/tb_check.txt");
       INFO(read_file(d + "/tb_check.txt"));
@@ -133,18 +154,20 @@ TEST_CASE("flat_train: killed with SIGKILL anywhere, --resume continues bit for 
   }
 }
 
-TEST_CASE("flat_train: SIGTERM writes a checkpoint and exits 143; resume finishes", "[train]") {
+TEST_CASE("flat_train: SIGTERM or SIGHUP writes a checkpoint and exits 128 + signal; resume finishes", "[train]") {
+  const int sig = GENERATE(SIGTERM, SIGHUP);
+  INFO("signal " << sig);
   const std::string d = fresh_dir("train_sigterm").string();
   auto child = spawn({binary("flat_train"), "--config", write_config(d, 8)}, d + "/log1.txt");
   const std::string jsonl = d + "/run/metrics/train.jsonl";
   REQUIRE(wait_until([&] { return count_lines(jsonl) >= 3; }, 300));
-  kill(child.pid, SIGTERM);
+  kill(child.pid, sig);
   const int rc = wait_for(child);
   const std::string log = read_file(d + "/log1.txt");
   INFO(log);
   if (rc == 0) SUCCEED("finished before the signal arrived");
   else {
-    CHECK(rc == 128 + SIGTERM);
+    CHECK(rc == 128 + sig);
     const int64_t done = count_lines(jsonl);
     char name[32];
     std::snprintf(name, sizeof(name), "step_%08lld", static_cast<long long>(done));
@@ -154,6 +177,19 @@ TEST_CASE("flat_train: SIGTERM writes a checkpoint and exits 143; resume finishe
     REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
     CHECK(losses(d + "/run") == losses(reference_run()));
   }
+}
+
+TEST_CASE("flat_train: SIGTERM during the step-0 validation is honoured after one step; resume finishes",
+          "[train]") {
+  const std::string d = fresh_dir("train_sigterm_validation").string();
+  const int rc = train({"--config", write_config(d, 8)}, d + "/log1.txt",
+                       {"FLAT_TEST_SIGNAL_IN_VALIDATION=0:" + std::to_string(SIGTERM)});
+  INFO(read_file(d + "/log1.txt"));
+  CHECK(rc == 128 + SIGTERM);
+  CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
+  CHECK(rows(d + "/run").size() == 1);
+  REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
+  CHECK(losses(d + "/run") == losses(reference_run()));
 }
 
 TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cleanly", "[train]") {
@@ -184,6 +220,61 @@ TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cl
     CHECK(log.find("done in") == std::string::npos);
     CHECK(fs::exists(d + "/run/checkpoints/step_00000002/trainer.json"));
     CHECK_FALSE(fs::exists(d + "/run/checkpoints/step_00000006"));
+  }
+}
+
+TEST_CASE("flat_train: a session whose every step is non-finite exits 1 and writes no model", "[train]") {
+  const std::string d = fresh_dir("train_nan_all").string();
+  const int rc = train({"--config", write_config(d, 3, "debug: {nan_steps: [0, 1, 2]}\nnan_guard: {max_consecutive: 5}\n")},
+                       d + "/log.txt");
+  const std::string log = read_file(d + "/log.txt");
+  INFO(log);
+  CHECK(rc == 1);
+  CHECK(log.find("every one of the 3 steps") != std::string::npos);
+  CHECK_FALSE(fs::exists(d + "/run/model.safetensors"));
+  CHECK(log.find("finished") == std::string::npos);
+}
+
+TEST_CASE("flat_train --overwrite: only a run folder, and only once the new run has loaded", "[train]") {
+  const std::string d = fresh_dir("train_overwrite").string();
+  SECTION("a folder of the user's own files is refused and left byte-identical") {
+    const std::string cfg = write_config(d, 2);
+    write_text(d + "/run/thesis.tex", "my thesis");
+    write_text(d + "/run/data/table.csv", "1,2,3");
+    write_text(d + "/run/config.yaml", "not ours: a config.yaml alone is not a run\n");
+    const auto before = snapshot(d + "/run");
+    const int rc = train({"--config", cfg, "--overwrite"}, d + "/log.txt");
+    const std::string log = read_file(d + "/log.txt");
+    INFO(log);
+    CHECK(rc == 1);
+    CHECK(log.find(d + "/run' is not a flat_train run folder") != std::string::npos);
+    CHECK(snapshot(d + "/run") == before);
+  }
+  SECTION("a run that fails at start-up leaves the old run as it was; one that starts replaces it") {
+    const std::string cfg = write_config(d, 2);
+    REQUIRE(train({"--config", cfg}, d + "/log1.txt") == 0);
+    const auto before = snapshot(d + "/run");
+    REQUIRE(before.count("checkpoints/step_00000002/trainer.json"));
+    const int rc = train({"--config", cfg, "--overwrite", "--set", "data.datasets=[{root: " + d + "/no_such_data}]"},
+                         d + "/log2.txt");
+    INFO(read_file(d + "/log2.txt"));
+    CHECK(rc == 1);
+    CHECK(read_file(d + "/log2.txt").find(d + "/no_such_data") != std::string::npos);
+    CHECK(snapshot(d + "/run") == before);
+    // A model that cannot load (another width from a missing checkpoint) fails after the data: still untouched.
+    const int rc2 = train({"--config", cfg, "--overwrite", "--set", "init.from=checkpoint", "--set",
+                           "init.path=" + d + "/no_such_run"},
+                          d + "/log3.txt");
+    CHECK(rc2 == 1);
+    CHECK(snapshot(d + "/run") == before);
+    // A good start replaces it whole: nothing of the old run stays.
+    write_text(d + "/run/renders/stale.png", "old");
+    REQUIRE(train({"--config", cfg, "--overwrite", "--set", "steps=1"}, d + "/log4.txt") == 0);
+    CHECK_FALSE(fs::exists(d + "/run/renders/stale.png"));
+    CHECK_FALSE(fs::exists(d + "/run/checkpoints/step_00000002"));
+    CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
+    CHECK(rows(d + "/run").size() == 1);
+    for (const auto& e : fs::directory_iterator(d)) CHECK(e.path().filename().string().find(".old-") == std::string::npos);
   }
 }
 
@@ -223,24 +314,71 @@ TEST_CASE("flat_train: bad inputs end with a clear error and exit 1, nothing los
       CHECK_FALSE(fs::exists(dir + "/run"));  // a run that cannot start leaves no run folder behind
     }
   }
-  SECTION("a truncated checkpoint") {
-    const std::string run = d + "/trunc/run";
-    fs::create_directories(d + "/trunc");
+  // The newest checkpoint broken three ways: --resume names it and why, sets
+  // it aside for inspection and continues from the one before, exactly.
+  for (const char* fault : {"truncated", "no trainer.json", "NaN weights"}) {
+    SECTION(std::string("a newest checkpoint with ") + fault + ": resume falls back to the one before") {
+      const std::string dir = d + "/fallback";
+      const std::string run = dir + "/run";
+      fs::create_directories(dir);
+      fs::copy(reference_run(), run, fs::copy_options::recursive);
+      const std::string ckpt = run + "/checkpoints/step_00000008";
+      std::string victim = ckpt + "/model.safetensors", why;
+      if (std::string(fault) == "truncated") {
+        fs::resize_file(victim, fs::file_size(victim) / 2);
+      } else if (std::string(fault) == "no trainer.json") {
+        victim = ckpt + "/trainer.json";
+        fs::remove(victim);
+        why = "missing";
+      } else {
+        auto tensors = flat::load_safetensors(victim);
+        auto t = tensors.begin()->second.clone();
+        t.view(-1)[0] = NAN;
+        tensors.begin()->second = t;
+        flat::save_safetensors(victim, tensors);
+        why = "non-finite";
+      }
+      const std::string victim_bytes = read_file(victim);
+      const int rc = train({"--resume", run, "--set", "steps=10"}, dir + "/log.txt");
+      const std::string log = read_file(dir + "/log.txt");
+      INFO(log);
+      CHECK(rc == 0);
+      CHECK(log.find("skipped checkpoint " + ckpt) != std::string::npos);
+      CHECK(log.find(victim) != std::string::npos);
+      if (!why.empty()) CHECK(log.find(why) != std::string::npos);
+      CHECK(log.find("resume: " + run + "/checkpoints/step_00000006 at step 6") != std::string::npos);
+      // Set aside byte for byte; the run went on from step 6 exactly as the uninterrupted one.
+      std::string aside;
+      for (const auto& e : fs::directory_iterator(run + "/checkpoints"))
+        if (e.path().filename().string().rfind("step_00000008.broken-", 0) == 0) aside = e.path().string();
+      REQUIRE_FALSE(aside.empty());
+      if (std::string(fault) != "no trainer.json")
+        CHECK(read_file(aside + "/model.safetensors") == victim_bytes);
+      auto got = losses(run);
+      REQUIRE(got.size() == 10);
+      got.resize(8);
+      CHECK(got == losses(reference_run()));
+      CHECK(fs::exists(run + "/checkpoints/step_00000010/trainer.json"));
+    }
+  }
+  SECTION("every checkpoint broken: resume fails naming each, and moves nothing") {
+    const std::string run = d + "/allbad/run";
+    fs::create_directories(d + "/allbad");
     fs::copy(reference_run(), run, fs::copy_options::recursive);
-    const std::string victim = run + "/checkpoints/step_00000008/model.safetensors";
-    const auto size = fs::file_size(victim);
-    fs::resize_file(victim, size / 2);
-    const std::string config_before = read_file(run + "/config.yaml");
-    const auto older = run + "/checkpoints/step_00000006/model.safetensors";
-    const std::string older_before = read_file(older);
-    const int rc = train({"--resume", run, "--set", "steps=10"}, d + "/trunc/log.txt");
-    const std::string log = read_file(d + "/trunc/log.txt");
+    for (const char* step : {"6", "8"}) {
+      const std::string f = run + "/checkpoints/step_0000000" + step + "/model.safetensors";
+      fs::resize_file(f, fs::file_size(f) / 2);
+    }
+    const auto before = read_file(run + "/checkpoints/step_00000006/model.safetensors");
+    const int rc = train({"--resume", run, "--set", "steps=10"}, d + "/allbad/log.txt");
+    const std::string log = read_file(d + "/allbad/log.txt");
     INFO(log);
     CHECK(rc == 1);
-    CHECK(log.find(victim) != std::string::npos);
-    CHECK(read_file(older) == older_before);
-    CHECK(fs::file_size(victim) == size / 2);  // left for the user to inspect, not replaced
-    (void)config_before;
+    CHECK(log.find("no intact checkpoint") != std::string::npos);
+    CHECK(log.find(run + "/checkpoints/step_00000006/model.safetensors") != std::string::npos);
+    CHECK(log.find(run + "/checkpoints/step_00000008/model.safetensors") != std::string::npos);
+    CHECK(read_file(run + "/checkpoints/step_00000006/model.safetensors") == before);
+    CHECK(fs::exists(run + "/checkpoints/step_00000008"));
   }
   SECTION("a new run into a folder that holds one") {
     const std::string dir = d + "/exists";

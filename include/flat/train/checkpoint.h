@@ -10,10 +10,15 @@
 // written into a hidden ".incomplete-..." folder first and renamed when every
 // file is on disk, so a crash (even SIGKILL) in the middle of a write leaves
 // the previous checkpoints as they were and no folder that looks complete.
-// The newest `keep` are kept. A truncated or altered file fails to load with
-// an error naming it.
+// The newest `keep` are kept, and never at the cost of the newest good one
+// (written while no step was being skipped): a run stuck in non-finite steps
+// cannot prune away the last checkpoint worth resuming. A checkpoint of
+// non-finite weights is never written. A truncated or altered file fails to
+// load with an error naming it; --resume then falls back to the newest
+// intact checkpoint (load_newest_intact_checkpoint).
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -38,7 +43,9 @@ struct TrainerState {
 using pipeline::ModelSignature;
 
 // Writes step_<step> under checkpoints_dir and removes all but the newest
-// `keep`. Returns the folder written.
+// `keep` (keeping the newest good one, see above). Returns the folder written.
+// Throws flat::Error naming the folder, and writes nothing, when the model's
+// weights hold NaN or Inf.
 std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
                             const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
                             int64_t keep);
@@ -59,6 +66,18 @@ struct LoadedCheckpoint {
 };
 // Reads and validates every file of a checkpoint folder (throws naming the file).
 LoadedCheckpoint read_checkpoint(const std::string& dir);
+
+// What --resume starts from: the newest checkpoint folder under
+// checkpoints_dir that reads back whole (trainer.json present and valid,
+// every file intact) with finite model and optimiser tensors. Newer ones
+// that fail are logged with the reason, listed in `skipped` ("<folder>:
+// <reason>") and moved aside to "<folder>.broken-<pid>" for inspection, out
+// of the listing and the pruning. Returns nothing when the folder holds no
+// checkpoint; throws flat::Error naming every folder and its fault when none
+// of them is intact (then nothing is moved). Leftover ".incomplete-*"
+// folders are removed first, as by latest_checkpoint.
+std::optional<LoadedCheckpoint> load_newest_intact_checkpoint(const std::string& checkpoints_dir,
+                                                               std::vector<std::string>* skipped = nullptr);
 
 using pipeline::load_model_weights;
 using pipeline::resolve_model_file;

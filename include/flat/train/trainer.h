@@ -13,10 +13,12 @@
 //     vae.safetensors      instead, for task: vae: the trained Wan VAE (vae_stage.h)
 //
 // Checkpoints are written every checkpoint.every steps, at the end, and when
-// SIGINT or SIGTERM arrives (the run then stops with exit code 128 + signal;
+// SIGINT, SIGTERM or SIGHUP arrives (the run then stops with exit code 128 + signal;
 // with several ranks, when any rank got one: they agree every step).
 // A resumed run continues exactly: on the CPU its losses equal an
-// uninterrupted run's bit for bit. A step whose loss or gradient is not finite
+// uninterrupted run's bit for bit. It starts from the newest intact
+// checkpoint (broken newer ones are named and set aside, checkpoint.h), and
+// the validation due at that step is run again, so val.jsonl keeps every row. A step whose loss or gradient is not finite
 // is skipped and counted; nan_guard.max_consecutive in a row stop the run with
 // its last good checkpoint intact.
 #pragma once
@@ -31,11 +33,11 @@ namespace flat::train {
 enum class StartMode {
   fresh,      // a new run folder; refuse one that already holds a run
   resume,     // continue the run in run_dir from its newest checkpoint
-  overwrite,  // delete what run_dir holds, then start afresh
+  overwrite,  // replace run_dir (only a run folder), once the new run has loaded everything
 };
 
 struct TrainSummary {
-  int exit_code = 0;  // 0 finished; 128 + signal when stopped by SIGINT/SIGTERM
+  int exit_code = 0;  // 0 finished; 128 + signal when stopped by SIGINT/SIGTERM/SIGHUP
   int64_t first_step = 0, steps_done = 0;
   int64_t skipped_steps = 0;
   double first_val_psnr = NAN, last_val_psnr = NAN, mean_colour_psnr = NAN;
@@ -50,6 +52,11 @@ struct TrainSummary {
 // rank 0 alone writes in the run folder (data_parallel.h, docs/training.md).
 TrainSummary run_training(const TrainConfig& config, const std::string& config_yaml, StartMode mode,
                           const distributed::DistributedEnv& env = {});
+
+// Test hook: with FLAT_TEST_SIGNAL_IN_VALIDATION=<step> in the environment the
+// process SIGKILLs itself inside the validation of that step, before its row
+// is written; "<step>:<signal>" raises that signal instead.
+inline constexpr const char* kSignalInValidationEnv = "FLAT_TEST_SIGNAL_IN_VALIDATION";
 
 // The run folder's saved config (for --resume), with overrides applied.
 TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
