@@ -30,22 +30,32 @@ int main(int argc, char** argv) {
   app.add_option("--scenes", o.datasets, "NAME=FOLDER (or FOLDER, or a list file); repeat per dataset")->take_all();
   app.add_option("--out", o.out_dir, "output folder (resumable; reuse it to continue)");
   app.add_option("--name", o.name, "the method's label in the table (default: the run folder's name)");
-  app.add_option("--views", o.settings.views, "scene | window | unseen")->capture_default_str();
-  app.add_option("--max-views", o.settings.max_views, "at most this many views per scene, evenly spaced (0 = all)")
+  // Checked at parse time: a bad value is a usage error (exit 2), not a failure of every scene.
+  app.add_option("--views", o.settings.views, "scene | window | unseen")
+      ->check(CLI::IsMember({"scene", "window", "unseen"}))
       ->capture_default_str();
-  app.add_option("--window", o.settings.window, "which latent window of each scene decodes it")->capture_default_str();
+  app.add_option("--max-views", o.settings.max_views, "at most this many views per scene, evenly spaced (0 = all)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--window", o.settings.window, "which latent window of each scene decodes it")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--size", size, "render and compare at HxW (default: the latents' frame size)");
   app.add_option("--ssim", ssim, "skimage (Wang et al., as scikit-image) | 3dgs (the 3DGS repositories')")
+      ->check(CLI::IsMember({"skimage", "3dgs"}))
       ->capture_default_str();
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
   flat::cli::add_device(app, o.device);
-  flat::cli::add_precision(app, o.precision);  // bf16 applies on CUDA; the CPU computes in fp32
+  flat::cli::add_precision(app, o.precision)
+      ->description("compute dtype: fp32 | bf16 (bf16 applies on CUDA; on the CPU the run is fp32 whatever this says)");
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming)");
   app.add_flag("--redo", o.redo, "score every scene again (also needed to reuse --out with other settings)");
   app.add_option("--compare", compare, "flat_eval output folders to put side by side (no --model)")->take_all();
   app.add_option("--out-table", out_table, "--compare: also write the Markdown table here");
+  bool overwrite = false;
+  app.add_flag("--overwrite", overwrite, "--compare: replace an existing --out-table file");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     flat::setup_logging(o.log_level);
@@ -54,6 +64,8 @@ int main(int argc, char** argv) {
         std::cerr << "flat_eval: --compare reads earlier results; it takes no --model or --scenes\n";
         return 2;
       }
+      // An existing table is refused before any work, unless --overwrite.
+      if (!out_table.empty()) flat::check_output_file(out_table, overwrite, "--out-table");
       const auto table = flat::eval::compare_runs(compare);
       if (!out_table.empty()) flat::write_file_atomic(out_table, table);
       std::cout << table;
@@ -65,6 +77,12 @@ int main(int argc, char** argv) {
     }
     if (!size.empty() && !flat::parse_size(size, o.settings.height, o.settings.width)) {
       std::cerr << "flat_eval: --size must be HxW (e.g. 176x320), got '" << size << "'\n";
+      return 2;
+    }
+    // Refused up front, not by the allocator of every scene: the rasterizer's limit is 2^30 pixels a view.
+    if (!size.empty() && o.settings.height * o.settings.width > (int64_t(1) << 30)) {
+      std::cerr << "flat_eval: --size " << size << " is " << o.settings.height * o.settings.width
+                << " pixels a view, more than the rasterizer's 2^30\n";
       return 2;
     }
     o.settings.ssim = flat::eval::parse_ssim_convention(ssim);

@@ -6,6 +6,7 @@
 //
 // Exit codes: 0 done, 1 runtime error (message names the file, key or shape),
 // 2 usage error.
+#include <filesystem>
 #include <iostream>
 
 #include <CLI/CLI.hpp>
@@ -34,10 +35,11 @@ int main(int argc, char** argv) {
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
   flat::cli::add_device(app, o.device);
-  flat::cli::add_precision(app, o.precision);  // bf16 applies on CUDA; the CPU computes in fp32
+  flat::cli::add_precision(app, o.precision)
+      ->description("compute dtype: fp32 | bf16 (bf16 applies on CUDA; on the CPU the run is fp32 whatever this says)");
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
   app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
-  app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON")->capture_default_str();
+  app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON file")->capture_default_str();
   app.add_option("--novel-frames", o.novel.frames, "views of an orbit/dolly preset")->capture_default_str();
   app.add_option("--orbit-degrees", o.novel.degrees, "orbit: half the sweep")->capture_default_str();
   app.add_option("--dolly-fraction", o.novel.fraction, "dolly: share of the look-at distance")->capture_default_str();
@@ -60,6 +62,20 @@ int main(int argc, char** argv) {
     o.renders = !no_renders;
     o.video = !no_video;
     o.viewer = !no_viewer && !no_glb;
+    // Contradictory or missing inputs are usage errors (exit 2), found before any work.
+    if (o.input.scene_dir.empty() == o.input.latents_file.empty()) {
+      std::cerr << "flat_infer: give exactly one of --scene FOLDER or --latents FILE (with --cameras FILE)\n";
+      return 2;
+    }
+    if (!o.input.latents_file.empty() && o.input.cameras_file.empty()) {
+      std::cerr << "flat_infer: --latents needs --cameras FILE (the trajectory of the latents' frames)\n";
+      return 2;
+    }
+    if (novel != "orbit" && novel != "dolly" && novel != "none" && !std::filesystem::is_regular_file(novel)) {
+      std::cerr << "flat_infer: --novel '" << novel << "': expected orbit | dolly | none or a cameras JSON file "
+                   "(no such file)\n";
+      return 2;
+    }
     if (!size.empty() && !flat::parse_size(size, o.height, o.width)) {
       std::cerr << "flat_infer: --size must be HxW (e.g. 176x320), got '" << size << "'\n";
       return 2;

@@ -24,6 +24,7 @@
 
 #include "flat/core/cli.h"
 #include "flat/core/error.h"
+#include "flat/core/pending_log.h"
 #include "flat/core/progress.h"
 #include "flat/core/shape.h"
 #include "flat/data/frame_resize.h"
@@ -51,7 +52,7 @@ int64_t window_count(int64_t frames, int64_t window, int64_t step) {
   return frames < window ? 0 : (frames - window) / step + 1;
 }
 
-void run(const Options& o) {
+void run(const Options& o, PendingLog& log) {
   if (o.random_weights == !o.weights.empty())
     throw cli::UsageError("flat_latents: give exactly one of --weights FILE or --random-weights");
   if (!o.weights.empty() && o.dim != 0) throw cli::UsageError("flat_latents: --dim applies only to --random-weights");
@@ -75,7 +76,8 @@ void run(const Options& o) {
     auto sub = data::scene_dirs_under(root);
     dirs.insert(dirs.end(), sub.begin(), sub.end());
   }
-  cli::start_logging(o.log_level, (fs::path(o.scenes.front()) / "flat_latents.log").string());
+  // The log lies in the first scenes folder, an input: it appears there only if the run succeeds.
+  log.start(o.log_level, (fs::path(o.scenes.front()) / "flat_latents.log").string());
   std::vector<data::Scene> scenes;
   int64_t total_windows = 0, longest = 0, largest = 0;
   for (const auto& dir : dirs) {
@@ -165,6 +167,7 @@ void run(const Options& o) {
                                                  "only learn the average scene"
                                                : "");
   if (o.random_weights) spdlog::warn("flat_latents: reminder: RANDOM encoder weights; the latents are test data only");
+  log.keep();
 }
 
 }  // namespace
@@ -190,8 +193,9 @@ int main(int argc, char** argv) {
   cli::add_store(app, o.store);
   app.add_flag("--full", o.full, "encode the whole window at once instead of streaming chunks");
   if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
+  PendingLog log;  // outlives the error report, which it then holds too
   return cli::run([&] {
-    run(o);
+    run(o, log);
     return 0;
   });
 }

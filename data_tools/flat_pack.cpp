@@ -8,6 +8,7 @@
 
 #include "flat/core/cli.h"
 #include "flat/core/error.h"
+#include "flat/core/pending_log.h"
 #include "flat/core/progress.h"
 #include "flat/data/pack.h"
 #include "flat/data/scene.h"
@@ -22,13 +23,14 @@ int main(int argc, char** argv) {
   app.add_option("--scenes", roots, "scene folders, or folders holding scene folders")->required();
   app.add_flag("--remove-files", remove, "delete the per-frame image/depth/normal files after packing");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::PendingLog log;  // in an input folder: appears there only if the run succeeds
   return flat::cli::run([&] {
     std::vector<std::string> dirs;
     for (const auto& r : roots) {
       auto sub = flat::data::scene_dirs_under(r);
       dirs.insert(dirs.end(), sub.begin(), sub.end());
     }
-    flat::cli::start_logging(log_level, (fs::path(roots.front()) / "flat_pack.log").string());
+    log.start(log_level, (fs::path(roots.front()) / "flat_pack.log").string());
     flat::Progress progress("flat_pack", int64_t(dirs.size()));
     for (const auto& d : dirs) {
       auto scene = flat::data::read_scene(d);
@@ -37,6 +39,7 @@ int main(int argc, char** argv) {
     }
     progress.finish();
     spdlog::info("packed {} scenes", dirs.size());
+    log.keep();
     return 0;
   });
 }

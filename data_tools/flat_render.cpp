@@ -20,18 +20,24 @@
 
 namespace {
 
+// --background r,g,b: three finite numbers in [0,1], else a usage error (exit 2).
 std::vector<double> parse_rgb(const std::string& text) {
+  const std::string bad = "flat_render: --background must be three numbers r,g,b in [0,1], got '" + text + "'";
   std::vector<double> v;
   std::stringstream ss(text);
   std::string item;
   while (std::getline(ss, item, ',')) {
+    size_t used = 0;
+    double x = 0;
     try {
-      v.push_back(std::stod(item));
+      x = std::stod(item, &used);
     } catch (const std::exception&) {
-      flat::fail("--background: '" + text + "' is not three numbers r,g,b");
+      throw flat::cli::UsageError(bad);
     }
+    if (used != item.size() || !(x >= 0.0 && x <= 1.0)) throw flat::cli::UsageError(bad);  // NaN fails too
+    v.push_back(x);
   }
-  FLAT_CHECK(v.size() == 3, "--background: '" + text + "' is not three numbers r,g,b");
+  if (v.size() != 3) throw flat::cli::UsageError(bad);
   return v;
 }
 
@@ -54,13 +60,13 @@ int run(int argc, char** argv) {
   app.add_option("--background", background, "background colour r,g,b in [0,1]");
   flat::cli::add_device(app, device);
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::render::RasterSettings settings;
+  settings.background = parse_rgb(background);
   std::string log = out_dir;
   while (log.size() > 1 && log.back() == '/') log.pop_back();
   flat::cli::start_logging(log_level, log + ".log");
-  flat::render::RasterSettings settings;
   settings.window = window;
   settings.eps = eps;
-  settings.background = parse_rgb(background);
   settings.check();
   const torch::Device dev = flat::cli::resolve_device(device);
   flat::StagedDir staged(out_dir, overwrite);  // refuses an existing folder before any work

@@ -36,11 +36,19 @@ CameraRecord parse_camera_record(const json& e, const std::string& where) {
   for (size_t i = 0; i < 4; ++i) r.intrinsics[i] = number(k[i], where, "intrinsics");
   if (r.intrinsics[0] <= 0 || r.intrinsics[1] <= 0) fail(where + ": focal lengths in 'intrinsics' must be positive");
   const json& m = e["c2w"];
-  if (!m.is_array() || (m.size() != 4 && m.size() != 3)) fail(where + ": 'c2w' must be a 4x4 (or 3x4) matrix");
-  r.c2w = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
-  for (size_t row = 0; row < m.size(); ++row) {
+  // The whole 4x4 (docs/formats.md): a 3x4 or a last row other than 0 0 0 1
+  // is not a rigid pose, and rendering it as one would be silently wrong.
+  if (!m.is_array() || m.size() != 4)
+    fail(where + ": 'c2w' must be a 4x4 matrix (4 rows of 4 numbers, the last 0 0 0 1), got " +
+         (m.is_array() ? std::to_string(m.size()) + " rows" : m.dump()));
+  for (size_t row = 0; row < 4; ++row) {
     if (!m[row].is_array() || m[row].size() != 4) fail(where + ": 'c2w' rows must have 4 numbers");
     for (size_t c = 0; c < 4; ++c) r.c2w[4 * row + c] = number(m[row][c], where, "c2w");
+  }
+  for (int c = 0; c < 4; ++c) {
+    if (!(std::abs(r.c2w[12 + c] - (c == 3 ? 1.f : 0.f)) <= 1e-6f))
+      fail(where + ": 'c2w' last row must be [0, 0, 0, 1], got " + m[3].dump());
+    r.c2w[12 + c] = c == 3 ? 1.f : 0.f;
   }
   // The rotation block must be orthonormal (a rigid camera pose).
   double err = 0;

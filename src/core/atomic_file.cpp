@@ -86,6 +86,13 @@ void AtomicFile::commit() {
   }
 }
 
+void check_output_file(const std::string& path, bool overwrite, const std::string& flag) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) fail(flag + " " + path + ": is a folder; expected a file name");
+  if (fs::exists(path, ec) && !overwrite)
+    fail(flag + " " + path + ": already exists; pass --overwrite to replace it, or choose another name");
+}
+
 void write_file_atomic(const std::string& path, const std::string& bytes) {
   AtomicFile file(path);
   file.stream().write(bytes.data(), static_cast<std::streamsize>(bytes.size()));

@@ -1,6 +1,7 @@
 #include "flat/core/error.h"
 
 #include <exception>
+#include <filesystem>
 
 #include <spdlog/spdlog.h>
 
@@ -11,6 +12,16 @@ int report_current_error() {
     throw;
   } catch (const Error& e) {
     spdlog::error("{}", e.what());
+  } catch (const std::filesystem::filesystem_error& e) {
+    // A filesystem call that had no message of ours (an output folder that is
+    // read-only or a file): lead with the path and say what failed.
+    std::string what = e.what();  // "filesystem error: cannot create directories: Permission denied [p]"
+    const std::string prefix = "filesystem error: ";
+    if (what.rfind(prefix, 0) == 0) what = what.substr(prefix.size());
+    if (const auto bracket = what.find(" ["); bracket != std::string::npos) what = what.substr(0, bracket);
+    std::string paths = "'" + e.path1().string() + "'";
+    if (!e.path2().empty()) paths += " (to '" + e.path2().string() + "')";
+    spdlog::error("{}: {}", paths, what);
   } catch (const std::exception& e) {
     spdlog::error("unexpected error: {}", e.what());
   } catch (...) {

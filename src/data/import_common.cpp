@@ -26,11 +26,17 @@ std::string write_import_image(const Scene& scene, int64_t index, const at::Tens
   return rel;
 }
 
-at::Tensor rigid(const at::Tensor& c2w) {
+at::Tensor rigid(const at::Tensor& c2w, const std::string& where) {
   auto m = c2w.to(at::kDouble).clone();
   auto [U, S, Vh] = at::linalg_svd(m.narrow(0, 0, 3).narrow(1, 0, 3));
+  const double smax = S.max().item<double>(), smin = S.min().item<double>();
+  if (!(smax > 0) || !(smin > 1e-3 * smax))
+    fail(where + ": the pose's 3x3 rotation is degenerate (singular values " + std::to_string(S[0].item<double>()) +
+         ", " + std::to_string(S[1].item<double>()) + ", " + std::to_string(S[2].item<double>()) +
+         "): not a camera orientation");
   auto R = at::matmul(U, Vh);
-  if (at::det(R).item<double>() < 0) fail("camera pose has a reflection (det R < 0): check the axis convention");
+  if (at::det(R).item<double>() < 0)
+    fail(where + ": camera pose has a reflection (det R < 0): check the axis convention");
   m.narrow(0, 0, 3).narrow(1, 0, 3).copy_(R);
   m[3] = at::tensor({0.0, 0.0, 0.0, 1.0}, at::kDouble);
   return m.to(at::kFloat);

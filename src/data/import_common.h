@@ -25,7 +25,10 @@ std::string write_import_image(const Scene& scene, int64_t index, const at::Tens
 std::string default_scene_name(const std::string& out_dir);
 
 // Re-orthonormalises the rotation of a c2w (4,4) (float noise in source files).
-at::Tensor rigid(const at::Tensor& c2w);
+// A rotation block that is no rotation at all (all zero, rank-deficient: its
+// smallest singular value under 1e-3 of its largest) or a reflection is
+// refused with `where` (the file and frame), never replaced by a guess.
+at::Tensor rigid(const at::Tensor& c2w, const std::string& where);
 
 // The scene is built in "<out_dir>.incomplete-<pid>" and moved into place by
 // finish_import, so a failed import leaves an earlier scene at out_dir as it

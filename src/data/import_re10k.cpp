@@ -106,11 +106,12 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
     auto w2c = at::eye(4, at::kDouble);
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c) w2c[r][c] = l.values[6 + 4 * r + c];
-    auto c2w = camera::world_to_camera(detail::rigid(w2c).to(at::kDouble).unsqueeze(0))[0];  // rigid inverse
+    const std::string where = camera_file + ": camera line of timestamp " + l.timestamp;
+    auto c2w = camera::world_to_camera(detail::rigid(w2c, where).to(at::kDouble).unsqueeze(0))[0];  // rigid inverse
     c2w.select(1, 3).narrow(0, 0, 3).mul_(o.metric_scale);
     SceneFrame frame;
     frame.intrinsics = at::tensor({l.values[0], l.values[1], l.values[2], l.values[3]}, at::kDouble).to(at::kFloat);
-    frame.c2w = detail::rigid(c2w);
+    frame.c2w = detail::rigid(c2w, where);
     frame.timestamp = std::stod(l.timestamp);
     frame.image = detail::write_import_image(scene, int64_t(k), rgb);
     scene.frames.push_back(std::move(frame));

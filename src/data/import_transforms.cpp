@@ -183,7 +183,7 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
 
     SceneFrame frame;
     frame.intrinsics = at::tensor({c.fx / c.w, c.fy / c.h, c.cx / c.w, c.cy / c.h}, at::kDouble).to(at::kFloat);
-    frame.c2w = detail::rigid(c2w);
+    frame.c2w = detail::rigid(c2w, where + ": 'transform_matrix'");
     frame.image = detail::write_import_image(scene, int64_t(i), rgb);
     scene.frames.push_back(std::move(frame));
     progress.step();

@@ -52,6 +52,17 @@ void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<Window
   write_scene_json(scene);
 }
 
+namespace {
+// Latents are floating point: an integer tensor is a wrong file, not values to convert.
+at::Tensor read_latent(const safetensors::MappedFile& file, const std::string& key, const std::string& what) {
+  auto t = read_tensor(file, key);
+  if (t.defined() && !t.is_floating_point())
+    fail(what + ": dtype " + std::string(c10::toString(t.scalar_type())) +
+         "; latents must be floating point (float32, bfloat16 or float16)");
+  return t.defined() ? t.to(at::kFloat) : t;
+}
+}  // namespace
+
 WindowLatents read_window_latents(const Scene& scene, size_t window) {
   const auto& info = scene.latents;
   FLAT_CHECK(info.present(), scene.json_path() + ": scene '" + scene.name + "' has no latents");
@@ -61,8 +72,8 @@ WindowLatents read_window_latents(const Scene& scene, size_t window) {
   auto file = safetensors::MappedFile::open(path);
   const std::string k = std::to_string(window);
   WindowLatents out;
-  out.video = read_tensor(*file, "video." + k).to(at::kFloat);
-  out.camera = read_tensor(*file, "camera." + k).to(at::kFloat);
+  out.video = read_latent(*file, "video." + k, path + ": 'video." + k + "'");
+  out.camera = read_latent(*file, "camera." + k, path + ": 'camera." + k + "'");
   check_window(out.video, 16, info, info.windows[window], path + ": 'video." + k + "'");
   check_window(out.camera, 32, info, info.windows[window], path + ": 'camera." + k + "'");
   auto frames = read_tensor(*file, "frames." + k);

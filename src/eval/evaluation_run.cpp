@@ -80,7 +80,14 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
   const auto scenes = collect_scenes(o.datasets);  // bad dataset paths fail before anything is written
 
   auto trained = pipeline::load_trained_model(o.model, o.config, o.overrides);
-  const std::string model_id = trained.describe();
+  // The model by its canonical path: the same file spelled relative or absolute is the same model.
+  const std::string spelled_id = trained.describe();
+  std::string model_id = spelled_id;
+  {
+    std::error_code canon_ec;
+    const auto canon = fs::weakly_canonical(trained.model_file, canon_ec);
+    if (!canon_ec) model_id = canon.string() + spelled_id.substr(trained.model_file.size());
+  }
   const std::string fingerprint = o.settings.fingerprint() + " config=" + pipeline::model_signature(trained.config).pipeline_config;
   std::error_code ec;
   fs::create_directories(o.out_dir + "/scores", ec);
@@ -98,10 +105,16 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     } catch (const nlohmann::json::exception& e) {
       fail(settings_file + ": malformed (" + e.what() + ")");
     }
-    const bool same = old.value("model", "") == model_id && old.value("settings", "") == fingerprint;
-    if (!same && !o.redo)
+    const std::string old_model = old.value("model", ""), old_settings = old.value("settings", "");
+    const bool same_model = old_model == model_id || old_model == spelled_id;  // (files of older versions)
+    const bool same = same_model && old_settings == fingerprint;
+    if (!same && !o.redo) {
+      std::string what;
+      if (!same_model) what += "\n  model: there " + old_model + ", now " + model_id;
+      if (old_settings != fingerprint) what += "\n  settings: there " + old_settings + ", now " + fingerprint;
       fail(o.out_dir + ": holds scores of another model or other settings (" + settings_file +
-           "); use a new --out folder, or --redo to score every scene again here");
+           "); use a new --out folder, or --redo to score every scene again here:" + what);
+    }
     if (o.redo || !same) {
       fs::remove_all(o.out_dir + "/scores", ec);
       fs::create_directories(o.out_dir + "/scores", ec);

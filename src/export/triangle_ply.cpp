@@ -90,6 +90,19 @@ primitives::TriangleSoup read_triangle_ply(const std::string& path) {
   soup.colors = copy(p.colors, {p.faces, 3});
   soup.opacities = copy(p.opacities, {p.faces});
   soup.sigmas = copy(p.sigmas, {p.faces});
+  // The values docs/formats.md promises, checked here with the file's name
+  // (the rasterizer would refuse them too, naming only its own inputs).
+  const auto first_bad = [&](const at::Tensor& bad, const std::string& what) {
+    const auto per_face = bad.dim() > 1 ? bad.flatten(1).any(1) : bad;
+    const int64_t n = per_face.sum().item<int64_t>();
+    if (n > 0)
+      fail(path + ": " + std::to_string(n) + " face(s) with " + what + " (the first: face " +
+           std::to_string(per_face.nonzero()[0][0].item<int64_t>()) + ")");
+  };
+  first_bad(~at::isfinite(soup.vertices), "a non-finite vertex coordinate");
+  first_bad(~at::isfinite(soup.colors), "a non-finite colour");
+  first_bad(~((soup.opacities >= 0) & (soup.opacities <= 1)), "opacity outside [0, 1]");
+  first_bad(~((soup.sigmas > 0) & at::isfinite(soup.sigmas)), "sigma not a finite number > 0");
   return soup;
 }
 

@@ -53,6 +53,11 @@ InferInput from_files(const InputSpec& spec) {
          (keys.empty() ? "nothing" : keys));
   }
   auto video = it->second;
+  // Integer latents are a wrong file, not values to convert.
+  for (const char* key : {"video", "camera"})
+    if (tensors.count(key) && !tensors.at(key).is_floating_point())
+      fail(spec.latents_file + ": '" + key + "' has dtype " + std::string(c10::toString(tensors.at(key).scalar_type())) +
+           "; latents must be floating point (float32, bfloat16 or float16)");
   const bool ok = (video.dim() == 4 && video.size(0) == 16) || (video.dim() == 5 && video.size(0) == 1 && video.size(1) == 16);
   if (!ok)
     fail(spec.latents_file + ": 'video': expected shape (16,T',h,w) or (1,16,T',h,w), got " + shape_str(video));

@@ -54,7 +54,13 @@ void write_video(const TrajectoryRenders& r, const std::string& path, double fps
 InferSummary run_inference(const InferOptions& o) {
   const auto t_start = Clock::now();
   InferSummary s;
-  // Everything that can be checked before any work is: the output folder first.
+  // Everything that can be checked before any work is. A viewer asked for by
+  // naming its three.js folder is a promise: a wrong folder fails here, not
+  // as a note at the end.
+  if (o.viewer && !o.three_js_dir.empty() && !exporter::viewer_available(o.three_js_dir))
+    fail("--three-js " + o.three_js_dir + ": three.js r111 not found there (needs three.min.js, "
+         "examples/js/controls/OrbitControls.js and examples/js/loaders/GLTFLoader.js); give the right folder, leave "
+         "--three-js out (Debian's libjs-three), or pass --no-viewer");
   StagedDir out(o.out_dir, o.overwrite);
   setup_logging(o.log_level, out.file("infer.log"));
   spdlog::info("flat_infer: writing into {} (appears when finished)", o.out_dir);
@@ -197,6 +203,7 @@ InferSummary run_inference(const InferOptions& o) {
                       {"triangles_kept", s.triangles_kept},
                       {"input_views", s.input_views},
                       {"novel_views", s.novel_views},
+                      {"novel_trajectory", o.novel.preset},
                       {"render_size", {H, W}},
                       {"seconds", {{"decode", s.decode_seconds}, {"export", s.export_seconds},
                                    {"render", s.render_seconds}, {"total", s.total_seconds}}},

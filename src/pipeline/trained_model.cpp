@@ -10,6 +10,7 @@
 
 #include "flat/core/config.h"
 #include "flat/core/error.h"
+#include "flat/core/shape.h"
 #include "flat/model/weights.h"
 
 namespace flat::pipeline {
@@ -143,6 +144,15 @@ TrainedModel load_trained_model(const std::string& path, const std::string& conf
   m.model_file = resolve_model_file(path);
   Metadata meta;
   auto tensors = load_safetensors(m.model_file, &meta);
+  // The weights themselves, named with the file before anything is decoded
+  // with them (a NaN weight would otherwise surface as NaN triangles of
+  // every scene, blaming the scene).
+  for (const auto& [key, t] : tensors) {
+    if (!t.is_floating_point())
+      fail(m.model_file + ": '" + key + "' has dtype " + std::string(c10::toString(t.scalar_type())) +
+           "; model weights must be floating point");
+    check_finite(t, m.model_file + ": weight '" + key + "'");
+  }
   if (meta.count("stage")) m.stage = meta["stage"];
   if (meta.count("step")) m.step = meta["step"];
 

@@ -403,3 +403,208 @@ TEST_CASE("flat_render and flat_bench raster: --device cpu works, an existing ou
   CHECK(bench.rc == 0);
   CHECK_THAT(bench.output, FLAT_CONTAINS("forward+backward"));
 }
+
+// ---- issue #32: never destroy, never pass off wrong output -------------------------
+
+namespace {
+
+// A one-face triangle PLY (the format of docs/formats.md) with the given values.
+std::string triangle_ply(float x0, float red, float opacity, float sigma) {
+  std::string body;
+  auto put = [&body](auto v) { body.append(reinterpret_cast<const char*>(&v), sizeof(v)); };
+  for (float v : {x0, 0.f, 2.f, 0.5f, 0.f, 2.f, 0.f, 0.5f, 2.f}) put(v);
+  put(uint8_t(3));
+  for (int32_t i : {0, 1, 2}) put(i);
+  for (float v : {red, 0.4f, 0.2f, opacity, sigma}) put(v);
+  return "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+         "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+         "property float red\nproperty float green\nproperty float blue\nproperty float opacity\n"
+         "property float sigma\nend_header\n" + body;
+}
+
+std::string cameras_with_c2w(const std::string& c2w) {
+  return "{\"version\": 1, \"cameras\": [{\"width\": 8, \"height\": 8, \"intrinsics\": [1, 1, 0.5, 0.5], \"c2w\": " +
+         c2w + "}]}";
+}
+
+}  // namespace
+
+TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input folder byte-identical", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_inputs").string(), data = d + "/data";
+  fs::copy(f.synth, data, fs::copy_options::recursive);
+  const std::string scene_json = data + "/room_000000/scene.json";
+  const std::string good_json = read_file(scene_json);
+  fs::resize_file(scene_json, fs::file_size(scene_json) / 2);  // a scene.json cut short
+  const auto before = snapshot(data);
+  auto latents = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
+                      "latents_bad");
+  INFO(latents.output);
+  CHECK(latents.rc == 1);
+  CHECK_THAT(latents.output, FLAT_CONTAINS("scene.json"));
+  CHECK_THAT(latents.output, FLAT_CONTAINS("the log of this run is"));
+  CHECK(snapshot(data) == before);  // no flat_latents.log, nothing else
+  auto pack = tool("flat_pack", {"--scenes", data}, d, "pack_bad");
+  INFO(pack.output);
+  CHECK(pack.rc == 1);
+  CHECK(snapshot(data) == before);
+  if (flat::image_io_available()) {
+    // A frame cut short, found only while encoding: still nothing written.
+    write_text(scene_json, good_json);
+    std::string png;
+    for (const auto& e : fs::recursive_directory_iterator(data + "/room_000000"))
+      if (e.path().extension() == ".png" && png.empty()) png = e.path().string();
+    REQUIRE_FALSE(png.empty());
+    fs::resize_file(png, 40);
+    const auto before_frames = snapshot(data);
+    auto mid = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
+                    "latents_bad_frame");
+    INFO(mid.output);
+    CHECK(mid.rc == 1);
+    CHECK(snapshot(data) == before_frames);
+  }
+  // A run that succeeds leaves its log there, as docs/cli.md says.
+  const std::string good = d + "/good";
+  fs::copy(f.synth, good, fs::copy_options::recursive);
+  auto ok = tool("flat_latents", {"--scenes", good, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents_ok");
+  INFO(ok.output);
+  CHECK(ok.rc == 0);
+  CHECK_THAT(read_file(good + "/flat_latents.log"), FLAT_CONTAINS("wrote latents for 1 of 1 scenes"));
+}
+
+TEST_CASE("flat_eval: --out-table never replaces a file without --overwrite; bad flags are usage errors", "[cli]") {
+  const std::string d = fresh_dir("cli_eval").string();
+  write_text(d + "/table.md", "my own table\n");
+  auto r = tool("flat_eval", {"--compare", d + "/a", d + "/b", "--out-table", d + "/table.md"}, d, "out_table");
+  INFO(r.output);
+  CHECK(r.rc == 1);
+  CHECK_THAT(r.output, FLAT_CONTAINS(d + "/table.md: already exists"));
+  CHECK(read_file(d + "/table.md") == "my own table\n");
+  for (const auto& bad : std::vector<std::vector<std::string>>{
+           {"--views", "foo"}, {"--ssim", "ms"}, {"--max-views", "-1"}, {"--window", "-2"},
+           {"--size", "100000x100000"}}) {
+    std::vector<std::string> args = {"--model", d + "/m", "--scenes", d + "/s", "--out", d + "/out"};
+    args.insert(args.end(), bad.begin(), bad.end());
+    auto u = tool("flat_eval", args, d, "usage" + bad[0]);
+    INFO(bad[0] << " " << bad[1] << ": " << u.output);
+    CHECK(u.rc == 2);
+    CHECK_THAT(u.output, FLAT_CONTAINS(bad[0]));
+  }
+  CHECK_FALSE(fs::exists(d + "/out"));
+}
+
+TEST_CASE("flat_render: bad cameras, backgrounds and triangle values are refused, naming the file", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_render_bad").string();
+  const std::string ply = f.root + "/one.ply", cams = f.root + "/cams_small.json";
+  // --background: not numbers, outside [0,1], NaN: usage errors, nothing written.
+  for (const std::string bg : {"abc", "2,0,0", "nan,0,0", "0.5,0.5", "0,0,1.5"}) {
+    auto r = tool("flat_render", {"--triangles", ply, "--cameras", cams, "--out", d + "/bg", "--background", bg,
+                                  "--device", "cpu"},
+                  d, "bg");
+    INFO(bg << ": " << r.output);
+    CHECK(r.rc == 2);
+    CHECK_THAT(r.output, FLAT_CONTAINS("--background"));
+    CHECK_FALSE(fs::exists(d + "/bg"));
+  }
+  // c2w: a 3x4 matrix or a last row other than 0 0 0 1 is no rigid pose.
+  write_text(d + "/cams_3x4.json", cameras_with_c2w("[[1,0,0,0],[0,1,0,0],[0,0,1,0]]"));
+  write_text(d + "/cams_row.json", cameras_with_c2w("[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,1,2]]"));
+  for (const std::string c : {"cams_3x4.json", "cams_row.json"}) {
+    auto r = tool("flat_render", {"--triangles", ply, "--cameras", d + "/" + c, "--out", d + "/cam", "--device", "cpu"},
+                  d, c);
+    INFO(r.output);
+    CHECK(r.rc == 1);
+    CHECK_THAT(r.output, FLAT_CONTAINS(c));
+    CHECK_THAT(r.output, FLAT_CONTAINS("'c2w'"));
+    CHECK_FALSE(fs::exists(d + "/cam"));
+  }
+  // Triangle values outside the format: the message names the PLY file.
+  struct Bad {
+    std::string name, ply, words;
+  };
+  for (const auto& b : {Bad{"nan_vertex", triangle_ply(NAN, 0.8f, 0.9f, 1.f), "a non-finite vertex"},
+                        Bad{"negative_sigma", triangle_ply(0.f, 0.8f, 0.9f, -1.f), "sigma"},
+                        Bad{"opacity_1.5", triangle_ply(0.f, 0.8f, 1.5f, 1.f), "opacity outside [0, 1]"},
+                        Bad{"inf_colour", triangle_ply(0.f, INFINITY, 0.9f, 1.f), "a non-finite colour"}}) {
+    const std::string file = d + "/" + b.name + ".ply";
+    write_text(file, b.ply);
+    auto r = tool("flat_render", {"--triangles", file, "--cameras", cams, "--out", d + "/tri", "--device", "cpu"}, d,
+                  b.name);
+    INFO(b.name << ": " << r.output);
+    CHECK(r.rc == 1);
+    CHECK_THAT(r.output, FLAT_CONTAINS(file + ": 1 face(s) with " + b.words));
+    CHECK_FALSE(fs::exists(d + "/tri"));
+  }
+  // The good PLY still renders (the helper writes a valid one).
+  write_text(d + "/good.ply", triangle_ply(0.f, 0.8f, 0.9f, 1.f));
+  CHECK(tool("flat_render", {"--triangles", d + "/good.ply", "--cameras", cams, "--out", d + "/ok", "--device", "cpu"},
+             d, "good")
+            .rc == 0);
+}
+
+TEST_CASE("flat_infer: contradictory inputs and an unknown --novel are usage errors", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_infer_usage").string();
+  const std::vector<std::string> base = {"--model", d + "/no_model", "--out", d + "/out"};
+  auto with = [&](std::vector<std::string> extra) {
+    auto a = base;
+    a.insert(a.end(), extra.begin(), extra.end());
+    return a;
+  };
+  auto neither = tool("flat_infer", base, d, "neither");
+  CHECK(neither.rc == 2);
+  CHECK_THAT(neither.output, FLAT_CONTAINS("exactly one of --scene"));
+  auto both = tool("flat_infer", with({"--scene", f.synth + "/room_000000", "--latents", f.latent, "--cameras",
+                                       f.root + "/cams_small.json"}),
+                   d, "both");
+  CHECK(both.rc == 2);
+  auto novel = tool("flat_infer", with({"--scene", f.synth + "/room_000000", "--novel", "circle"}), d, "novel");
+  CHECK(novel.rc == 2);
+  CHECK_THAT(novel.output, FLAT_CONTAINS("orbit | dolly | none"));
+  CHECK_FALSE(fs::exists(d + "/out"));
+  // --help does not pass off bf16 as what a CPU run computes in.
+  CHECK_THAT(tool("flat_infer", {"--help"}, d, "help").output, FLAT_CONTAINS("on the CPU the run is fp32"));
+}
+
+TEST_CASE("flat_import transforms: a frame whose rotation is all zero is refused, naming the frame", "[cli]") {
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the capture's PNGs cannot be imported");
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_import_zero").string(), capture = d + "/capture";
+  fs::copy(f.capture, capture, fs::copy_options::recursive);
+  std::string json = read_file(capture + "/transforms.json");
+  const std::string second = "[[1,0,0,0.1";
+  const auto at = json.find(second);
+  REQUIRE(at != std::string::npos);
+  // Frame 1: [[0,0,0,0.1],[0,0,0,0],[0,0,0,0],[0,0,0,1]].
+  const auto end = json.find("]]", at);
+  json.replace(at, end + 2 - at, "[[0,0,0,0.1],[0,0,0,0],[0,0,0,0],[0,0,0,1]]");
+  write_text(capture + "/transforms.json", json);
+  auto r = tool("flat_import", {"transforms", "--in", capture, "--out", d + "/scene"}, d, "zero");
+  INFO(r.output);
+  CHECK(r.rc == 1);
+  CHECK_THAT(r.output, FLAT_CONTAINS("images/1.png"));
+  CHECK_THAT(r.output, FLAT_CONTAINS("rotation is degenerate"));
+  CHECK_FALSE(fs::exists(d + "/scene"));
+}
+
+TEST_CASE("an output path under a file names the path and what is wrong, never a bare filesystem error", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_out_file").string();
+  write_text(d + "/afile", "x");
+  auto synth = tool("flat_synth", {"--out", d + "/afile/synth", "--scenes", "1", "--frames", "5", "--size", "16x24"},
+                    d, "synth");
+  INFO(synth.output);
+  CHECK(synth.rc == 1);
+  CHECK_THAT(synth.output, FLAT_CONTAINS(d + "/afile/synth"));
+  CHECK_THAT(synth.output, FLAT_CONTAINS("Not a directory"));
+  CHECK_THAT(synth.output, !FLAT_CONTAINS("unexpected error"));
+  auto render = tool("flat_render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json",
+                                     "--out", d + "/afile/render", "--device", "cpu"},
+                     d, "render");
+  INFO(render.output);
+  CHECK(render.rc == 1);
+  CHECK_THAT(render.output, FLAT_CONTAINS(d + "/afile/render"));
+  CHECK_THAT(render.output, !FLAT_CONTAINS("unexpected error"));
+  CHECK(read_file(d + "/afile") == "x");
+}

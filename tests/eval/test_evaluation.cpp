@@ -5,6 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "flat/core/tensor_io.h"
 #include "flat/eval/evaluation_report.h"
 #include "flat/eval/evaluation_run.h"
 #include "flat/eval/image_metrics.h"
@@ -168,11 +169,15 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   CHECK(again.reused == 3);
   CHECK(again.failed == 1);
   CHECK(read_text(fs::path(o.out_dir) / "scores/A/room_a.json") == a_score);
+  // The same model file spelled another way is the same model.
+  auto spelled = o;
+  spelled.model = (dir / "." / "model.safetensors").string();
+  CHECK(eval::run_evaluation(spelled).reused == 3);
 
-  // Other settings into the same folder: refused unless --redo.
+  // Other settings into the same folder: refused unless --redo, saying what differs.
   auto other = o;
   other.settings.max_views = 2;
-  REQUIRE_THROWS_WITH(eval::run_evaluation(other), FLAT_CONTAINS("--redo"));
+  REQUIRE_THROWS_WITH(eval::run_evaluation(other), FLAT_CONTAINS("--redo") && FLAT_CONTAINS("max_views=2"));
   other.redo = true;
   other.out_dir = o.out_dir;
   auto redone = eval::run_evaluation(other);
@@ -255,4 +260,27 @@ TEST_CASE("flat_eval baselines: a constant model's swap score equals its own; pr
   const auto json = nlohmann::json::parse(read_text(dir / "out_constant/results.json"));
   CHECK(json.at("latent_encoder") == "random");
   CHECK(json.at("scenes")[0].at("swap_scene") == "room_1");
+}
+
+TEST_CASE("flat_eval: a model with a NaN weight is named at load, not blamed on every scene", "[eval]") {
+  const auto dir = test::scratch_dir("eval_nan_model");
+  const std::string good = (dir / "model.safetensors").string(), model = (dir / "nan_model.safetensors").string();
+  test::write_tiny_model(good);
+  test::write_scene_with_latents((dir / "set/room_a").string(), 1);
+  Metadata meta;
+  auto tensors = load_safetensors(good, &meta);
+  const std::string key = tensors.begin()->first;
+  auto t = tensors.at(key).clone();
+  t.view(-1)[0] = NAN;
+  tensors[key] = t;
+  save_safetensors(model, tensors, meta);
+  eval::EvalRunOptions o;
+  o.model = model;
+  o.datasets = {"S=" + (dir / "set").string()};
+  o.out_dir = (dir / "out").string();
+  o.device = "cpu";
+  o.log_level = "warn";
+  REQUIRE_THROWS_WITH(eval::run_evaluation(o), FLAT_CONTAINS(model + ": weight '" + key + "'") &&
+                                                   FLAT_CONTAINS("non-finite"));
+  CHECK(!fs::exists(o.out_dir));
 }

@@ -90,6 +90,8 @@ TEST_CASE("flat_infer decodes a scene window and writes PLY, cameras, renders an
   }
   auto j = nlohmann::json::parse(read_text(out / "summary.json"));
   CHECK(j.at("triangles_kept").get<int64_t>() == summary.triangles_kept);
+  CHECK(j.at("novel_trajectory").get<std::string>() == "orbit");  // which novel views these are
+  CHECK(j.at("latent_encoder").get<std::string>() == "random");
   CHECK(fs::exists(out / "infer.log"));
   CHECK(no_staging_left(s.dir));
 }
@@ -237,6 +239,53 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
     o.input.cameras_file = cams;
     o.out_dir = (s.dir / "nan_out").string();
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("nan.safetensors") && FLAT_CONTAINS("NaN"));
+    CHECK(!fs::exists(o.out_dir));
+  }
+  SECTION("int64 latents are a wrong file, not values to convert") {
+    auto scene = data::read_scene(s.scene);
+    auto w = data::read_window_latents(scene, 0);
+    const std::string z = (s.dir / "int64.safetensors").string();
+    save_safetensors(z, {{"video", w.video.round().to(at::kLong)}, {"camera", w.camera}});
+    std::vector<int64_t> first9{0, 1, 2, 3, 4, 5, 6, 7, 8};
+    const std::string cams = (s.dir / "traj.json").string();
+    camera::write_cameras_json(cams, {scene.cameras(first9), 80, 48});
+    auto o = good;
+    o.input = {};
+    o.input.latents_file = z;
+    o.input.cameras_file = cams;
+    o.out_dir = (s.dir / "int64_out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("int64.safetensors: 'video' has dtype Long") &&
+                                                     FLAT_CONTAINS("floating point"));
+    CHECK(!fs::exists(o.out_dir));
+  }
+  SECTION("a model file with an int64 tensor or a NaN weight is named at load") {
+    Metadata meta;
+    auto tensors = load_safetensors(s.model, &meta);
+    const std::string key = tensors.begin()->first;
+    for (const char* fault : {"int64", "nan"}) {
+      auto bad = tensors;
+      auto t = bad.at(key).clone();
+      if (std::string(fault) == "nan") t.view(-1)[3] = NAN;
+      else t = t.round().to(at::kLong);
+      bad[key] = t;
+      const std::string file = (s.dir / (std::string(fault) + "_model.safetensors")).string();
+      save_safetensors(file, bad, meta);
+      auto o = good;
+      o.model = file;
+      o.out_dir = (s.dir / (std::string(fault) + "_model_out")).string();
+      INFO(fault);
+      REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS(file) && FLAT_CONTAINS("'" + key + "'") &&
+                                                       FLAT_CONTAINS(std::string(fault) == "nan" ? "non-finite" : "Long"));
+      CHECK(!fs::exists(o.out_dir));
+    }
+  }
+  SECTION("a --three-js folder given explicitly must hold three.js") {
+    auto o = good;
+    o.viewer = true;
+    o.glb = true;
+    o.three_js_dir = (s.dir / "no_three").string();
+    o.out_dir = (s.dir / "three_out").string();
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--three-js " + o.three_js_dir));
     CHECK(!fs::exists(o.out_dir));
   }
 }

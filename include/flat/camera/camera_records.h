@@ -14,7 +14,7 @@ namespace flat::camera {
 struct CameraRecord {
   int64_t width = 0, height = 0;
   std::array<float, 4> intrinsics{};  // fx/W, fy/H, cx/W, cy/H
-  std::array<float, 16> c2w{};        // row-major 4x4, last row 0 0 0 1 when given as 3x4
+  std::array<float, 16> c2w{};        // row-major 4x4, last row 0 0 0 1 (anything else is refused)
 };
 
 // One entry; throws flat::Error naming `where` and the key at fault.

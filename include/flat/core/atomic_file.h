@@ -28,6 +28,11 @@ class AtomicFile {
   bool committed_ = false;
 };
 
+// Before any work: throws flat::Error naming `path` when it is a folder, or
+// exists and `overwrite` is false (`flag` names the option in the message:
+// "--out-table FILE: already exists; pass --overwrite to replace it").
+void check_output_file(const std::string& path, bool overwrite, const std::string& flag);
+
 // Convenience: write `text` (or bytes) to `path` atomically.
 void write_file_atomic(const std::string& path, const std::string& bytes);
 void write_file_atomic(const std::string& path, const std::function<void(std::ostream&)>& writer);
