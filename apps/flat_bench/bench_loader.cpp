@@ -85,12 +85,31 @@ void time_loader(const LoaderBenchOptions& o, const std::string& root, const std
               double(o.batches * o.batch * o.targets) / s, bytes / s / 1e6);
 }
 
+// The synthesised dataset is removed on every way out, a failure included.
+struct TempTree {
+  std::filesystem::path root;
+  ~TempTree() {
+    std::error_code ec;
+    if (root.empty() || !std::filesystem::exists(root, ec)) return;
+    try {
+      remove_tree(root);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "flat_bench loader: cannot remove the temporary folder %s (%s)\n", root.c_str(), e.what());
+    }
+  }
+};
+
 void run(const LoaderBenchOptions& o) {
   namespace fs = std::filesystem;
+  if (o.mode != "files" && !o.data.empty())
+    fail("--mode packed with --data would pack (modify) your scenes; pack them with flat_pack");
+  parse_size(o.size);  // a bad --size is refused before anything is synthesised
   std::string root = o.data;
   fs::path tmp;
+  TempTree temp_tree;
   if (root.empty()) {
     tmp = fs::temp_directory_path() / ("flat_bench_loader_" + std::to_string(::getpid()));
+    temp_tree.root = tmp;
     auto [h, w] = parse_size(o.source_size);
     auto t0 = std::chrono::steady_clock::now();
     for (int64_t i = 0; i < o.scenes; ++i) {
@@ -109,14 +128,12 @@ void run(const LoaderBenchOptions& o) {
   }
   if (o.mode != "packed") time_loader(o, root, "files");
   if (o.mode != "files") {
-    if (!o.data.empty()) fail("--mode packed with --data would pack (modify) your scenes; pack them with flat_pack");
     for (const auto& e : fs::directory_iterator(root)) {
       auto scene = data::read_scene(e.path().string());
       data::pack_scene(scene, true);
     }
     time_loader(o, root, "packed");
   }
-  if (!tmp.empty()) remove_tree(tmp);
 }
 
 }  // namespace

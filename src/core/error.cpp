@@ -3,6 +3,7 @@
 #include <exception>
 #include <filesystem>
 
+#include <c10/util/Exception.h>
 #include <spdlog/spdlog.h>
 
 namespace flat {
@@ -22,6 +23,10 @@ int report_current_error() {
     std::string paths = "'" + e.path1().string() + "'";
     if (!e.path2().empty()) paths += " (to '" + e.path2().string() + "')";
     spdlog::error("{}: {}", paths, what);
+  } catch (const c10::Error& e) {
+    // libtorch's own errors (an allocation that cannot fit, a kernel's
+    // check): the message, without the C++ stack trace that follows it.
+    spdlog::error("unexpected error: {}", e.what_without_backtrace());
   } catch (const std::exception& e) {
     spdlog::error("unexpected error: {}", e.what());
   } catch (...) {

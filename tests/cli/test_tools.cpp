@@ -608,3 +608,102 @@ TEST_CASE("an output path under a file names the path and what is wrong, never a
   CHECK_THAT(render.output, !FLAT_CONTAINS("unexpected error"));
   CHECK(read_file(d + "/afile") == "x");
 }
+
+TEST_CASE("never destroy: every tool against an existing folder of user files, refused, failing and succeeding",
+          "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_never_destroy").string();
+  // The user's own files where a tool is told to write.
+  auto user_folder = [](const std::string& dir) {
+    write_text(dir + "/thesis.tex", "my thesis\n");
+    write_text(dir + "/data/table.csv", "1,2,3\n");
+    return snapshot(dir);
+  };
+  flat::save_safetensors(d + "/latent_bad.safetensors", {{"latent", torch::randn({1, 5, 2, 2, 3})}});
+  write_text(d + "/nan.ply", triangle_ply(NAN, 0.8f, 0.9f, 1.f));
+  struct Run {
+    std::string name, program;
+    std::vector<std::string> args;  // {OUT}: the target
+  };
+  struct ToolCase {
+    Run refused, failing, succeeding;  // without --overwrite; with it on a bad input; with it on a good one
+    std::string written;               // a file only the succeeding run writes in the target
+  };
+  auto with_out = [](std::vector<std::string> args, const std::string& out) {
+    for (auto& a : args)
+      if (a == "{OUT}") a = out;
+    return args;
+  };
+  const std::vector<ToolCase> cases = {
+      {{"render", "flat_render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json", "--out",
+                                  "{OUT}", "--device", "cpu"}},
+       {"render", "flat_render", {"--triangles", d + "/nan.ply", "--cameras", f.root + "/cams_small.json", "--out",
+                                  "{OUT}", "--device", "cpu", "--overwrite"}},
+       {"render", "flat_render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json", "--out",
+                                  "{OUT}", "--device", "cpu", "--overwrite"}},
+       "render.safetensors"},
+      {{"vae", "flat_vae", {"decode", "--random-weights", "--dim", "4", "--in", f.latent, "--out", "{OUT}"}},
+       {"vae", "flat_vae", {"decode", "--random-weights", "--dim", "4", "--in", d + "/latent_bad.safetensors", "--out",
+                            "{OUT}", "--overwrite"}},
+       {"vae", "flat_vae", {"decode", "--random-weights", "--dim", "4", "--in", f.latent, "--out", "{OUT}",
+                            "--overwrite"}},
+       "frame_0000.png"},
+  };
+  for (const auto& c : cases) {
+    if (c.succeeding.program == "flat_vae" && !flat::image_io_available()) continue;  // PNG frames
+    const std::string out = d + "/" + c.refused.name;
+    const auto before = user_folder(out);
+    auto refused = tool(c.refused.program, with_out(c.refused.args, out), d, c.refused.name + "_refused");
+    INFO(c.refused.name << " refused: " << refused.output);
+    CHECK(refused.rc == 1);
+    CHECK_THAT(refused.output, FLAT_CONTAINS("--overwrite"));
+    CHECK(snapshot(out) == before);
+    auto failing = tool(c.failing.program, with_out(c.failing.args, out), d, c.failing.name + "_failing");
+    INFO(c.failing.name << " failing: " << failing.output);
+    CHECK(failing.rc == 1);
+    CHECK(snapshot(out) == before);
+    auto ok = tool(c.succeeding.program, with_out(c.succeeding.args, out), d, c.succeeding.name + "_ok");
+    INFO(c.succeeding.name << " succeeding: " << ok.output);
+    CHECK(ok.rc == 0);
+    const auto after = snapshot(out);
+    CHECK(after.count(c.written) == 1);
+    CHECK(after.count("thesis.tex") == 0);  // replaced whole, as asked
+    for (const auto& e : fs::directory_iterator(d))
+      CHECK(e.path().filename().string().find(".incomplete-") == std::string::npos);
+  }
+  // flat_synth writes scene folders into --out: the user's files beside them stay as they were.
+  const std::string synth = d + "/synth";
+  const auto synth_before = user_folder(synth);
+  REQUIRE(tool("flat_synth", {"--out", synth, "--scenes", "1", "--frames", "5", "--size", "16x24"}, d, "synth").rc == 0);
+  auto synth_after = snapshot(synth);
+  for (const auto& [file, bytes] : synth_before) CHECK(synth_after[file] == bytes);
+  // flat_vae encode into an existing file: refused, and a failing --overwrite keeps it.
+  write_text(d + "/z.safetensors", "the user's own file");
+  CHECK(tool("flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", f.video_ok, "--out", d + "/z.safetensors"},
+             d, "encode_refused")
+            .rc == 1);
+  CHECK(tool("flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", f.root + "/video_int64.safetensors",
+                          "--out", d + "/z.safetensors", "--overwrite"},
+             d, "encode_failing")
+            .rc == 1);
+  CHECK(read_file(d + "/z.safetensors") == "the user's own file");
+}
+
+TEST_CASE("flat_bench: a size that cannot fit is one line, not a stack trace; loader cleans its temp folder",
+          "[cli]") {
+  check_cases({{"bench_decoder_huge", "flat_bench", {"decoder", "--device", "cpu", "--latent-frames", "1", "--height",
+                                                     "100000", "--width", "100000", "--dim", "4", "--repeats", "1",
+                                                     "--warmup", "0", "--mode", "full"},
+                1, {"can't allocate memory", "640000000000 bytes"}}});
+  // The loader bench fails after synthesising its scenes (a window longer than they are): its temporary folder goes.
+  const std::string d = fresh_dir("cli_bench_loader").string(), tmp = d + "/tmp";
+  fs::create_directories(tmp);
+  const int rc = run({binary("flat_bench"), "loader", "--scenes", "1", "--scene-frames", "5", "--source-size", "16x24",
+                      "--size", "16x24", "--window", "9", "--targets", "1", "--batch", "1", "--workers", "0",
+                      "--batches", "1", "--warmup", "0", "--mode", "files"},
+                     d + "/loader.txt", {"TMPDIR=" + tmp, "OMP_NUM_THREADS=1"});
+  INFO(read_file(d + "/loader.txt"));
+  CHECK(rc == 1);
+  CHECK_THAT(read_file(d + "/loader.txt"), FLAT_CONTAINS("synthesised 1 scenes"));
+  CHECK(fs::is_empty(tmp));
+}
