@@ -4,6 +4,7 @@
 // Scenes are named <family>_<index>; an existing scene of the batch is refused
 // before anything is rendered (never mixed with a new one) unless --overwrite,
 // and --first-index continues the numbering of an earlier batch.
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 
@@ -46,9 +47,20 @@ int main(int argc, char** argv) {
       return std::string(name);
     };
     // Refuse up front: a second batch must not replace the first one's scenes halfway.
+    // One listing of --out, not a look-up per scene (--scenes 100000000 would stat for minutes).
     std::vector<std::string> existing;
-    for (int64_t i = first; i < first + scenes; ++i)
-      if (fs::exists(fs::path(out) / name_of(i))) existing.push_back(name_of(i));
+    std::error_code ec;
+    if (fs::is_directory(out, ec))
+      for (const auto& e : fs::directory_iterator(out, ec)) {
+        const std::string name = e.path().filename().string(), prefix = o.family + "_";
+        if (name.rfind(prefix, 0) != 0) continue;
+        const std::string digits = name.substr(prefix.size());  // %06lld: 6 digits or more
+        if (digits.size() < 6 || digits.size() > 18 || digits.find_first_not_of("0123456789") != std::string::npos)
+          continue;
+        const int64_t i = std::stoll(digits);
+        if (i >= first && i < first + scenes) existing.push_back(name);
+      }
+    std::sort(existing.begin(), existing.end());
     if (!existing.empty() && !overwrite)
       flat::fail(out + ": already holds " + std::to_string(existing.size()) + " scene(s) of this batch (" +
                  existing.front() + (existing.size() > 1 ? ", ..." : "") +
@@ -60,6 +72,8 @@ int main(int argc, char** argv) {
                             c10::Device(c10::kCPU));
     fs::create_directories(out);
     flat::cli::start_logging(log_level, (fs::path(out) / "flat_synth.log").string());
+    spdlog::info("flat_synth: {} {} scene(s) of {} frames at {} into {} (progress every 5 s)", scenes, o.family,
+                 o.frames, size, out);
     flat::Progress progress("flat_synth frames", scenes * o.frames, 5.0);
     for (int64_t i = first; i < first + scenes; ++i) {
       flat::data::SynthOptions s = o;

@@ -16,7 +16,10 @@ PLY colours are display (sRGB) values, quantised to bytes on the vertices;
 GLB COLOR_0 is linear (sRGB -> linear), alpha = opacity. One line per reader
 and file: OK, MISMATCH (with numbers) or UNAVAILABLE (with why). Exit status 1
 on any mismatch, and with --require-all also on an unavailable reader.
-Runs with any python3; trimesh is imported only when that reader runs.
+Runs with any python3; trimesh is imported only when that reader runs. When
+the interpreter it was started with has no trimesh and the project's venv
+(~/.cache/flat/venv/bin/python3, made by scripts/install_deps.sh; or
+$FLAT_PYTHON) has it, the script runs itself again with that one and says so.
 """
 import argparse
 import json
@@ -120,7 +123,8 @@ def trimesh_read(path, kind, sample):
         import numpy  # noqa: F401
         import trimesh
     except ImportError as e:
-        raise Unavailable(f"python package not importable by {sys.executable}: {e} (pip install trimesh)")
+        raise Unavailable(f"python package not importable by {sys.executable}: {e} (pip install trimesh, or run "
+                          f"this script with the project's venv: ~/.cache/flat/venv/bin/python3)")
     loaded = trimesh.load(path, process=False)
     meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
     faces = sum(len(m.faces) for m in meshes)
@@ -198,7 +202,36 @@ def blender_read(path, kind, sample):
     return out["faces"], {int(k): v for k, v in out.get("colours_srgb", {}).items()}, False
 
 
+def project_python():
+    """The project's venv python (or $FLAT_PYTHON) when it is another interpreter than this one."""
+    candidate = os.environ.get("FLAT_PYTHON") or os.path.expanduser("~/.cache/flat/venv/bin/python3")
+    if not os.path.isfile(candidate) or os.path.realpath(candidate) == os.path.realpath(sys.executable):
+        return None
+    return candidate
+
+
+def reexec_with_trimesh():
+    """The system python often lacks trimesh while the project's venv has it: use that one."""
+    try:
+        import trimesh  # noqa: F401
+        return
+    except ImportError:
+        pass
+    if os.environ.get("FLAT_INTEROP_REEXEC"):
+        return  # already re-run once: report trimesh as unavailable
+    other = project_python()
+    if other is None:
+        return
+    probe = subprocess.run([other, "-c", "import trimesh"], capture_output=True)
+    if probe.returncode != 0:
+        return
+    print(f"check_interop: {sys.executable} has no trimesh; running with {other}", flush=True)
+    os.environ["FLAT_INTEROP_REEXEC"] = "1"
+    os.execv(other, [other, os.path.abspath(__file__)] + sys.argv[1:])
+
+
 def main():
+    reexec_with_trimesh()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ply", help="triangle PLY written by write_triangle_ply")
     parser.add_argument("glb", help="GLB of the same scene written by write_triangle_glb ('-': none)")

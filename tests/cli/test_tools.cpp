@@ -707,3 +707,17 @@ TEST_CASE("flat_bench: a size that cannot fit is one line, not a stack trace; lo
   CHECK_THAT(read_file(d + "/loader.txt"), FLAT_CONTAINS("synthesised 1 scenes"));
   CHECK(fs::is_empty(tmp));
 }
+
+TEST_CASE("flat_synth: a huge --scenes says what it does at once", "[cli]") {
+  const std::string d = fresh_dir("cli_synth_many").string();
+  auto child = spawn({binary("flat_synth"), "--out", d + "/data", "--scenes", "100000000", "--frames", "5", "--size",
+                      "16x24", "--first-index", "3"},
+                     d + "/log.txt", {"OMP_NUM_THREADS=1"});
+  REQUIRE(child.pid > 0);
+  // The first line within seconds (the old code looked up 10^8 scene names first, for minutes).
+  const bool spoke = wait_until([&] { return read_file(d + "/log.txt").find("100000000 room scene(s)") != std::string::npos; }, 20);
+  kill(child.pid, SIGKILL);
+  wait_for(child);
+  INFO(read_file(d + "/log.txt"));
+  CHECK(spoke);
+}
