@@ -45,8 +45,8 @@ Cameras make_trajectory(const Cameras& anchor, double look_distance, const Traje
       c2w.slice(0, 0, 3).slice(1, 0, 3).copy_(R.matmul(R0));
       c2w.slice(0, 0, 3).select(1, 3).copy_(target + R.matmul(p0 - target));
     } else {
-      // Dolly in and back: only forward (s >= 0 half), twice per loop.
-      const double t = std::abs(s) * spec.fraction * look_distance;
+      // Dolly in and back once over the frames: 0 -> fraction -> 0 of the look distance.
+      const double t = std::sin(M_PI * double(i) / double(spec.frames)) * spec.fraction * look_distance;
       c2w.slice(0, 0, 3).slice(1, 0, 3).copy_(R0);
       c2w.slice(0, 0, 3).select(1, 3).copy_(p0 + t * forward);
     }

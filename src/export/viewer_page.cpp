@@ -66,9 +66,26 @@ function startCamera() {
     var i = Number(params.get("camera"));
     if (!(Number.isInteger(i) && i >= 0 && i < cams.length))
       throw new Error("camera=" + params.get("camera") + ": this viewer has " + cams.length + " start cameras");
-    return {c2w: [].concat.apply([], cams[i].c2w), intrinsics: cams[i].intrinsics};
+    return {c2w: [].concat.apply([], cams[i].c2w), intrinsics: cams[i].intrinsics,
+            aspect: cams[i].width / cams[i].height};
   }
-  return cams.length ? {c2w: [].concat.apply([], cams[0].c2w), intrinsics: cams[0].intrinsics} : null;
+  return cams.length ? {c2w: [].concat.apply([], cams[0].c2w), intrinsics: cams[0].intrinsics,
+                        aspect: cams[0].width / cams[0].height} : null;
+}
+
+// The intrinsics are normalised by the camera's image: the canvas keeps that
+// image's aspect (letterboxed in the window), so a 5:3 view is never
+// stretched to a 4:3 window. Without a start camera it fills the window.
+var viewAspect = null;
+function fitCanvas() {
+  var w = window.innerWidth, h = window.innerHeight;
+  if (viewAspect > 0) {
+    if (w / h > viewAspect) w = Math.round(h * viewAspect);
+    else h = Math.round(w / viewAspect);
+  }
+  renderer.setSize(w, h);
+  renderer.domElement.style.margin = Math.floor((window.innerHeight - h) / 2) + "px " +
+                                     Math.floor((window.innerWidth - w) / 2) + "px";
 }
 
 // OpenCV intrinsics -> OpenGL projection (camera looks down -z, y up, NDC
@@ -160,6 +177,8 @@ function setCamera(start) {
   if (start) {
     c2w.set.apply(c2w, start.c2w);  // row-major, as Matrix4.set takes it
     intrinsics = start.intrinsics;
+    viewAspect = start.aspect || null;
+    fitCanvas();
   } else {  // frame the scene: in our world, look down +z at its centre
     var centre = bounds.center.clone().applyMatrix4(F);
     c2w.makeTranslation(centre.x, centre.y, centre.z - 2.5 * bounds.radius);
@@ -206,7 +225,7 @@ function onLoad(gltf) {
 }
 
 window.addEventListener("resize", function () {
-  renderer.setSize(window.innerWidth, window.innerHeight);
+  fitCanvas();
   requestDraw();
 });
 

@@ -52,7 +52,14 @@ TEST_CASE("dolly: moves along the optical axis towards the target and back, orie
     CHECK(p[0].item<double>() >= 1.0 - 1e-6);
     CHECK(p[0].item<double>() <= 3.0 + 1e-6);
   }
-  CHECK(cams.c2w[2][0][3].item<double>() == Approx(3.0).epsilon(1e-6));  // furthest: 0.5 * 4 m in
+  CHECK(cams.c2w[4][0][3].item<double>() == Approx(3.0).epsilon(1e-6));  // furthest: 0.5 * 4 m in, half-way
+  // In and back once (not twice): closer every frame up to the middle, then back every frame.
+  for (int64_t i = 1; i < 8; ++i) {
+    const double step = cams.c2w[i][0][3].item<double>() - cams.c2w[i - 1][0][3].item<double>();
+    INFO("frame " << i);
+    if (i <= 4) CHECK(step > 0);
+    else CHECK(step < 0);
+  }
 }
 
 TEST_CASE("trajectory: bad specs are refused with their value", "[camera]") {

@@ -137,19 +137,20 @@ TEST_CASE("viewer: folder holds the page, three.js, the GLB and the cameras", "[
   CHECK(!fs::exists(dir / "v3"));
 }
 
-TEST_CASE("viewer: a chromium screenshot of a camera matches the rasterizer's view", "[export][viewer]") {
-  const std::string three = default_three_js_dir();
-  const std::string chromium = flat::test::find_program("chromium");
-  if (chromium.empty()) FLAT_SKIP("no chromium on PATH (Debian package chromium): viewer not checked against the rasterizer");
-  if (!viewer_available(three)) FLAT_SKIP("three.js r111 not found in " + three + " (Debian package libjs-three)");
-  if (!flat::exporter::glb_export_available()) FLAT_SKIP("built without tinygltf (Debian libtinygltf-dev)");
-  if (!flat::image_io_available()) FLAT_SKIP("built without OpenImageIO: cannot read the screenshot");
-  auto dir = flat::test::scratch_dir("viewer_screenshot");
+namespace {
 
-  // Opaque, sharp-edged triangles seen by an off-centre camera with a non-trivial pose.
-  // Headless chromium lays small windows out at a 500-pixel minimum width: stay above it.
-  const int64_t width = 640, height = 480, n = 14;
-  const auto intrinsics = torch::tensor({0.85, 1.05, 0.44, 0.57});
+// Opaque, sharp-edged triangles seen by an off-centre camera with a
+// non-trivial pose, as a GLB in a viewer folder whose start camera has the
+// image size cam_w x cam_h.
+struct ShotScene {
+  torch::Tensor vertices, colors, opacities, sigmas, intrinsics, c2w;
+  std::string folder;
+};
+
+ShotScene shot_scene(const fs::path& dir, int64_t cam_w, int64_t cam_h, const std::string& three) {
+  const int64_t n = 14;
+  ShotScene sc;
+  sc.intrinsics = torch::tensor({0.85, 1.05, 0.44, 0.57});
   const auto r = rotation(-0.25, 0.35, 0.12);
   const auto t = torch::tensor({0.4, -0.3, 0.2}, torch::kDouble);
   auto gen = at::make_generator<at::CPUGeneratorImpl>(17);
@@ -160,65 +161,120 @@ TEST_CASE("viewer: a chromium screenshot of a camera matches the rasterizer's vi
   const auto z = uni({n}, 3.0, 6.0), u = uni({n}, 0.1, 0.9), v = uni({n}, 0.1, 0.9);
   const auto centre = torch::stack({(u - 0.44) / 0.85 * z, (v - 0.57) / 1.05 * z, z}, 1);
   const auto cam_pts = centre.unsqueeze(1) + uni({n, 3, 3}, -0.45, 0.45) * (z / 4).view({n, 1, 1});
-  const auto vertices = (cam_pts.matmul(r.t()) + t).to(torch::kFloat);  // world = R X + t
+  sc.vertices = (cam_pts.matmul(r.t()) + t).to(torch::kFloat);  // world = R X + t
   // Colours far from the magenta background (green channel >= 0.5).
-  const auto colors = torch::stack({uni({n}, 0.0, 0.6), uni({n}, 0.5, 1.0), uni({n}, 0.0, 0.6)}, 1).to(torch::kFloat);
-  const auto opacities = torch::ones({n});
-  const auto sigmas = torch::full({n}, 0.01);  // window ~1 on the whole triangle
+  sc.colors = torch::stack({uni({n}, 0.0, 0.6), uni({n}, 0.5, 1.0), uni({n}, 0.0, 0.6)}, 1).to(torch::kFloat);
+  sc.opacities = torch::ones({n});
+  sc.sigmas = torch::full({n}, 0.01);  // window ~1 on the whole triangle
+  sc.c2w = c2w_of(r, t);
+  const auto glb = (dir / "scene.glb").string();
+  flat::exporter::write_triangle_glb(glb, {sc.vertices, sc.colors, sc.opacities, sc.sigmas});
+  sc.folder = (dir / "viewer").string();
+  write_viewer(sc.folder, glb, one_camera(sc.intrinsics, sc.c2w, cam_w, cam_h), three);
+  return sc;
+}
 
+// The rasterizer's view of the scene at w x h (the intrinsics are normalised: any size).
+flat::render::RenderOutput raster_view(const ShotScene& sc, int64_t w, int64_t h) {
   flat::render::RasterSettings settings;
   settings.eps = 0.0;  // support = the triangle, as the viewer draws it
   settings.background = {1.0, 0.0, 1.0};
-  const auto c2w = c2w_of(r, t);
-  auto cams = one_camera(intrinsics, c2w, width, height);
-  const auto out = flat::render::rasterize(vertices, colors, opacities, sigmas, cams.cameras, height, width, settings);
-  const auto alpha_mask = out.alpha[0][0] > 0.5;
-  REQUIRE(alpha_mask.sum().item<int64_t>() > 1000);  // the scene is in view
-  flat::write_image((dir / "rasterizer.png").string(), out.rgb[0]);  // to compare by eye when this fails
+  auto cams = one_camera(sc.intrinsics, sc.c2w, w, h);
+  return flat::render::rasterize(sc.vertices, sc.colors, sc.opacities, sc.sigmas, cams.cameras, h, w, settings);
+}
 
-  const auto glb = (dir / "scene.glb").string();
-  flat::exporter::write_triangle_glb(glb, {vertices, colors, opacities, sigmas});
-  const auto folder = (dir / "viewer").string();
-  write_viewer(folder, glb, cams, three);
+// Headless chromium's screenshot of index.html?query in a win_w x win_h window (RGB, [0,1]).
+torch::Tensor screenshot(const std::string& chromium, const fs::path& dir, const ShotScene& sc, const std::string& query,
+                         int64_t win_w, int64_t win_h, const std::string& name) {
+  const auto png = (dir / (name + ".png")).string();
+  const auto log = png + ".log";
+  const std::string url = "file://" + fs::absolute(sc.folder).string() + "/index.html?" + query + "&bg=ff00ff";
+  const int rc = flat::test::run_program(
+      {chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+       "--enable-unsafe-swiftshader", "--disable-dev-shm-usage", "--hide-scrollbars", "--no-first-run",
+       "--user-data-dir=" + (dir / "chromium-profile").string(),
+       "--window-size=" + std::to_string(win_w) + "," + std::to_string(win_h), "--virtual-time-budget=20000",
+       "--screenshot=" + png, url},
+      log, 180);
+  INFO("chromium log: " << flat::test::slurp(log));
+  REQUIRE(rc == 0);
+  REQUIRE(fs::exists(png));
+  const auto img = flat::read_image(png);
+  REQUIRE(img.size(1) == win_h);
+  REQUIRE(img.size(2) == win_w);
+  return img.narrow(0, 0, 3);
+}
+
+// IoU of the screenshot's non-background pixels with the rasterizer's alpha > 0.5,
+// and the mean colour difference where both see a triangle.
+std::pair<double, double> compare(const torch::Tensor& rgb, const flat::render::RenderOutput& out) {
+  const auto alpha_mask = out.alpha[0][0] > 0.5;
+  const auto bg = torch::tensor({1.0f, 0.0f, 1.0f}).view({3, 1, 1});
+  const auto shot_mask = (rgb - bg).abs().amax(0) > 0.25;
+  const double iou = (shot_mask & alpha_mask).sum().item<double>() / (shot_mask | alpha_mask).sum().item<double>();
+  const auto both = (shot_mask & alpha_mask).unsqueeze(0).expand_as(rgb);
+  const double colour_err = (rgb - out.rgb[0]).abs().masked_select(both).mean().item<double>();
+  return {iou, colour_err};
+}
+
+// Why a screenshot cannot be taken here ("" when it can).
+std::string no_screenshot(std::string& chromium, const std::string& three) {
+  chromium = flat::test::find_program("chromium");
+  if (chromium.empty()) return "no chromium on PATH (Debian package chromium): viewer not checked against the rasterizer";
+  if (!viewer_available(three)) return "three.js r111 not found in " + three + " (Debian package libjs-three)";
+  if (!flat::exporter::glb_export_available()) return "built without tinygltf (Debian libtinygltf-dev)";
+  if (!flat::image_io_available()) return "built without OpenImageIO: cannot read the screenshot";
+  return "";
+}
+
+}  // namespace
+
+TEST_CASE("viewer: a chromium screenshot of a camera matches the rasterizer's view", "[export][viewer]") {
+  const std::string three = default_three_js_dir();
+  std::string chromium;
+  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  auto dir = flat::test::scratch_dir("viewer_screenshot");
+  // Headless chromium lays small windows out at a 500-pixel minimum width: stay above it.
+  const int64_t width = 640, height = 480;
+  const auto sc = shot_scene(dir, width, height, three);
+  const auto out = raster_view(sc, width, height);
+  REQUIRE((out.alpha[0][0] > 0.5).sum().item<int64_t>() > 1000);  // the scene is in view
+  flat::write_image((dir / "rasterizer.png").string(), out.rgb[0]);  // to compare by eye when this fails
 
   // camera=0 (the start camera) and the same camera given explicitly in the URL.
   std::string explicit_camera = "c2w=";
   for (int i = 0; i < 16; ++i) {
     char num[40];
-    std::snprintf(num, sizeof(num), "%s%.9g", i ? "," : "", c2w.view({16})[i].item<double>());
+    std::snprintf(num, sizeof(num), "%s%.9g", i ? "," : "", sc.c2w.view({16})[i].item<double>());
     explicit_camera += num;
   }
   explicit_camera += "&fx=0.85&fy=1.05&cx=0.44&cy=0.57";
   int shot = 0;
   for (const std::string& query : {std::string("camera=0"), explicit_camera}) {
-    const auto png = (dir / ("shot" + std::to_string(shot++) + ".png")).string();
-    const auto log = png + ".log";
-    const std::string url = "file://" + fs::absolute(folder).string() + "/index.html?" + query + "&bg=ff00ff";
-    const int rc = flat::test::run_program(
-        {chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-         "--enable-unsafe-swiftshader", "--disable-dev-shm-usage", "--hide-scrollbars", "--no-first-run",
-         "--user-data-dir=" + (dir / "chromium-profile").string(),
-         "--window-size=" + std::to_string(width) + "," + std::to_string(height), "--virtual-time-budget=20000",
-         "--screenshot=" + png, url},
-        log, 180);
-    INFO("chromium log: " << flat::test::slurp(log));
-    REQUIRE(rc == 0);
-    REQUIRE(fs::exists(png));
-    const auto img = flat::read_image(png);
-    REQUIRE(img.size(1) == height);
-    REQUIRE(img.size(2) == width);
-    const auto rgb = img.narrow(0, 0, 3);
-    const auto bg = torch::tensor({1.0f, 0.0f, 1.0f}).view({3, 1, 1});
-    const auto shot_mask = (rgb - bg).abs().amax(0) > 0.25;
-    const double inter = (shot_mask & alpha_mask).sum().item<double>();
-    const double uni_px = (shot_mask | alpha_mask).sum().item<double>();
-    const double iou = inter / uni_px;
-    // Colours where both see a triangle: display values, same compositing order.
-    const auto both = (shot_mask & alpha_mask).unsqueeze(0).expand({3, height, width});
-    const double colour_err = (rgb - out.rgb[0]).abs().masked_select(both).mean().item<double>();
+    const auto rgb = screenshot(chromium, dir, sc, query, width, height, "shot" + std::to_string(shot++));
+    const auto [iou, colour_err] = compare(rgb, out);
     std::printf("viewer screenshot (%s...): IoU %.4f with the rasterizer's alpha > 0.5, mean |colour difference| %.4f\n",
                 query.substr(0, 8).c_str(), iou, colour_err);
     CHECK(iou >= 0.9);
     CHECK(colour_err < 0.05);
   }
+}
+
+TEST_CASE("viewer: a 5:3 camera in a 4:3 window is letterboxed, not stretched", "[export][viewer]") {
+  const std::string three = default_three_js_dir();
+  std::string chromium;
+  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  auto dir = flat::test::scratch_dir("viewer_aspect");
+  const auto sc = shot_scene(dir, 640, 384, three);  // 5:3 images
+  // An 800x600 window: the view is 800x480, centred (60 rows above and below).
+  const auto rgb = screenshot(chromium, dir, sc, "camera=0", 800, 600, "shot_4x3");
+  const auto out = raster_view(sc, 800, 480);
+  const auto [iou, colour_err] = compare(rgb.narrow(1, 60, 480), out);
+  std::printf("viewer screenshot, 5:3 camera in a 4:3 window: IoU %.4f, mean |colour difference| %.4f\n", iou,
+              colour_err);
+  CHECK(iou >= 0.9);
+  CHECK(colour_err < 0.05);
+  // Nothing of the scene is drawn in the bands.
+  const auto bg = torch::tensor({1.0f, 0.0f, 1.0f}).view({3, 1, 1});
+  CHECK((rgb.narrow(1, 0, 55) - bg).abs().amax(0).lt(0.25).sum().item<int64_t>() == 0);  // not the canvas' magenta
 }
