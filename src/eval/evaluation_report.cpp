@@ -153,7 +153,8 @@ nlohmann::json results_json(const EvalResults& r) {
   }
   const auto overall = dataset_means(r.scores).back();
   return {{"format", "flat-eval-1"}, {"name", r.name},     {"model", r.model}, {"settings", r.settings},
-          {"ssim", r.ssim},          {"scenes", scenes},   {"means", means},
+          {"ssim", r.ssim},          {"prune_opacity", number(r.prune_opacity)}, {"scenes", scenes},
+          {"means", means},
           {"latent_encoder", overall.random_latent_scenes > 0 ? "random" : "pretrained"},
           {"random_latent_scenes", overall.random_latent_scenes},
           {"definitions", metric_definitions(r.ssim)}};
@@ -170,6 +171,7 @@ EvalResults read_results_json(const std::string& path) {
     r.model = j.at("model").get<std::string>();
     r.settings = j.at("settings").get<std::string>();
     r.ssim = j.at("ssim").get<std::string>();
+    if (j.contains("prune_opacity") && j["prune_opacity"].is_number()) r.prune_opacity = j["prune_opacity"].get<double>();
     for (const auto& s : j.at("scenes")) r.scores.push_back(score_from_json(s));
   } catch (const nlohmann::json::exception& e) {
     fail(path + ": malformed results file (" + e.what() + ")");
@@ -242,6 +244,12 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
   }
   os << "\nScenes: scored / attempted; means cover the scored scenes only (failures are listed in each run's "
         "results).\n";
+  // What is rendered: flat_infer exports triangles pruned at its --prune-opacity (0.05 by default).
+  os << "\nRendered triangles: opacity at or above ";
+  for (size_t i = 0; i < runs.size(); ++i)
+    os << (i ? "; " : "") << (std::isnan(runs[i].prune_opacity) ? std::string("(not recorded)") : cell(runs[i].prune_opacity, 3))
+       << (runs.size() > 1 ? " (" + runs[i].name + ")" : "");
+  os << " (the model's pipeline.prune_opacity; flat_infer prunes at its --prune-opacity, 0.05 by default).\n";
   os << "\nBaselines (↳ rows, PSNR on the same views): the mean-colour oracle paints each view its own mean colour; "
         "the dataset mean predicts every view as the other scenes' mean frame of the same index; swap scores each "
         "scene's renders against the next scene's frames of the same index. A model that ignores its input scores "

@@ -151,6 +151,10 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
   results.model = model_id;
   results.settings = fingerprint;
   results.ssim = ssim_convention_name(o.settings.ssim);
+  results.prune_opacity = trained.config.prune_opacity;
+  spdlog::info("flat_eval: rendering the triangles of opacity >= {} (the model's pipeline.prune_opacity; flat_infer "
+               "exports those >= its --prune-opacity, 0.05 by default: --set prune_opacity=0.05 scores the same)",
+               trained.config.prune_opacity);
   // Baselines need the rest of each dataset: its scenes (swap partners) and
   // its frames by index (the leave-one-out mean). Scenes that cannot be read
   // fail below, with their error, and take no part in the baselines.

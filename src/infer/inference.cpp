@@ -118,6 +118,7 @@ InferSummary run_inference(const InferOptions& o) {
   FLAT_CHECK(at::isfinite(all.vertices).all().item<bool>(),
              input.label + ": the decoded triangles hold NaN or infinite vertices (bad latents or weights)");
   auto scene = pipeline::prune(all, o.prune_opacity);
+  s.prune_opacity = o.prune_opacity;
   s.triangles_kept = scene.vertices.size(0);
   spdlog::info("decode: {} triangles in {:.2f} s ({}), {} kept at opacity >= {}", s.triangles_decoded,
                s.decode_seconds, o.streaming ? "streaming" : "full sequence", s.triangles_kept, o.prune_opacity);
@@ -222,7 +223,8 @@ std::string format_summary(const InferSummary& s) {
   std::ostringstream os;
   const double kept = s.triangles_decoded ? 100.0 * double(s.triangles_kept) / double(s.triangles_decoded) : 0.0;
   os << fmt::format("flat_infer: done in {:.1f} s -> {}\n", s.total_seconds, s.out_dir);
-  os << fmt::format("  triangles  {} decoded, {} kept ({:.1f}%)\n", s.triangles_decoded, s.triangles_kept, kept);
+  os << fmt::format("  triangles  {} decoded, {} kept ({:.1f}%, opacity >= {})\n", s.triangles_decoded,
+                    s.triangles_kept, kept, s.prune_opacity);
   os << fmt::format("  decode     {:.2f} s{}\n", s.decode_seconds,
                     s.decode_peak_gib > 0 ? fmt::format("  (peak {:.2f} GiB)", s.decode_peak_gib) : "");
   os << fmt::format("  export     {:.2f} s\n", s.export_seconds);

@@ -160,6 +160,9 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
     }
   }
   CHECK(s.table.find("3/4") != std::string::npos);
+  // The table and results.json say which triangles were rendered (flat_infer exports those of its --prune-opacity).
+  CHECK(s.table.find("Rendered triangles: opacity at or above 0.000") != std::string::npos);
+  CHECK(eval::read_results_json(o.out_dir + "/results.json").prune_opacity == 0.0);
   CHECK(fs::exists(fs::path(o.out_dir) / "scenes.csv"));
   CHECK(fs::exists(fs::path(o.out_dir) / "table.md"));
 

@@ -91,6 +91,7 @@ TEST_CASE("flat_infer decodes a scene window and writes PLY, cameras, renders an
   auto j = nlohmann::json::parse(read_text(out / "summary.json"));
   CHECK(j.at("triangles_kept").get<int64_t>() == summary.triangles_kept);
   CHECK(j.at("novel_trajectory").get<std::string>() == "orbit");  // which novel views these are
+  CHECK(infer::format_summary(summary).find("kept (100.0%, opacity >= 0)") != std::string::npos);
   CHECK(j.at("latent_encoder").get<std::string>() == "random");
   CHECK(fs::exists(out / "infer.log"));
   CHECK(no_staging_left(s.dir));

@@ -19,6 +19,9 @@ struct EvalResults {
   std::string model;     // model file and step
   std::string settings;  // EvalSettings::fingerprint()
   std::string ssim = "skimage";
+  // Triangles below this opacity are dropped before rendering (the model's
+  // pipeline.prune_opacity, or --set); NaN when the file does not say.
+  double prune_opacity = NAN;
   std::vector<SceneScore> scores;  // in evaluation order, failures included
 };
 

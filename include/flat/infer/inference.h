@@ -46,6 +46,7 @@ struct InferOptions {
 struct InferSummary {
   std::string out_dir;
   int64_t triangles_decoded = 0, triangles_kept = 0;
+  double prune_opacity = 0;  // kept: opacity at or above this
   int64_t input_views = 0, novel_views = 0;
   double decode_seconds = 0, export_seconds = 0, render_seconds = 0, total_seconds = 0;
   double decode_peak_gib = 0, render_peak_gib = 0;  // CUDA peak memory (0 on the CPU)
