@@ -256,7 +256,23 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
                                              : cam_pre;
         return scene->forward(latent, c, streaming);
       };
-      for (int i = 0; i < o.warmup; ++i) once();
+      // Said before the first run, and after each run slower than 2 s: a CPU
+      // run at the paper's size takes minutes, and must not be silent.
+      const int total = o.warmup + o.repeats;
+      spdlog::info("decoder T'={} ({} views {}x{}) mode={}: {} warm-up + {} timed run(s) on {}", t, F, 8 * o.height,
+                   8 * o.width, mode, o.warmup, o.repeats, cuda ? "cuda" : "cpu");
+      auto report_run = [&](int done, double ms) {
+        if (ms >= 2000 && done < total)
+          spdlog::info("  run {} of {} took {:.1f} s; about {:.0f} s to go for this configuration", done, total,
+                       ms / 1000, ms / 1000 * (total - done));
+      };
+      for (int i = 0; i < o.warmup; ++i) {
+        sync(dev);
+        const double t0 = now_ms();
+        once();
+        sync(dev);
+        report_run(i + 1, now_ms() - t0);
+      }
       sync(dev);
       reset_peak(dev);
       std::vector<double> times;
@@ -267,6 +283,7 @@ void run_decoder_bench(const DecoderBenchOptions& o) {
         out = once();
         sync(dev);
         times.push_back(now_ms() - t0);
+        report_run(o.warmup + i + 1, times.back());
       }
       std::sort(times.begin(), times.end());
       spdlog::info(

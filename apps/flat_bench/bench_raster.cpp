@@ -184,7 +184,12 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   std::vector<double> fwd, fwdbwd, fwd_host;  // fwd_host: until the forward call returns
   double peak_fwd = 0, peak_all = 0;
   int64_t contributing = 0;
+  // Said before the first run, and after each run slower than 2 s: on the CPU
+  // the paper's workload takes minutes, and must not be silent.
+  spdlog::info("raster {}: {} triangles, {} views at {}x{} on {}: 2 warm-up + {} timed forward+backward run(s)",
+               sc.name, sc.vertices.size(0), V, sc.height, sc.width, dev.is_cuda() ? "cuda" : "cpu", repeats);
   for (int it = 0; it < repeats + 2; ++it) {
+    const double t_run = now_ms();
     {
       torch::NoGradGuard ng;
       sync();
@@ -212,6 +217,10 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
     const double t1 = now_ms();
     if (it >= 2) fwdbwd.push_back(t1 - t0);
     peak_all = std::max(peak_all, peak_memory_gib(dev));
+    const double run_ms = now_ms() - t_run;
+    if (run_ms >= 2000 && it + 1 < repeats + 2)
+      spdlog::info("  run {} of {} took {:.1f} s; about {:.0f} s to go for {}", it + 1, repeats + 2, run_ms / 1000,
+                   run_ms / 1000 * (repeats + 1 - it), sc.name);
   }
   spdlog::info("raster {}: {} triangles ({} blended somewhere), {} views at {}x{}, window {}", sc.name,
                sc.vertices.size(0), contributing, V, sc.height, sc.width, settings.window);

@@ -721,3 +721,22 @@ TEST_CASE("flat_synth: a huge --scenes says what it does at once", "[cli]") {
   INFO(read_file(d + "/log.txt"));
   CHECK(spoke);
 }
+
+TEST_CASE("flat_bench decoder and raster say what they time before the first run", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_bench_says").string();
+  auto dec = tool("flat_bench", {"decoder", "--device", "cpu", "--latent-frames", "1", "--height", "2", "--width", "2",
+                                 "--dim", "4", "--repeats", "1", "--warmup", "1", "--mode", "full", "--precision", "fp32"},
+                  d, "decoder");
+  INFO(dec.output);
+  CHECK(dec.rc == 0);
+  const auto plan = dec.output.find("1 warm-up + 1 timed run(s) on cpu"), result = dec.output.find("median");
+  CHECK(plan != std::string::npos);
+  CHECK(plan < result);
+  auto ras = tool("flat_bench", {"raster", "--device", "cpu", "--triangles", f.root + "/one.ply", "--cameras",
+                                 f.root + "/cams_small.json", "--repeats", "1"},
+                  d, "raster");
+  INFO(ras.output);
+  CHECK(ras.rc == 0);
+  CHECK(ras.output.find("2 warm-up + 1 timed forward+backward run(s)") < ras.output.find("forward+backward 0") );
+}
