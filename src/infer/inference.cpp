@@ -145,7 +145,9 @@ InferSummary run_inference(const InferOptions& o) {
   s.outputs.push_back("cameras/");
   if (o.novel.preset != "none") {
     if (!novel_file) {
-      const auto range = display_depth_range(scene, input.cameras);
+      // Looking at the scene's middle depth as the first input camera sees it.
+      const camera::Cameras first{input.cameras.intrinsics.slice(0, 0, 1), input.cameras.c2w.slice(0, 0, 1)};
+      const auto range = display_depth_range(scene, first);
       novel = camera::make_trajectory(input.cameras, 0.5 * (range.first + range.second), o.novel);
     }
     camera::write_cameras_json(out.file("cameras/novel.json"), {novel, W, H});
@@ -168,8 +170,9 @@ InferSummary run_inference(const InferOptions& o) {
     if (video) s.outputs.push_back("videos/");
     if (video) write_video(r, out.file("videos/input.mp4"), o.fps);
     if (novel.intrinsics.defined()) {
+      // Its own depth scale: the novel views may come closer than any input view.
       auto n = render_trajectory(pipe, on_device, novel, H, W, o.renders ? out.file("renders/novel") : "", o.render_chunk,
-                                 video, range, "render novel views");
+                                 video, display_depth_range(scene, novel), "render novel views");
       s.novel_views = n.views;
       if (video) write_video(n, out.file("videos/novel.mp4"), o.fps);
     }

@@ -1,5 +1,6 @@
 #include "flat/infer/trajectory_renders.h"
 
+#include <algorithm>
 #include <chrono>
 
 #include <torch/torch.h>
@@ -12,15 +13,29 @@
 
 namespace flat::infer {
 
-std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& camera) {
+std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& cameras) {
   if (!scene.vertices.defined() || scene.vertices.size(0) == 0) return {0.1, 10.0};
   auto centroids = scene.vertices.detach().mean(1).to(at::kCPU, at::kFloat);  // (N,3)
-  auto w2c = camera::world_to_camera(camera.c2w[0].unsqueeze(0).to(at::kFloat))[0];
-  auto z = centroids.matmul(w2c.slice(0, 2, 3).slice(1, 0, 3).t()).squeeze(1) + w2c[2][3];
-  z = z.masked_select(z > 1e-3);
-  if (z.numel() < 2) return {0.1, 10.0};
-  auto q = at::quantile(z, at::tensor({0.02f, 0.98f}));
-  const double lo = q[0].item<double>(), hi = q[1].item<double>();
+  // Percentiles of an evenly spaced sample are enough for display, and keep
+  // many cameras of millions of triangles cheap.
+  const int64_t n = centroids.size(0), stride = std::max<int64_t>(1, n / 100000);
+  centroids = centroids.slice(0, 0, n, stride);
+  auto w2c = camera::world_to_camera(cameras.c2w.to(at::kCPU, at::kFloat));  // (V,4,4)
+  // Every camera's own percentiles, then the widest: a dolly's closest frames
+  // keep their depth contrast instead of saturating at the near end.
+  double lo = 0, hi = 0;
+  bool any = false;
+  for (int64_t v = 0; v < w2c.size(0); ++v) {
+    auto z = centroids.matmul(w2c[v].slice(0, 2, 3).slice(1, 0, 3).t()).squeeze(1) + w2c[v][2][3];
+    z = z.masked_select(z > 1e-3);
+    if (z.numel() < 2) continue;
+    auto q = at::quantile(z, at::tensor({0.02f, 0.98f}));
+    const double a = q[0].item<double>(), b = q[1].item<double>();
+    lo = any ? std::min(lo, a) : a;
+    hi = any ? std::max(hi, b) : b;
+    any = true;
+  }
+  if (!any) return {0.1, 10.0};
   return hi > lo ? std::make_pair(lo, hi) : std::make_pair(lo, lo + 1.0);
 }
 

@@ -11,6 +11,7 @@
 #include "flat/core/tensor_io.h"
 #include "flat/export/triangle_ply.h"
 #include "flat/infer/inference.h"
+#include "flat/infer/trajectory_renders.h"
 #include "model_fixtures.h"
 #include "test_support.h"
 
@@ -289,4 +290,24 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--three-js " + o.three_js_dir));
     CHECK(!fs::exists(o.out_dir));
   }
+}
+
+TEST_CASE("depth display range covers every camera of a trajectory: a dolly's closest views do not saturate",
+          "[infer]") {
+  // 200 triangles at depths 4..6 in front of the origin, the cameras looking down +z.
+  const int64_t n = 200;
+  auto z = torch::linspace(4.0, 6.0, n);
+  auto centre = torch::stack({torch::zeros({n}), torch::zeros({n}), z}, 1);
+  auto offsets = torch::tensor({{0.1f, 0.f, 0.f}, {0.f, 0.1f, 0.f}, {-0.1f, -0.1f, 0.f}});
+  primitives::TriangleSoup soup{centre.unsqueeze(1) + offsets.unsqueeze(0), torch::rand({n, 3}), torch::ones({n}),
+                                torch::ones({n})};
+  auto c2w = torch::eye(4).unsqueeze(0).repeat({2, 1, 1});
+  c2w[1][2][3] = 3.0;  // the second camera 3 m closer: depths 1..3
+  const camera::Cameras both{torch::tensor({0.5f, 0.5f, 0.5f, 0.5f}).repeat({2, 1}), c2w};
+  const camera::Cameras first{both.intrinsics.slice(0, 0, 1), both.c2w.slice(0, 0, 1)};
+  const auto one = infer::display_depth_range(soup, first);
+  CHECK(one.first == Approx(4.04).margin(0.02));
+  const auto all = infer::display_depth_range(soup, both);
+  CHECK(all.first == Approx(1.04).margin(0.02));  // the close camera's near end
+  CHECK(all.second == Approx(5.96).margin(0.02));  // the far camera's far end
 }

@@ -23,9 +23,10 @@ struct TrajectoryRenders {
   at::Tensor video_frames;     // (V,3,H,3W) uint8: rgb | depth | normals side by side (when asked)
 };
 
-// Depth range for display: 2nd and 98th percentile of the triangle centroids'
-// depth in `camera` (those in front of it); falls back to [0.1, 10].
-std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& camera);
+// Depth range for display: the 2nd and 98th percentile of the triangle
+// centroids' depth (those in front) in each of `cameras`, the lowest and the
+// highest of them; falls back to [0.1, 10].
+std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& cameras);
 
 // scene: one scene, already pruned (the pipeline prunes again with its own
 // threshold). folder: where the files go ("" = write nothing).
