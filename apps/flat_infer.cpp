@@ -30,7 +30,10 @@ int main(int argc, char** argv) {
   app.add_option("--latents", o.input.latents_file, "latent file: 'video' (16,T',h,w) [+ 'camera' (32,T',h,w)]");
   app.add_option("--cameras", o.input.cameras_file, "the latents' trajectory: cameras JSON with 1+4(T'-1) cameras");
   app.add_option("--vae", o.input.vae_weights, "Wan VAE weights, to encode camera latents the latent file lacks");
-  app.add_option("--out", o.out_dir, "output folder (must not exist unless --overwrite)")->required();
+  app.add_option("--out", o.out_dir,
+                 "output folder (must not exist unless --overwrite); built in <out>.incomplete-<pid>, which a killed "
+                 "run leaves and the next run on the same --out removes")
+      ->required();
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();

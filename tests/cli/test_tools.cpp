@@ -564,7 +564,10 @@ TEST_CASE("flat_infer: contradictory inputs and an unknown --novel are usage err
   CHECK_THAT(novel.output, FLAT_CONTAINS("orbit | dolly | none"));
   CHECK_FALSE(fs::exists(d + "/out"));
   // --help does not pass off bf16 as what a CPU run computes in.
-  CHECK_THAT(tool("flat_infer", {"--help"}, d, "help").output, FLAT_CONTAINS("on the CPU the run is fp32"));
+  const auto help = tool("flat_infer", {"--help"}, d, "help").output;
+  CHECK_THAT(help, FLAT_CONTAINS("on the CPU the run is fp32"));
+  // A staging folder left by a killed run is explained where the user looks.
+  CHECK_THAT(help, FLAT_CONTAINS("the next run on the same --out removes"));
 }
 
 TEST_CASE("flat_import transforms: a frame whose rotation is all zero is refused, naming the frame", "[cli]") {
