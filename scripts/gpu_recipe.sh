@@ -5,13 +5,18 @@
 #          the VAE stage (configs/recipe/vae.yaml); latents of every room from
 #          the trained encoder (windows of 17, and of 49 for stage 2) and, for
 #          the control, from a random-weight encoder of the same width.
-#   train  stage 1 (configs/recipe/stage1.yaml) and its two controls side by
+#   train1 stage 1 (configs/recipe/stage1.yaml) and its two controls side by
 #          side on the one GPU: random-encoder latents, and a decoder trained
-#          from scratch on the trained VAE's latents; then stage 2 from stage 1;
-#          flat_eval of each on the held-out rooms, with the baselines.
-# Usage on the GPU machine (repo root, .deps carried): bash scripts/gpu_recipe.sh data|train
-# The two phases fit one device call each; `train` needs the folders `data`
-# left (the same warm machine). Every training is bounded by `timeout -s TERM`
+#          from scratch on the trained VAE's latents (and RECIPE_VARIANT_SET's
+#          variant, if set);
+#   train2 stage 2 from stage 1 (and the variant's); flat_eval of each model on
+#          the held-out rooms, with the baselines.
+# Runs and builds go under the repo root given; on the device machine copy the
+# tree to /tmp first (ignored folders of the repo do not survive between calls;
+# /tmp does while the machine stays warm).
+# Usage on the GPU machine (repo root, .deps carried): bash scripts/gpu_recipe.sh data|train1|train2
+# (train = train1 then train2). Each phase fits one device call; each needs the
+# folders the previous one left (the same warm machine). Every training is bounded by `timeout -s TERM`
 # (it checkpoints and stops; flat_eval then reads the newest checkpoint).
 # Logs and tables go to $OUT; a summary is printed last.
 set -uo pipefail
@@ -22,12 +27,14 @@ BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 R="$ROOT/runs/recipe"
 ROOMS="${RECIPE_ROOMS:-256}"; VAL="${RECIPE_VAL_ROOMS:-16}"; FRAMES="${RECIPE_FRAMES:-49}"; SIZE=176x320
 DIM="${RECIPE_DIM:-32}"
-# Steps of record (docs/training.md, 2026-11-25); the seconds bound each run
+# Steps of record (docs/training.md, 2026-11-26); the seconds bound each run
 # (it checkpoints and stops on SIGTERM) so that a phase fits one device call.
 VAE_IMAGE_STEPS="${RECIPE_VAE_IMAGE_STEPS:-1200}"; VAE_IMAGE_SECONDS="${RECIPE_VAE_IMAGE_SECONDS:-120}"
 VAE_STEPS="${RECIPE_VAE_STEPS:-500}"; VAE_SECONDS="${RECIPE_VAE_SECONDS:-90}"
-S1_STEPS="${RECIPE_S1_STEPS:-800}"; S1_SECONDS="${RECIPE_S1_SECONDS:-200}"
-S2_STEPS="${RECIPE_S2_STEPS:-200}"; S2_SECONDS="${RECIPE_S2_SECONDS:-95}"
+S1_STEPS="${RECIPE_S1_STEPS:-1100}"; S1_SECONDS="${RECIPE_S1_SECONDS:-330}"
+S2_STEPS="${RECIPE_S2_STEPS:-300}"; S2_SECONDS="${RECIPE_S2_SECONDS:-110}"
+# Extra --set arguments for every scene-decoder training (stage 1, its controls, stage 2).
+read -r -a LOSS_SET <<< "${RECIPE_LOSS_SET:-}"
 T0=$(date +%s)
 summary=()
 note() { summary+=("$(printf '%4d s  %s' $(( $(date +%s) - T0 )) "$1")"); echo "[recipe $(( $(date +%s) - T0 )) s] $1"; }
@@ -86,10 +93,16 @@ if [ "$PHASE" = "data" ]; then
   grep -hE "correlate|error" "$OUT"/latents*.log | cut -c1-220
 fi
 
-if [ "$PHASE" = "train" ]; then
+# A variant of stage 1 and 2 trained beside the main runs (same data and
+# schedule), e.g. RECIPE_VARIANT_SET="--set loss.lambda_normal=0.1"; empty: none.
+read -r -a VARIANT_SET <<< "${RECIPE_VARIANT_SET:-}"
+s1_runs=(stage1 control_scratch control_random); [ ${#VARIANT_SET[@]} -gt 0 ] && s1_runs+=(variant1)
+last_line() { grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$1" | tail -1 | cut -c1-200; }
+
+if [ "$PHASE" = "train" ] || [ "$PHASE" = "train1" ]; then
   [ -f "$R/vae/vae.safetensors" ] || { echo "no $R/vae/vae.safetensors: run the data phase first (same warm machine)"; exit 1; }
-  export OMP_NUM_THREADS=4  # three trainings side by side on 16 cores
-  common=(--set pipeline.model.vae.dim="$DIM" --set steps="$S1_STEPS" --set threads=4 --set data.workers=3)
+  export OMP_NUM_THREADS=3  # up to four trainings side by side on 16 cores
+  common=(--set pipeline.model.vae.dim="$DIM" --set steps="$S1_STEPS" --set threads=3 --set data.workers=3 "${LOSS_SET[@]}")
   timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
     >"$OUT/stage1.log" 2>&1 &
   timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
@@ -97,29 +110,48 @@ if [ "$PHASE" = "train" ]; then
   timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
     --set run_dir="$R/control_random" --set "data.datasets=[{root: $R/data_random/train}]" \
     --set "validation.datasets=[{root: $R/data_random/val}]" >"$OUT/control_random.log" 2>&1 &
+  if [ ${#VARIANT_SET[@]} -gt 0 ]; then
+    timeout -s TERM "$S1_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage1.yaml "${common[@]}" \
+      --set run_dir="$R/variant1" "${VARIANT_SET[@]}" >"$OUT/variant1.log" 2>&1 &
+  fi
   wait
-  for r in stage1 control_scratch control_random; do
-    note "$r: $(grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$OUT/$r.log" | tail -1 | cut -c1-200)"
-  done
-  timeout -s TERM "$S2_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage2.yaml --set pipeline.model.vae.dim="$DIM" \
-    --set steps="$S2_STEPS" --set data.unseen_fraction=0 >"$OUT/stage2.log" 2>&1
-  note "stage2 rc=$?: $(grep -oE 'held-out PSNR.*|validation @ step [0-9]+: PSNR [0-9.]+ dB[^|]*\| baselines[^|]*' "$OUT/stage2.log" | tail -1 | cut -c1-200)"
-  # Held-out rooms: 9 views of each spread over its 49 frames.
-  for r in stage1 control_scratch control_random stage2; do
-    data="$R/data/val"; [ "$r" = control_random ] && data="$R/data_random/val"; [ "$r" = stage2 ] && data="$R/data49/val"
+  for r in "${s1_runs[@]}"; do note "$r: $(last_line "$OUT/$r.log")"; done
+fi
+
+if [ "$PHASE" = "train" ] || [ "$PHASE" = "train2" ]; then
+  [ -f "$R/stage1/model.safetensors" ] || ls "$R/stage1/checkpoints" >/dev/null \
+    || { echo "no $R/stage1: run train1 first (same warm machine)"; exit 1; }
+  export OMP_NUM_THREADS=6
+  s2=(--set pipeline.model.vae.dim="$DIM" --set steps="$S2_STEPS" --set threads=6 --set data.unseen_fraction=0 "${LOSS_SET[@]}")
+  timeout -s TERM "$S2_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage2.yaml "${s2[@]}" >"$OUT/stage2.log" 2>&1 &
+  s2_runs=(stage2)
+  if [ ${#VARIANT_SET[@]} -gt 0 ]; then
+    timeout -s TERM "$S2_SECONDS" "$BUILD/flat_train" --config configs/recipe/stage2.yaml "${s2[@]}" \
+      --set run_dir="$R/variant2" --set init.path="$R/variant1" "${VARIANT_SET[@]}" >"$OUT/variant2.log" 2>&1 &
+    s2_runs+=(variant2)
+  fi
+  wait
+  for r in "${s2_runs[@]}"; do note "$r: $(last_line "$OUT/$r.log")"; done
+  # Held-out rooms: 9 views of each spread over its 49 frames (stage 2: its
+  # 49-frame window); stage 1 also on every frame, to compare with its
+  # trainer validation (17 views, half outside the window).
+  export OMP_NUM_THREADS=2
+  evals=("${s1_runs[@]}" "${s2_runs[@]}")
+  for r in "${evals[@]}"; do
+    data="$R/data/val"; [ "$r" = control_random ] && data="$R/data_random/val"
+    case "$r" in stage2|variant2) data="$R/data49/val" ;; esac
     "$BUILD/flat_eval" --model "$R/$r" --scenes "heldout=$data" --out "$R/eval_$r" --name "$r" --max-views 9 \
       --device cuda >"$OUT/eval_$r.log" 2>&1 &
   done
+  "$BUILD/flat_eval" --model "$R/stage1" --scenes "heldout=$R/data/val" --out "$R/eval_stage1_all" --name stage1_all_views \
+    --device cuda >"$OUT/eval_stage1_all.log" 2>&1 &
   wait
-  "$BUILD/flat_eval" --compare "$R/eval_stage1" "$R/eval_stage2" "$R/eval_control_scratch" "$R/eval_control_random" \
+  "$BUILD/flat_eval" --compare $(for r in "${evals[@]}"; do echo "$R/eval_$r"; done) "$R/eval_stage1_all" \
     > "$OUT/table.md" 2>&1
   cat "$OUT/table.md" | head -20
-  for r in stage1 control_scratch control_random stage2; do
-    cp "$R/eval_$r/results.json" "$OUT/results_$r.json" 2>/dev/null
-  done
-  # The validation grids: the last of stage 1 and of the scratch control.
-  tar czf "$OUT/renders.tgz" -C "$R" $(cd "$R" && ls -d */renders 2>/dev/null) vae/metrics stage1/metrics \
-    control_scratch/metrics control_random/metrics stage2/metrics 2>/dev/null
+  for r in "${evals[@]}" stage1_all; do cp "$R/eval_$r/results.json" "$OUT/results_$r.json" 2>/dev/null; done
+  tar czf "$OUT/renders.tgz" -C "$R" $(cd "$R" && ls -d */renders */metrics 2>/dev/null) 2>/dev/null
+  tar czf "$OUT/logs.tgz" -C "$OUT" $(cd "$OUT" && ls *.log) 2>/dev/null
 fi
 echo "==== recipe summary ($PHASE) ===="
 for s in "${summary[@]}"; do echo "$s"; done

@@ -356,7 +356,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
                  ? validate_vae(session.vae, *val_loader, cfg.validation.scenes, session.vae_lpips,
                                 cfg.validation.grid_views, dp ? &dp->group() : nullptr)
                  : validate(*session.pipeline, *val_loader, cfg.validation.scenes, session.objective->lpips_network(),
-                            cfg.validation.grid_views, dp ? &dp->group() : nullptr, dataset_mean);
+                            cfg.validation.grid_views, dp ? &dp->group() : nullptr, dataset_mean, bf16);
     signal_for_test(step);
     if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
     summary.last_val_psnr = r.psnr;

@@ -6,6 +6,7 @@
 
 #include <torch/torch.h>
 
+#include "flat/core/autocast_scope.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
 #include "flat/core/shape.h"
@@ -108,7 +109,7 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
                           loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group,
-                          const at::Tensor& dataset_mean) {
+                          const at::Tensor& dataset_mean, bool bf16) {
   torch::NoGradGuard no_grad;
   ValidationResult r;
   double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0, swap_views = 0;
@@ -116,6 +117,7 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   int64_t normal_pixels = 0;
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
+  const bool autocast_on = bf16 && device.is_cuda();
   // Each sample's scene and target images, loaded once whether it is scored
   // here or only a swap partner.
   std::map<int64_t, std::pair<std::string, at::Tensor>> held_out;
@@ -131,10 +133,19 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
     data::Batch batch = loader.batch(i);
     held_out.emplace(i, std::make_pair(batch.scenes[0], batch.target_images[0]));
     pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
-    auto soup = pipeline.decode(in);
+    // Decode and render under the run's precision; the scores in fp32.
+    auto soup = [&] {
+      AutocastScope autocast(autocast_on, device.type());
+      return pipeline.decode(in);
+    }();
     for (int64_t b = 0; b < soup.batch(); ++b) {
       const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
-      auto views = pipeline.render(soup.scene(b), batch.target_cameras(b).to(device), H, W);
+      auto views = [&] {
+        AutocastScope autocast(autocast_on, device.type());
+        return pipeline.render(soup.scene(b), batch.target_cameras(b).to(device), H, W);
+      }();
+      for (auto* t : {&views.rgb, &views.alpha, &views.depth, &views.normal})
+        if (t->defined()) *t = t->to(at::kFloat);
       auto target = batch.target_images[b].to(device, at::kFloat);
       auto rgb = views.rgb.clamp(0, 1);
       psnr += eval::psnr(rgb, target).sum().item<double>();

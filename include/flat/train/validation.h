@@ -54,9 +54,12 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 // (one row each), so that different held-out scenes can be told apart.
 // dataset_mean: (3,H,W) in [0,1], the training set's mean image at the
 // validation size (training_mean_image), or undefined (no such baseline).
+// bf16: decode and render under CUDA bf16 autocast, as the run trains and as
+// flat_eval scores by default (a bf16-trained model's fp32 figures differ:
+// docs/training.md).
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
                           loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group = nullptr,
-                          const at::Tensor& dataset_mean = {});
+                          const at::Tensor& dataset_mean = {}, bool bf16 = false);
 
 // The mean target image of `samples` training samples (batches 0.. of a
 // loader built from `config` with batch size 1): (3,H,W) on the CPU.
