@@ -1,5 +1,7 @@
 #include "flat/distributed/process_group.h"
 
+#include <csignal>
+
 #include <torch/csrc/distributed/c10d/TCPStore.hpp>
 
 #include "distributed/gloo_process_group.h"
@@ -55,6 +57,10 @@ std::unique_ptr<ProcessGroup> init_process_group(const DistributedEnv& env, cons
              "distributed: rank " + std::to_string(env.rank) + " is outside a world of " +
                  std::to_string(env.world_size));
   FLAT_CHECK(timeout.count() > 0, "distributed: the timeout must be positive");
+  // A write to the socket of a peer that died must fail as an error, which
+  // names the dead rank (the heartbeats' verdict), not end this rank by
+  // SIGPIPE without a word.
+  if (env.world_size > 1) std::signal(SIGPIPE, SIG_IGN);
   c10d::TCPStoreOptions opts;
   opts.port = static_cast<std::uint16_t>(env.port);
   opts.isServer = env.rank == 0;
