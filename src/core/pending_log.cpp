@@ -8,7 +8,6 @@
 #include <fstream>
 #include <iostream>
 
-#include "flat/core/error.h"
 #include "flat/core/log.h"
 
 namespace flat {
@@ -28,13 +27,17 @@ void PendingLog::start(const std::string& level, const std::string& log_file) {
 void PendingLog::keep() {
   if (temp_.empty() || kept_) return;
   spdlog::default_logger()->flush();
+  // The work succeeded: a log that cannot be placed is a warning, not a failure.
   {
     std::ifstream in(temp_, std::ios::binary);
     std::ofstream out(final_, std::ios::binary | std::ios::app);
-    if (!out) fail(final_ + ": cannot open the log file for appending (the log stays in " + temp_ + ")");
-    out << in.rdbuf();
-    out.flush();
-    if (!out) fail(final_ + ": writing the log failed (the log stays in " + temp_ + ")");
+    if (out) out << in.rdbuf();
+    if (out) out.flush();
+    if (!out) {
+      spdlog::warn("{}: cannot append the log there; it stays in {}", final_, temp_);
+      kept_ = true;  // (the destructor need not name it again)
+      return;
+    }
   }
   kept_ = true;
   setup_logging(level_, final_);  // closes the temporary file

@@ -470,6 +470,15 @@ TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input
   INFO(ok.output);
   CHECK(ok.rc == 0);
   CHECK_THAT(read_file(good + "/flat_latents.log"), FLAT_CONTAINS("wrote latents for 1 of 1 scenes"));
+  // A log that cannot be placed (here a folder of that name) does not fail a run whose work is done.
+  const std::string blocked = d + "/blocked";
+  fs::copy(f.synth, blocked, fs::copy_options::recursive);
+  fs::create_directories(blocked + "/flat_latents.log");
+  auto warned = tool("flat_latents", {"--scenes", blocked, "--random-weights", "--dim", "4", "--window", "5"}, d,
+                     "latents_blocked_log");
+  INFO(warned.output);
+  CHECK(warned.rc == 0);
+  CHECK_THAT(warned.output, FLAT_CONTAINS("cannot append the log there"));
 }
 
 TEST_CASE("flat_eval: --out-table never replaces a file without --overwrite; bad flags are usage errors", "[cli]") {

@@ -18,7 +18,8 @@ class PendingLog {
 
   // Console logging at `level` plus the temporary file; `log_file` is where keep() puts it.
   void start(const std::string& level, const std::string& log_file);
-  // The run succeeded: append what was logged to log_file (its folder must exist).
+  // The run succeeded: append what was logged to log_file (its folder must
+  // exist; when it cannot be written, a warning names the temporary file).
   void keep();
 
  private:
