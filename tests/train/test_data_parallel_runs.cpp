@@ -330,8 +330,10 @@ TEST_CASE("flat_train: a LOCAL_RANK beyond this host's GPUs fails at once, namin
   // fail before the rendezvous (rank 0 never comes), not wait for the timeout
   // or die in a CUDA call.
   const std::string d = fresh_dir("dp_local_rank").string();
+  // Written before the clock starts: the first write_config of a process makes the tiny dataset (many seconds).
+  const std::string config = write_config(d, 2);
   const auto t0 = std::chrono::steady_clock::now();
-  const int rc = run({binary("flat_train"), "--config", write_config(d, 2), "--set", "device=cuda"}, d + "/log.txt",
+  const int rc = run({binary("flat_train"), "--config", config, "--set", "device=cuda"}, d + "/log.txt",
                      {"RANK=100", "LOCAL_RANK=100", "WORLD_SIZE=101", "MASTER_ADDR=127.0.0.1",
                       "MASTER_PORT=" + std::to_string(flat::test::free_port())});
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
