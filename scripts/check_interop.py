@@ -205,7 +205,9 @@ def blender_read(path, kind, sample):
 def project_python():
     """The project's venv python (or $FLAT_PYTHON) when it is another interpreter than this one."""
     candidate = os.environ.get("FLAT_PYTHON") or os.path.expanduser("~/.cache/flat/venv/bin/python3")
-    if not os.path.isfile(candidate) or os.path.realpath(candidate) == os.path.realpath(sys.executable):
+    # Not realpath: a venv's python is a link to the interpreter it was made
+    # from, which may be the very one running now, without the venv's packages.
+    if not os.path.isfile(candidate) or os.path.abspath(candidate) == os.path.abspath(sys.executable):
         return None
     return candidate
 

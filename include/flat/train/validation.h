@@ -55,8 +55,7 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
 // dataset_mean: (3,H,W) in [0,1], the training set's mean image at the
 // validation size (training_mean_image), or undefined (no such baseline).
 // bf16: decode and render under CUDA bf16 autocast, as the run trains and as
-// flat_eval scores by default (a bf16-trained model's fp32 figures differ:
-// docs/training.md).
+// flat_eval scores by default; the scores are computed in fp32.
 ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
                           loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group = nullptr,
                           const at::Tensor& dataset_mean = {}, bool bf16 = false);
