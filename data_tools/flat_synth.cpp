@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   CLI::App app{"flat_synth: write synthetic scene folders (rooms or object-centric) with exact depth and normals"};
   std::string out, size = "176x320", log_level = "info";
   int64_t scenes = 1, seed = 0, first = 0;
+  int threads = 0;
   bool overwrite = false;
   flat::data::SynthOptions o;
   flat::cli::add_common(app, "flat_synth", log_level);
@@ -31,6 +32,7 @@ int main(int argc, char** argv) {
   app.add_option("--scenes", scenes, "number of scenes")->check(CLI::PositiveNumber);
   app.add_option("--first-index", first, "index of the first scene (continue an earlier batch in the same folder)")
       ->check(CLI::NonNegativeNumber);
+  flat::cli::add_threads(app, threads);
   app.add_flag("--overwrite", overwrite, "replace scenes of the same names (each only once its new folder is complete)");
   app.add_option("--seed", seed, "base seed; scene i uses seed*1000003+i");
   app.add_option("--family", o.family, "room or object")->check(CLI::IsMember({"room", "object"}));
@@ -70,6 +72,7 @@ int main(int argc, char** argv) {
     flat::cli::check_memory(pixels * 4.0 * (double(o.frames) * 9.0 + 40.0),
                             "flat_synth: a scene of " + std::to_string(o.frames) + " frames at " + size,
                             c10::Device(c10::kCPU));
+    flat::cli::apply_threads(threads);
     fs::create_directories(out);
     flat::cli::start_logging(log_level, (fs::path(out) / "flat_synth.log").string());
     spdlog::info("flat_synth: {} {} scene(s) of {} frames at {} into {} (progress every 5 s)", scenes, o.family,

@@ -7,6 +7,7 @@
 #include <iostream>
 #include <sstream>
 
+#include <ATen/Parallel.h>
 #include <spdlog/spdlog.h>
 
 #if FLAT_WITH_CUDA
@@ -45,6 +46,17 @@ CLI::Option* add_store(CLI::App& app, std::string& store) {
   return app.add_option("--store", store, "stored dtype: fp32 | bf16 | fp16")
       ->check(CLI::IsMember({"fp32", "bf16", "fp16"}))
       ->capture_default_str();
+}
+
+CLI::Option* add_threads(CLI::App& app, int& threads) {
+  return app.add_option("--threads", threads,
+                        "CPU threads (0: every core; give each of several tools run side by side its share)")
+      ->check(CLI::Range(0, 4096))
+      ->capture_default_str();
+}
+
+void apply_threads(int threads) {
+  if (threads > 0) at::set_num_threads(threads);
 }
 
 c10::Device resolve_device(const std::string& device) {

@@ -39,6 +39,11 @@ void add_common(CLI::App& app, const std::string& tool, std::string& log_level);
 CLI::Option* add_device(CLI::App& app, std::string& device);
 CLI::Option* add_precision(CLI::App& app, std::string& precision);
 CLI::Option* add_store(CLI::App& app, std::string& store);
+// --threads N: CPU threads for the tool's tensor work (0: libtorch's default,
+// every core). apply_threads sets them; tools running side by side should
+// share the cores between them.
+CLI::Option* add_threads(CLI::App& app, int& threads);
+void apply_threads(int threads);
 
 // "auto" -> cuda when a CUDA device is present, else cpu; "cuda" without one
 // is a flat::Error that says so.

@@ -26,7 +26,7 @@ struct SynthOptions {
   int64_t height = 24;
   int64_t width = 32;
   uint64_t seed = 0;
-  std::function<void()> on_frame;  // called after each rendered frame (progress inside a scene)
+  std::function<void()> on_frame;  // after each rendered frame (progress); frames render in parallel, calls are serialised
   void check() const;  // throws flat::Error naming the bad option
 };
 
