@@ -226,12 +226,13 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("cut.safetensors"));
     CHECK(!fs::exists(o.out_dir));
   }
-  SECTION("NaN latents") {
+  // Options that read `video` (and the scene's own camera latents) from a
+  // latents file beside the scene's first 9 cameras, into out_dir.
+  auto from_latents_file = [&](const std::string& name, const at::Tensor& video, const std::string& out_dir) {
     auto scene = data::read_scene(s.scene);
     auto w = data::read_window_latents(scene, 0);
-    w.video[0][0][0][0] = NAN;
-    const std::string z = (s.dir / "nan.safetensors").string();
-    save_safetensors(z, {{"video", w.video}, {"camera", w.camera}});
+    const std::string z = (s.dir / name).string();
+    save_safetensors(z, {{"video", video.defined() ? video : w.video}, {"camera", w.camera}});
     std::vector<int64_t> first9{0, 1, 2, 3, 4, 5, 6, 7, 8};
     const std::string cams = (s.dir / "traj.json").string();
     camera::write_cameras_json(cams, {scene.cameras(first9), 80, 48});
@@ -239,23 +240,19 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
     o.input = {};
     o.input.latents_file = z;
     o.input.cameras_file = cams;
-    o.out_dir = (s.dir / "nan_out").string();
+    o.out_dir = (s.dir / out_dir).string();
+    return o;
+  };
+  auto window_video = [&] { return data::read_window_latents(data::read_scene(s.scene), 0).video; };
+  SECTION("NaN latents") {
+    auto video = window_video();
+    video[0][0][0][0] = NAN;
+    auto o = from_latents_file("nan.safetensors", video, "nan_out");
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("nan.safetensors") && FLAT_CONTAINS("NaN"));
     CHECK(!fs::exists(o.out_dir));
   }
   SECTION("int64 latents are a wrong file, not values to convert") {
-    auto scene = data::read_scene(s.scene);
-    auto w = data::read_window_latents(scene, 0);
-    const std::string z = (s.dir / "int64.safetensors").string();
-    save_safetensors(z, {{"video", w.video.round().to(at::kLong)}, {"camera", w.camera}});
-    std::vector<int64_t> first9{0, 1, 2, 3, 4, 5, 6, 7, 8};
-    const std::string cams = (s.dir / "traj.json").string();
-    camera::write_cameras_json(cams, {scene.cameras(first9), 80, 48});
-    auto o = good;
-    o.input = {};
-    o.input.latents_file = z;
-    o.input.cameras_file = cams;
-    o.out_dir = (s.dir / "int64_out").string();
+    auto o = from_latents_file("int64.safetensors", window_video().round().to(at::kLong), "int64_out");
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("int64.safetensors: 'video' has dtype Long") &&
                                                      FLAT_CONTAINS("floating point"));
     CHECK(!fs::exists(o.out_dir));
