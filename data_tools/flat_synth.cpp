@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 
+#include <ATen/Parallel.h>
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
@@ -72,7 +73,10 @@ int main(int argc, char** argv) {
     flat::cli::check_memory(pixels * 4.0 * (double(o.frames) * 9.0 + 40.0),
                             "flat_synth: a scene of " + std::to_string(o.frames) + " frames at " + size,
                             c10::Device(c10::kCPU));
-    flat::cli::apply_threads(threads);
+    // Frames on `threads` plain threads (0: every core), each frame on one
+    // intra-op thread: two runs side by side then share the cores instead of
+    // spinning against each other (docs/benchmarks.md).
+    at::set_num_threads(1);
     fs::create_directories(out);
     flat::cli::start_logging(log_level, (fs::path(out) / "flat_synth.log").string());
     spdlog::info("flat_synth: {} {} scene(s) of {} frames at {} into {} (progress every 5 s)", scenes, o.family,
@@ -81,6 +85,7 @@ int main(int argc, char** argv) {
     for (int64_t i = first; i < first + scenes; ++i) {
       flat::data::SynthOptions s = o;
       s.seed = uint64_t(seed) * 1000003ull + uint64_t(i);
+      s.frame_threads = threads;
       s.on_frame = [&] { progress.step(); };
       const std::string name = name_of(i);
       auto rendered = flat::data::render_synthetic_scene(s);

@@ -2,9 +2,12 @@
 
 #include <cmath>
 #include <filesystem>
+#include <algorithm>
+#include <atomic>
+#include <exception>
 #include <mutex>
-
-#include <ATen/Parallel.h>
+#include <thread>
+#include <vector>
 
 #include "flat/camera/rays.h"
 #include "flat/core/error.h"
@@ -39,10 +42,9 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
 
   auto light = at::tensor({layout.light[0], layout.light[1], layout.light[2]}, at::kFloat);
   light = light / light.norm();
-  // Frames in parallel, each one on one thread: coarse tasks instead of
-  // intra-op threads over one frame's small tensors, whose many barriers
-  // collapse when two tools share the cores (issue #30). Each frame's
-  // arithmetic is the same either way, so the output does not change.
+  // Frames in parallel, each on one plain thread (SynthOptions::frame_threads):
+  // coarse tasks instead of intra-op threads over one frame's small tensors.
+  // Each frame's arithmetic is the same either way: the output does not change.
   std::vector<at::Tensor> rgb(o.frames), depth(o.frames), normals(o.frames), surface(o.frames);
   std::mutex progress_mutex;
   auto render_frame = [&](int64_t f) {
@@ -71,9 +73,27 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
       o.on_frame();
     }
   };
-  at::parallel_for(0, o.frames, 1, [&](int64_t begin, int64_t end) {
-    for (int64_t f = begin; f < end; ++f) render_frame(f);
-  });
+  const int64_t threads = std::min<int64_t>(
+      o.frame_threads > 0 ? o.frame_threads : std::max(1u, std::thread::hardware_concurrency()), o.frames);
+  std::atomic<int64_t> next{0};
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto worker = [&] {
+    for (int64_t f = next++; f < o.frames; f = next++) {
+      try {
+        render_frame(f);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (!error) error = std::current_exception();
+        next = o.frames;  // the others stop after their frame
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int64_t t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
   SynthScene s;
   s.cameras = cams;
   s.images = at::stack(rgb).contiguous();

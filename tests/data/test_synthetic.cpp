@@ -4,8 +4,6 @@
 
 #include <atomic>
 
-#include <ATen/Parallel.h>
-
 #include "flat/camera/cameras.h"
 #include "data_test_dirs.h"
 #include "test_support.h"
@@ -51,17 +49,15 @@ TEST_CASE("synthetic scenes are deterministic by seed", "[data][synthetic]") {
 }
 
 TEST_CASE("synthetic scenes: frames rendered in parallel equal frames rendered one by one", "[data][synthetic]") {
-  const int before = at::get_num_threads();
   auto o = opts("room", "mixed", 11, 12, 16);
   std::atomic<int> calls{0};
   o.on_frame = [&] { ++calls; };
-  at::set_num_threads(1);
+  o.frame_threads = 1;
   auto one = data::render_synthetic_scene(o);
   CHECK(calls.load() == 9);
-  at::set_num_threads(4);
+  o.frame_threads = 4;
   calls = 0;
   auto many = data::render_synthetic_scene(o);
-  at::set_num_threads(before);
   CHECK(calls.load() == 9);
   // Each frame in its place: the frames differ (the camera moves), and the
   // parallel output equals the sequential one bit for bit.

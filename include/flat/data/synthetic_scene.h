@@ -26,7 +26,12 @@ struct SynthOptions {
   int64_t height = 24;
   int64_t width = 32;
   uint64_t seed = 0;
-  std::function<void()> on_frame;  // after each rendered frame (progress); frames render in parallel, calls are serialised
+  // Frames rendered at once on plain threads, each frame on one; 0: one per
+  // core. Give the process one intra-op thread then (at::set_num_threads(1),
+  // as flat_synth does): OpenMP teams of two processes side by side spin
+  // against each other, plain threads wait in the kernel (issue #30).
+  int64_t frame_threads = 1;
+  std::function<void()> on_frame;  // after each rendered frame (progress); calls are serialised
   void check() const;  // throws flat::Error naming the bad option
 };
 
