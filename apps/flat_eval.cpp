@@ -48,6 +48,8 @@ int main(int argc, char** argv) {
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
   app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
   flat::cli::add_device(app, o.device);
+  int threads = 0;
+  flat::cli::add_threads(app, threads);
   flat::cli::add_precision(app, o.precision)
       ->description("compute dtype: fp32 | bf16 (bf16 applies on CUDA; on the CPU the run is fp32 whatever this says)");
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming)");
@@ -57,6 +59,7 @@ int main(int argc, char** argv) {
   bool overwrite = false;
   app.add_flag("--overwrite", overwrite, "--compare: replace an existing --out-table file");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::cli::apply_threads(threads);
   try {
     flat::setup_logging(o.log_level);
     if (!compare.empty()) {

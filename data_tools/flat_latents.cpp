@@ -188,11 +188,14 @@ int main(int argc, char** argv) {
   app.add_option("--step", o.step, "frames between window starts (0 = the window, no overlap)")->check(CLI::NonNegativeNumber);
   app.add_option("--size", o.size, "frame size HxW to encode at (multiples of 8; default: the scene's, floored to 8)");
   cli::add_device(app, o.device);
+  int threads = 0;
+  cli::add_threads(app, threads);
   cli::add_precision(app, o.precision);
   app.add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
   cli::add_store(app, o.store);
   app.add_flag("--full", o.full, "encode the whole window at once instead of streaming chunks");
   if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
+  cli::apply_threads(threads);
   PendingLog log;  // outlives the error report, which it then holds too
   return cli::run([&] {
     run(o, log);

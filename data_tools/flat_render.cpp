@@ -59,7 +59,10 @@ int run(int argc, char** argv) {
   app.add_option("--eps", eps, "FLAT window support beyond each edge, in inradii")->check(CLI::Range(0.0, 1.0));
   app.add_option("--background", background, "background colour r,g,b in [0,1]");
   flat::cli::add_device(app, device);
+  int threads = 0;
+  flat::cli::add_threads(app, threads);
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::cli::apply_threads(threads);
   flat::render::RasterSettings settings;
   settings.background = parse_rgb(background);
   std::string log = out_dir;

@@ -34,6 +34,7 @@ using namespace flat::model;
 namespace {
 
 struct Options {
+  int threads = 0;  // --threads (0: every core)
   std::string weights, weights_prefix, in, out, mode = "streaming", device = "auto", precision = "fp32";
   std::string log_level = "info";
   bool random_weights = false, trim = false, no_clamp = false, overwrite = false;
@@ -54,6 +55,7 @@ void add_common(CLI::App* cmd, Options& o) {
       ->check(CLI::IsMember({"streaming", "full"}))
       ->capture_default_str();
   cli::add_device(*cmd, o.device);
+  cli::add_threads(*cmd, o.threads);
   cli::add_precision(*cmd, o.precision);
   cmd->add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
   cmd->add_option("--dim", o.dim, "base width of --random-weights (default 96, as Wan 2.1)")
@@ -254,6 +256,7 @@ int main(int argc, char** argv) {
   d->add_flag("--no-clamp", dec.no_clamp, "keep the raw decoder output (no clamp to [-1,1])");
   if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
   return cli::run([&] {
+    cli::apply_threads(e->parsed() ? enc.threads : dec.threads);
     if (e->parsed()) encode(enc);
     if (d->parsed()) decode(dec);
     return 0;

@@ -156,11 +156,14 @@ TEST_CASE("every tool: --version exits 0, an unknown flag is a usage error (2), 
     CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
     CHECK_THAT(h.output, FLAT_CONTAINS("auto"));
     CHECK_THAT(h.output, FLAT_CONTAINS("--log-level"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("--threads"));  // tools run side by side need to share the cores
   }
+  CHECK_THAT(tool("flat_synth", {"--help"}, f.root, "flat_synth_help2").output, FLAT_CONTAINS("--threads"));
   for (const auto& sub : {"encode", "decode"}) {
     auto h = tool("flat_vae", {sub, "--help"}, f.root, std::string("flat_vae_help_") + sub);
     CHECK_THAT(h.output, FLAT_CONTAINS("--precision"));
     CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
+    CHECK_THAT(h.output, FLAT_CONTAINS("--threads"));
     // The default, as CLI11 shows it: "=auto" (Debian's 2.3) or "[auto]" (2.4 and later).
     const bool shows_default = h.output.find("=auto") != std::string::npos || h.output.find("[auto]") != std::string::npos;
     CHECK(shows_default);
@@ -177,6 +180,9 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
       // usage errors (2)
       {"synth_size", "flat_synth", {"--out", "{R}/s1", "--size", "16by24"}, 2, {"--size", "HxW"}},
       {"synth_frames", "flat_synth", {"--out", "{R}/s1", "--frames", "0"}, 2, {"--frames"}},
+      {"synth_threads", "flat_synth", {"--out", "{R}/s1", "--threads", "-1"}, 2, {"--threads"}},
+      {"latents_threads", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--threads", "x"}, 2,
+       {"--threads"}},
       {"latents_window", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--window", "4"}, 2, {"1+4k"}},
       {"latents_no_weights", "flat_latents", {"--scenes", "{SYNTH}"}, 2, {"--random-weights"}},
       {"latents_size", "flat_latents", {"--scenes", "{SYNTH}", "--random-weights", "--size", "20x20"}, 2,
