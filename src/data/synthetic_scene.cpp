@@ -1,10 +1,10 @@
 #include "flat/data/synthetic_scene.h"
 
-#include <cmath>
-#include <filesystem>
 #include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <exception>
+#include <filesystem>
 #include <mutex>
 #include <thread>
 #include <vector>
