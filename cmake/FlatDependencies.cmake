@@ -6,6 +6,8 @@ find_package(spdlog REQUIRED)
 find_package(CLI11 REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
 find_package(glm REQUIRED)   # on the GPU machine: a carried prefix (see README, GPU build)
+# KD-tree of the mesh stitching (Debian libnanoflann-dev, header-only; carried like GLM to the GPU machine).
+find_package(nanoflann REQUIRED)
 
 if(FLAT_WITH_OIIO)
   find_package(OpenImageIO REQUIRED)

@@ -14,7 +14,7 @@
 #     screenshot test; assimp, Blender and the trimesh package for
 #     scripts/check_interop.py; Blender's glTF importer needs python3-numpy,
 #     which Debian's blender package does not pull in);
-#   - the gloo headers (libgloo-dev): the torch wheel holds c10d's Gloo code
+#   - the gloo headers (libgloo-dev libnanoflann-dev): the torch wheel holds c10d's Gloo code
 #     but not the headers its ProcessGroupGloo.hpp includes (src/distributed).
 # Python is only the installer of libtorch; nothing in the product runs it.
 set -euo pipefail
@@ -29,7 +29,7 @@ APT_PACKAGES=(cmake ninja-build g++ clang libclang-rt-14-dev
   libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev libglm-dev catch2
   libopenimageio-dev openimageio-tools libopencv-core-dev python3-venv python3-pip
   libtinygltf-dev libjs-three ffmpeg chromium assimp-utils blender python3-numpy
-  libgloo-dev)
+  libgloo-dev libnanoflann-dev)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do

@@ -9,6 +9,7 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
+#include "flat/core/tensor_io.h"
 #include "flat/core/shape.h"
 
 #if FLAT_WITH_OIIO
@@ -116,6 +117,17 @@ std::vector<std::string> list_images(const std::string& folder) {
   if (ec) fail(folder + ": cannot list folder: " + ec.message());
   std::sort(images.begin(), images.end());  // same folder, so this sorts by file name
   return images;
+}
+
+std::string write_preview_image(const at::Tensor& chw, const std::string& path_without_extension) {
+  if (image_io_available()) {
+    const std::string path = path_without_extension + ".png";
+    write_image(path, chw);
+    return path;
+  }
+  const std::string path = path_without_extension + ".safetensors";
+  save_safetensors(path, {{"grid", chw.contiguous()}}, {{"layout", "(3,H,W) in [0,1]"}});
+  return path;
 }
 
 }  // namespace flat

@@ -9,6 +9,7 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "flat/export/srgb.h"
+#include "gltf_buffers.h"
 
 #if FLAT_WITH_GLTF
 #include <tiny_gltf.h>  // Debian builds the implementation into libtinygltf.so
@@ -82,30 +83,6 @@ bool find_mesh_node(const tinygltf::Model& m, int node, const Mat4& parent, int 
   for (int child : m.nodes[node].children)
     if (find_mesh_node(m, child, world, depth + 1, out)) return true;
   return false;
-}
-
-// Appends `bytes` to the buffer and a bufferView over them; returns the view.
-int add_view(tinygltf::Model& m, const void* bytes, size_t size, int target) {
-  auto& data = m.buffers[0].data;
-  tinygltf::BufferView view;
-  view.buffer = 0;
-  view.byteOffset = data.size();
-  view.byteLength = size;
-  view.target = target;
-  data.insert(data.end(), static_cast<const unsigned char*>(bytes), static_cast<const unsigned char*>(bytes) + size);
-  m.bufferViews.push_back(view);
-  return int(m.bufferViews.size()) - 1;
-}
-
-int add_accessor(tinygltf::Model& m, int view, int component, int type, size_t count) {
-  tinygltf::Accessor a;
-  a.bufferView = view;
-  a.byteOffset = 0;
-  a.componentType = component;
-  a.type = type;
-  a.count = count;
-  m.accessors.push_back(a);
-  return int(m.accessors.size()) - 1;
 }
 
 // Element i, component c of an accessor as double, with every bound checked
@@ -225,32 +202,8 @@ void write_triangle_glb(const std::string& path, const primitives::TriangleSoup&
   prim.mode = TINYGLTF_MODE_TRIANGLES;
   prim.attributes = {{"POSITION", pos}, {"COLOR_0", col}, {"_SIGMA", sig}};
   prim.indices = idx;
-  prim.material = 0;
-  tinygltf::Mesh mesh;
-  mesh.name = "flat_triangles";
-  mesh.primitives.push_back(prim);
-  m.meshes.push_back(mesh);
-
-  // Baked radiance: no lighting (unlit), both sides, blended by opacity.
-  tinygltf::Material mat;
-  mat.name = "flat_unlit";
-  mat.pbrMetallicRoughness.metallicFactor = 0.0;
-  mat.pbrMetallicRoughness.roughnessFactor = 1.0;
-  mat.doubleSided = true;
-  mat.alphaMode = "BLEND";
-  mat.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
-  m.materials.push_back(mat);
-  m.extensionsUsed.push_back("KHR_materials_unlit");
-
-  tinygltf::Node node;
-  node.name = "flat_scene (OpenCV world; rotated to y-up)";
-  node.mesh = 0;
-  node.rotation = {1.0, 0.0, 0.0, 0.0};  // quaternion (x, y, z, w): 180 degrees about x
-  m.nodes.push_back(node);
-  tinygltf::Scene scene;
-  scene.nodes = {0};
-  m.scenes.push_back(scene);
-  m.defaultScene = 0;
+  // Baked radiance, blended by opacity.
+  add_unlit_scene(m, prim, "flat_triangles", "BLEND");
 
   AtomicFile file(path);
   tinygltf::TinyGLTF writer;

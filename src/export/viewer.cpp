@@ -130,13 +130,19 @@ bool viewer_available(const std::string& three_dir) {
 }
 
 void write_viewer(const std::string& folder, const std::string& glb_path, const camera::CameraSet& start,
-                  const std::string& three_dir) {
+                  const std::string& three_dir, const std::string& mesh_glb_path) {
   FLAT_CHECK(viewer_available(three_dir),
              folder + ": cannot write the viewer: three.js r111 not found in '" + three_dir +
                  "' (Debian package libjs-three; needs three.min.js, examples/js/controls/OrbitControls.js and "
                  "examples/js/loaders/GLTFLoader.js)");
   const std::string glb = read_bytes(glb_path, "GLB for the viewer");
   FLAT_CHECK(glb.size() >= 12 && glb.compare(0, 4, "glTF") == 0, glb_path + ": not a GLB file (no 'glTF' magic)");
+  std::string mesh_glb;
+  if (!mesh_glb_path.empty()) {
+    mesh_glb = read_bytes(mesh_glb_path, "mesh GLB for the viewer");
+    FLAT_CHECK(mesh_glb.size() >= 12 && mesh_glb.compare(0, 4, "glTF") == 0,
+               mesh_glb_path + ": not a GLB file (no 'glTF' magic)");
+  }
   nlohmann::json cams = {{"version", 1}, {"cameras", nlohmann::json::array()}};
   if (start.cameras.intrinsics.defined()) start.cameras.check(folder + ": viewer start cameras");
   if (start.cameras.intrinsics.defined() && start.cameras.size() > 0) {
@@ -160,6 +166,12 @@ void write_viewer(const std::string& folder, const std::string& glb_path, const 
   write_file_atomic(dir.file("scene_glb.js"), "// " + fs::path(glb_path).filename().string() +
                                                    ", base64 (FLAT-C++ viewer)\nwindow.FLAT_SCENE_GLB = \"" +
                                                    base64(glb) + "\";\n");
+  // Always written (empty without a mesh), so that the page's script tag never 404s.
+  write_file_atomic(dir.file("mesh_glb.js"),
+                    mesh_glb.empty() ? std::string("// no opaque mesh (FLAT-C++ viewer)\n")
+                                     : "// " + fs::path(mesh_glb_path).filename().string() +
+                                           ", base64 (FLAT-C++ viewer)\nwindow.FLAT_MESH_GLB = \"" + base64(mesh_glb) +
+                                           "\";\n");
   write_file_atomic(dir.file("cameras.js"), "// Start cameras (docs/formats.md, cameras JSON)\nwindow.FLAT_CAMERAS = " +
                                                  cams.dump() + ";\n");
   write_file_atomic(dir.file("index.html"), std::string(viewer_index_html()));

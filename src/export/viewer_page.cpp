@@ -17,19 +17,22 @@ const char* viewer_index_html() {
   return R"FLATPAGE(<!DOCTYPE html>
 <!-- FLAT-C++ viewer (docs/formats.md, "Viewer"). URL: ?camera=K, or
      ?c2w=<16 numbers, row-major OpenCV camera-to-world>&fx=..&fy=..&cx=..&cy=..
-     (intrinsics normalised by the image size); &bg=RRGGBB (background). -->
+     (intrinsics normalised by the image size); &bg=RRGGBB (background);
+     &show=mesh (start on the opaque mesh, when the folder has one). -->
 <html>
 <head>
 <meta charset="utf-8">
 <title>FLAT viewer</title>
 <style>html, body { margin: 0; height: 100%; overflow: hidden; } canvas { display: block; }
-#error { position: absolute; top: 0; left: 8px; color: #f44; font: 14px monospace; white-space: pre-wrap; }</style>
+#error { position: absolute; top: 0; left: 8px; color: #f44; font: 14px monospace; white-space: pre-wrap; }
+#toggle { position: absolute; top: 8px; right: 8px; font: 13px sans-serif; }</style>
 </head>
 <body>
 <script src="three.min.js"></script>
 <script src="OrbitControls.js"></script>
 <script src="GLTFLoader.js"></script>
 <script src="scene_glb.js"></script>
+<script src="mesh_glb.js"></script>
 <script src="cameras.js"></script>
 <script>
 "use strict";
@@ -201,27 +204,65 @@ function setCamera(start) {
   controls.addEventListener("end", function () { sortTriangles(); requestDraw(); });
 }
 
-function onLoad(gltf) {
-  gltf.scene.traverse(function (node) { if (node.isMesh && !mesh) mesh = node; });
-  if (!mesh || !mesh.geometry.index || !mesh.geometry.attributes.color)
+// A loaded GLB: its root, its one mesh, and the centroids the sort needs.
+function prepare(gltf) {
+  var node = null;
+  gltf.scene.traverse(function (n) { if (n.isMesh && !node) node = n; });
+  if (!node || !node.geometry.index || !node.geometry.attributes.color)
     throw new Error("the GLB has no indexed mesh with COLOR_0 (not written by FLAT-C++?)");
-  scene.add(gltf.scene);
-  scene.updateMatrixWorld(true);
-  var geometry = mesh.geometry, position = geometry.attributes.position.array;
-  geometry.setAttribute("rgba", geometry.attributes.color);
-  mesh.material = material;
-  mesh.frustumCulled = false;
-  baseIndex = geometry.index.array.slice();
-  centroids = new Float32Array(baseIndex.length);
-  for (var t = 0; t < baseIndex.length; ++t) {
-    var corner = 3 * baseIndex[t], out = 3 * Math.floor(t / 3);
-    for (var d = 0; d < 3; ++d) centroids[out + d] += position[corner + d] / 3;
+  gltf.scene.updateMatrixWorld(true);
+  var geometry = node.geometry, position = geometry.attributes.position.array;
+  geometry.setAttribute("rgba", geometry.attributes.color);  // VEC3 colours read alpha 1
+  node.material = material;
+  node.frustumCulled = false;
+  var base = geometry.index.array.slice(), c = new Float32Array(base.length);
+  for (var t = 0; t < base.length; ++t) {
+    var corner = 3 * base[t], out = 3 * Math.floor(t / 3);
+    for (var d = 0; d < 3; ++d) c[out + d] += position[corner + d] / 3;
   }
-  new THREE.Box3().setFromObject(gltf.scene).getBoundingSphere(bounds);
-  setCamera(startCamera());
+  return {root: gltf.scene, node: node, centroids: c, baseIndex: base};
+}
+
+var models = {}, shown = null;
+function show(name) {
+  if (shown) scene.remove(models[shown].root);
+  shown = name;
+  var m = models[name];
+  scene.add(m.root);
+  scene.updateMatrixWorld(true);
+  mesh = m.node;
+  centroids = m.centroids;
+  baseIndex = m.baseIndex;
   sortTriangles();
+  requestDraw();
+  var button = document.getElementById("toggle");
+  if (button) button.textContent = name === "mesh" ? "showing: opaque mesh (M: soup)" : "showing: triangle soup (M: mesh)";
+  document.title = "FLAT viewer: " + (name === "mesh" ? "opaque mesh, " : "") + baseIndex.length / 3 + " triangles";
+}
+
+function toggle() { if (models.mesh) show(shown === "mesh" ? "soup" : "mesh"); }
+
+function onLoad(soup, meshModel) {
+  models.soup = soup;
+  if (meshModel) {
+    models.mesh = meshModel;
+    var button = document.createElement("button");
+    button.id = "toggle";
+    button.addEventListener("click", toggle);
+    document.body.appendChild(button);
+    window.addEventListener("keydown", function (e) { if (e.key === "m" || e.key === "M") toggle(); });
+  }
+  new THREE.Box3().setFromObject(soup.root).getBoundingSphere(bounds);
+  setCamera(startCamera());
+  if (params.get("show") === "mesh" && !meshModel) throw new Error("show=mesh: this viewer has no opaque mesh");
+  show(params.get("show") === "mesh" ? "mesh" : "soup");
   draw();
-  document.title = "FLAT viewer: " + baseIndex.length / 3 + " triangles";
+}
+
+function parseGlb(base64, then) {
+  new THREE.GLTFLoader().parse(decodeBase64(base64), "", function (gltf) {
+    try { then(prepare(gltf)); } catch (e) { showError(e.message); }
+  }, function (e) { showError("cannot read the GLB: " + (e.message || e)); });
 }
 
 window.addEventListener("resize", function () {
@@ -231,9 +272,10 @@ window.addEventListener("resize", function () {
 
 try {
   if (!window.FLAT_SCENE_GLB) throw new Error("scene_glb.js is missing or empty");
-  new THREE.GLTFLoader().parse(decodeBase64(window.FLAT_SCENE_GLB), "", function (gltf) {
-    try { onLoad(gltf); } catch (e) { showError(e.message); }
-  }, function (e) { showError("cannot read the GLB: " + (e.message || e)); });
+  parseGlb(window.FLAT_SCENE_GLB, function (soup) {
+    if (!window.FLAT_MESH_GLB) return onLoad(soup, null);
+    parseGlb(window.FLAT_MESH_GLB, function (meshModel) { onLoad(soup, meshModel); });
+  });
 } catch (e) {
   showError(e.message);
 }

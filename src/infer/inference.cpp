@@ -213,6 +213,11 @@ InferSummary run_inference(const InferOptions& o) {
                                    {"render", s.render_seconds}, {"total", s.total_seconds}}},
                       {"peak_memory_gib", {{"decode", s.decode_peak_gib}, {"render", s.render_peak_gib}}},
                       {"notes", s.notes}};
+  // Where the frames of this window are, for flat_mesh (refinement needs them).
+  if (!o.input.scene_dir.empty()) {
+    j["scene_dir"] = std::filesystem::absolute(o.input.scene_dir).string();
+    j["window"] = o.input.window;
+  }
   s.outputs.push_back("summary.json");
   s.outputs.push_back("infer.log");
   j["outputs"] = s.outputs;

@@ -18,6 +18,7 @@
 
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
+#include "flat/core/image_io.h"
 #include "flat/core/log.h"
 #include "flat/core/progress.h"
 #include "flat/core/run_dir.h"
@@ -367,7 +368,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
     if (r.grid.defined()) {
       char name[64];
       std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
-      grid = write_validation_grid(r.grid, run.renders() + name);
+      grid = write_preview_image(r.grid, run.renders() + name);
     }
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const std::string lp = std::isnan(r.lpips) ? "n/a" : fmt::format("{:.3f}", r.lpips);

@@ -211,15 +211,4 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
   return r;
 }
 
-std::string write_validation_grid(const at::Tensor& grid, const std::string& path_without_extension) {
-  if (image_io_available()) {
-    const std::string path = path_without_extension + ".png";
-    write_image(path, grid);
-    return path;
-  }
-  const std::string path = path_without_extension + ".safetensors";
-  save_safetensors(path, {{"grid", grid}}, {{"layout", "(3,H,W) in [0,1]"}});
-  return path;
-}
-
 }  // namespace flat::train

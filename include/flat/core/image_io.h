@@ -19,4 +19,8 @@ void write_image(const std::string& path, const at::Tensor& chw, bool png16 = fa
 // Image files in a folder (png, jpg, jpeg, exr, tif), sorted by name.
 std::vector<std::string> list_images(const std::string& folder);
 
+// A picture for people to look at: PNG when image IO is built in, else the
+// tensor as safetensors ("grid", with its layout); returns the path written.
+std::string write_preview_image(const at::Tensor& chw, const std::string& path_without_extension);
+
 }  // namespace flat

@@ -3,10 +3,13 @@
 //   index.html        our page (src/export/viewer_page.cpp)
 //   three.min.js, OrbitControls.js, GLTFLoader.js   copied from three.js r111
 //   scene_glb.js      the GLB, base64 (browsers refuse XHR/fetch of file://)
+//   mesh_glb.js       the opaque mesh GLB (mesh_files.h), base64, when given:
+//                     the page then has a soup / mesh toggle (button, key M)
 //   cameras.js        the start cameras, as in the cameras JSON (docs/formats.md)
 // URL parameters (docs/formats.md, "Viewer"): camera=K (start camera K), or
 // c2w=<16 numbers, row-major OpenCV camera-to-world>&fx=..&fy=..&cx=..&cy=..
-// (intrinsics normalised by the image size, as in camera_json.h); bg=RRGGBB.
+// (intrinsics normalised by the image size, as in camera_json.h); bg=RRGGBB;
+// show=mesh (start on the opaque mesh).
 // The projection comes from the intrinsics (off-centre principal points
 // included), so a W x H window shows what rasterize() renders at W x H.
 #pragma once
@@ -27,6 +30,6 @@ bool viewer_available(const std::string& three_dir);
 // (otherwise flat::Error). start_cameras may be empty (the view then frames
 // the scene).
 void write_viewer(const std::string& folder, const std::string& glb_path, const camera::CameraSet& start_cameras,
-                  const std::string& three_dir);
+                  const std::string& three_dir, const std::string& mesh_glb_path = "");
 
 }  // namespace flat::exporter

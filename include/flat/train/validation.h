@@ -64,8 +64,4 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loade
 // loader built from `config` with batch size 1): (3,H,W) on the CPU.
 at::Tensor training_mean_image(const data::LoaderConfig& config, int64_t samples);
 
-// Writes the grid as PNG (or safetensors when built without OpenImageIO);
-// returns the path written.
-std::string write_validation_grid(const at::Tensor& grid, const std::string& path_without_extension);
-
 }  // namespace flat::train

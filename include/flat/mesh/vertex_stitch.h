@@ -1,0 +1,35 @@
+// Stitching (paper, Opaque Mesh Conversion): boundary vertices that are each
+// other's nearest boundary vertex, closer than a distance, are merged into
+// one (at their midpoint, colours averaged), so that separate triangles
+// become a connected mesh. Nearest neighbours come from a KD-tree
+// (nanoflann). Faces that the merge collapses are removed.
+#pragma once
+#include <cstdint>
+
+#include <ATen/ATen.h>
+
+#include "flat/primitives/indexed_mesh.h"
+
+namespace flat::mesh {
+
+struct StitchOptions {
+  double max_distance = 0;  // world units; pairs farther apart stay open
+  int64_t rounds = 3;       // a corner of k triangles needs about log2(k) rounds
+};
+
+struct StitchReport {
+  int64_t merged_pairs = 0, collapsed_faces = 0, rounds_run = 0;
+};
+
+// Boundary vertices: those on an edge that exactly one face uses. (V,) bool.
+at::Tensor boundary_vertices(const primitives::IndexedMesh& mesh);
+
+// For each vertex in `candidates` (V,) bool, its nearest candidate vertex that
+// does not share a face with it, when closer than max_distance; else -1.
+// (V,) int64 (entries of non-candidates are -1).
+at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance);
+
+primitives::IndexedMesh stitch_boundary_vertices(const primitives::IndexedMesh& mesh, const StitchOptions& options,
+                                                 StitchReport* report = nullptr);
+
+}  // namespace flat::mesh

@@ -1,0 +1,78 @@
+// The opaque mesh as binary PLY and as OBJ with vertex colours
+// (docs/formats.md, "Opaque mesh"). One file for both: the same walk over
+// the same arrays, two spellings.
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "flat/core/atomic_file.h"
+#include "flat/core/error.h"
+#include "flat/export/mesh_files.h"
+
+namespace flat::exporter {
+
+namespace {
+
+struct MeshArrays {
+  at::Tensor v, c, f;  // float (V,3), float (V,3) clamped, int32 (F,3); CPU, contiguous
+};
+
+MeshArrays mesh_arrays(const std::string& path, const primitives::IndexedMesh& mesh) {
+  primitives::check_mesh(mesh, path);
+  FLAT_CHECK(mesh.num_vertices() < (int64_t(1) << 31), path + ": too many vertices for int indices");
+  return {mesh.vertices.detach().to(at::kCPU, at::kFloat).contiguous(),
+          mesh.colors.detach().to(at::kCPU, at::kFloat).clamp(0, 1).contiguous(),
+          mesh.faces.to(at::kCPU).to(at::kInt).contiguous()};
+}
+
+uint8_t to_byte(float x) { return uint8_t(std::lround(255.f * x)); }
+
+}  // namespace
+
+void write_mesh_ply(const std::string& path, const primitives::IndexedMesh& mesh) {
+  const auto a = mesh_arrays(path, mesh);
+  const int64_t nv = a.v.size(0), nf = a.f.size(0);
+  const float* v = a.v.data_ptr<float>();
+  const float* c = a.c.data_ptr<float>();
+  const int32_t* f = a.f.data_ptr<int32_t>();
+  write_file_atomic(path, [&](std::ostream& out) {
+    out << "ply\nformat binary_little_endian 1.0\ncomment FLAT opaque mesh (docs/formats.md)\n"
+        << "element vertex " << nv << "\nproperty float x\nproperty float y\nproperty float z\n"
+        << "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        << "element face " << nf << "\nproperty list uchar int vertex_indices\nend_header\n";
+    char vertex[15];
+    for (int64_t i = 0; i < nv; ++i) {
+      std::memcpy(vertex, v + 3 * i, 12);
+      for (int k = 0; k < 3; ++k) vertex[12 + k] = char(to_byte(c[3 * i + k]));
+      out.write(vertex, sizeof(vertex));
+    }
+    char face[13];
+    face[0] = 3;
+    for (int64_t i = 0; i < nf; ++i) {
+      std::memcpy(face + 1, f + 3 * i, 12);
+      out.write(face, sizeof(face));
+    }
+  });
+}
+
+void write_mesh_obj(const std::string& path, const primitives::IndexedMesh& mesh) {
+  const auto a = mesh_arrays(path, mesh);
+  const int64_t nv = a.v.size(0), nf = a.f.size(0);
+  const float* v = a.v.data_ptr<float>();
+  const float* c = a.c.data_ptr<float>();
+  const int32_t* f = a.f.data_ptr<int32_t>();
+  write_file_atomic(path, [&](std::ostream& out) {
+    out << "# FLAT opaque mesh (docs/formats.md): " << nv << " vertices, " << nf << " faces\n";
+    fmt::memory_buffer b;
+    for (int64_t i = 0; i < nv; ++i)
+      fmt::format_to(std::back_inserter(b), "v {} {} {} {:.4f} {:.4f} {:.4f}\n", v[3 * i], v[3 * i + 1], v[3 * i + 2],
+                     c[3 * i], c[3 * i + 1], c[3 * i + 2]);
+    for (int64_t i = 0; i < nf; ++i)
+      fmt::format_to(std::back_inserter(b), "f {} {} {}\n", f[3 * i] + 1, f[3 * i + 1] + 1, f[3 * i + 2] + 1);
+    out.write(b.data(), std::streamsize(b.size()));
+  });
+}
+
+}  // namespace flat::exporter

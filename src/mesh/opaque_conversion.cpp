@@ -1,0 +1,180 @@
+#include "flat/mesh/opaque_conversion.h"
+
+#include <chrono>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "flat/core/error.h"
+#include "flat/core/progress.h"
+#include "flat/mesh/boundary_densify.h"
+#include "flat/mesh/floaters.h"
+#include "flat/mesh/prunable_adam.h"
+#include "flat/mesh/vertex_stitch.h"
+#include "flat/mesh/view_fitting.h"
+
+namespace flat::mesh {
+
+namespace {
+
+void require_some(int64_t n, const std::string& stage) {
+  FLAT_CHECK(n > 0, "opaque conversion: " + stage + " left no triangle (the soup does not cover the views, or the "
+                    "thresholds are too strict)");
+}
+
+// Stage 1: opacity selection with the sigma schedule and the rising floor.
+primitives::TriangleSoup select_opaque(const primitives::TriangleSoup& start, const ViewTargets& targets,
+                                       const OpaqueOptions& o, ConversionReport& r) {
+  auto base = start.vertices.detach().to(at::kFloat);
+  auto size = triangle_sizes(base);
+  // The floor starts at 0, so the logits start at the soup's opacities.
+  PrunableAdam adam({at::zeros_like(base), inverse_sigmoid(start.colors.detach().to(at::kFloat)),
+                     inverse_sigmoid(start.opacities.detach().to(at::kFloat))},
+                    {o.lr_position, o.lr_color, o.lr_opacity});
+  const int64_t steps = o.selection_steps;
+  const auto schedule = [&](int64_t step, double& sigma, double& floor) {
+    const double t = steps > 0 ? double(step) / double(steps) : 1.0;
+    sigma = o.sigma_start + (o.sigma_end - o.sigma_start) * t;
+    floor = t;
+  };
+  const auto soup = [&](double sigma, double floor) {
+    const int64_t n = adam.param(0).size(0);
+    return primitives::TriangleSoup{base + size * adam.param(0), at::sigmoid(adam.param(1)),
+                                    floor + (1 - floor) * at::sigmoid(adam.param(2)),
+                                    at::full({n}, sigma, base.options())};
+  };
+  loss::Objective objective(o.loss, targets.rgb.device());
+  ViewCycle cycle(targets.size(), o.views_per_step, o.seed);
+  auto max_weight = at::zeros({base.size(0)}, base.options());
+  Progress progress("opacity selection", steps);
+  for (int64_t step = 1; step <= steps; ++step) {
+    double sigma = 0, floor = 0;
+    schedule(step - 1, sigma, floor);
+    auto fit = fit_loss(soup(sigma, floor), targets, cycle.next(), objective, o.raster);
+    fit.loss.total.backward();
+    adam.step();
+    adam.zero_grad();
+    const double loss = fit.loss.total.item<double>();
+    FLAT_CHECK(std::isfinite(loss), fmt::format("opaque conversion: the loss became {} at selection step {}", loss, step));
+    r.selection_losses.push_back(loss);
+    max_weight = at::maximum(max_weight, fit.max_weight.to(max_weight.device()));
+    const bool covered = step * std::min(o.views_per_step, targets.size()) >= targets.size();
+    if (step % o.selection_prune_every == 0 && step < steps) {
+      const auto opacity = floor + (1 - floor) * at::sigmoid(adam.param(2).detach());
+      auto keep = opacity >= o.selection_prune_opacity;
+      if (covered) keep = keep & (max_weight >= o.selection_prune_weight);
+      const auto idx = keep.nonzero().reshape({-1});
+      require_some(idx.numel(), "opacity selection");
+      adam.keep_rows(idx);
+      base = base.index_select(0, idx);
+      size = size.index_select(0, idx);
+      max_weight = covered ? at::zeros({idx.numel()}, base.options()) : max_weight.index_select(0, idx);
+    }
+    progress.step(1, {{"loss", loss}, {"sigma", sigma}, {"triangles", double(base.size(0))}});
+  }
+  progress.finish();
+  at::NoGradGuard no_grad;
+  auto out = soup(o.sigma_end, 1.0);
+  return {out.vertices.detach(), out.colors.detach(), out.opacities.detach(), out.sigmas.detach()};
+}
+
+// Stage 4: vertex positions and colours, topology fixed.
+primitives::IndexedMesh repair(const primitives::IndexedMesh& mesh, const ViewTargets& targets, const OpaqueOptions& o,
+                               ConversionReport& r) {
+  const auto device = targets.rgb.device();
+  const auto faces = mesh.faces.to(device);
+  const auto base = mesh.vertices.to(device, at::kFloat);
+  PrunableAdam adam({at::zeros_like(base), inverse_sigmoid(mesh.colors.to(device, at::kFloat))}, {o.lr_position, o.lr_color});
+  const double unit = r.median_edge;
+  const auto current = [&] {
+    return primitives::IndexedMesh{base + unit * adam.param(0), at::sigmoid(adam.param(1)), faces};
+  };
+  loss::Objective objective(o.loss, device);
+  const auto raster = opaque_raster(o.raster);
+  ViewCycle cycle(targets.size(), o.views_per_step, o.seed + 1);
+  Progress progress("mesh repair", o.repair_steps);
+  for (int64_t step = 1; step <= o.repair_steps; ++step) {
+    auto fit = fit_loss(opaque_render_soup(current(), o), targets, cycle.next(), objective, raster);
+    fit.loss.total.backward();
+    adam.step();
+    adam.zero_grad();
+    const double loss = fit.loss.total.item<double>();
+    FLAT_CHECK(std::isfinite(loss), fmt::format("opaque conversion: the loss became {} at repair step {}", loss, step));
+    r.repair_losses.push_back(loss);
+    progress.step(1, {{"loss", loss}});
+  }
+  progress.finish();
+  at::NoGradGuard no_grad;
+  const auto m = current();
+  return {m.vertices.detach().cpu(), m.colors.detach().cpu(), mesh.faces.cpu()};
+}
+
+}  // namespace
+
+render::RasterSettings opaque_raster(const render::RasterSettings& base) {
+  auto s = base;
+  s.window = "flat";
+  s.eps = 0.0;
+  return s;
+}
+
+primitives::TriangleSoup opaque_render_soup(const primitives::IndexedMesh& mesh, const OpaqueOptions& o) {
+  return primitives::soup_from_mesh(mesh, o.snap_opacity, o.sigma_end);
+}
+
+primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& soup, const ViewTargets& targets,
+                                               const OpaqueOptions& o, ConversionReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  targets.check("mesh conversion targets");
+  FLAT_CHECK(soup.colors.dim() == 2, "opaque conversion: expects RGB colours (N,3), got SH coefficients");
+  FLAT_CHECK(o.sigma_end <= o.sigma_start, "opaque conversion: sigma_end must not exceed sigma_start");
+  o.raster.check();
+  ConversionReport r;
+  r.soup_triangles = soup.vertices.size(0);
+  require_some(r.soup_triangles, "the input");
+  r.median_edge = triangle_sizes(soup.vertices.detach()).median().item<double>();
+
+  // 1-2. Opacity selection, then the support cleanup and the snap.
+  auto selected = select_opaque(soup, targets, o, r);
+  r.after_selection = selected.vertices.size(0);
+  {
+    auto snapped = selected;
+    snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
+    const auto support = support_over_views(snapped, targets, opaque_raster(o.raster));
+    const auto keep = (support > o.support_min).nonzero().reshape({-1});
+    require_some(keep.numel(), fmt::format("removing triangles with support <= {}", o.support_min));
+    selected = {selected.vertices.index_select(0, keep), selected.colors.index_select(0, keep),
+                snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
+  }
+  r.after_support = selected.vertices.size(0);
+
+  // 3. Stitch, densify the open border, stitch again, drop floaters.
+  auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
+                                          selected.sigmas.cpu()});
+  const StitchOptions stitch{o.stitch_distance * r.median_edge, o.stitch_rounds};
+  StitchReport sr;
+  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+  r.stitched_pairs += sr.merged_pairs;
+  r.collapsed_faces += sr.collapsed_faces;
+  mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
+  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+  r.stitched_pairs += sr.merged_pairs;
+  r.collapsed_faces += sr.collapsed_faces;
+  mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
+  require_some(mesh.num_faces(), "floater pruning");
+
+  // 4. Repair.
+  mesh = repair(mesh, targets, o, r);
+  r.mesh_vertices = mesh.num_vertices();
+  r.mesh_faces = mesh.num_faces();
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
+               "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "
+               "{:.1f} s",
+               r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
+               r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
+  if (report) *report = r;
+  return mesh;
+}
+
+}  // namespace flat::mesh
