@@ -17,6 +17,20 @@ namespace flat::mesh {
 
 namespace {
 
+// PSNR over every view of the targets, for the report's stage-by-stage trail.
+double psnr_over_views(const primitives::TriangleSoup& soup, const ViewTargets& t, const render::RasterSettings& raster) {
+  at::NoGradGuard no_grad;
+  double mse = 0;
+  for (int64_t s = 0; s < t.size(); s += 8) {
+    const auto views = at::arange(s, std::min(s + 8, t.size()), at::kLong);
+    const auto picked = t.index(views);
+    const auto out = render::rasterize(soup.vertices, soup.colors, soup.opacities, soup.sigmas, picked.cameras,
+                                       t.height(), t.width(), raster);
+    mse += (out.rgb.clamp(0, 1) - picked.rgb).square().mean({1, 2, 3}).sum().item<double>();
+  }
+  return -10.0 * std::log10(std::max(mse / double(t.size()), 1e-20));
+}
+
 void require_some(int64_t n, const std::string& stage) {
   FLAT_CHECK(n > 0, "opaque conversion: " + stage + " left no triangle (the soup does not cover the views, or the "
                     "thresholds are too strict)");
@@ -84,7 +98,7 @@ primitives::IndexedMesh repair(const primitives::IndexedMesh& mesh, const ViewTa
   const auto device = targets.rgb.device();
   const auto faces = mesh.faces.to(device);
   const auto base = mesh.vertices.to(device, at::kFloat);
-  PrunableAdam adam({at::zeros_like(base), inverse_sigmoid(mesh.colors.to(device, at::kFloat))}, {o.lr_position, o.lr_color});
+  PrunableAdam adam({at::zeros_like(base), inverse_sigmoid(mesh.colors.to(device, at::kFloat))}, {o.repair_lr_position, o.lr_color});
   const double unit = r.median_edge;
   const auto current = [&] {
     return primitives::IndexedMesh{base + unit * adam.param(0), at::sigmoid(adam.param(1)), faces};
@@ -137,6 +151,7 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
   // 1-2. Opacity selection, then the support cleanup and the snap.
   auto selected = select_opaque(soup, targets, o, r);
   r.after_selection = selected.vertices.size(0);
+  r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
   {
     auto snapped = selected;
     snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
@@ -147,24 +162,35 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
                 snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
   }
   r.after_support = selected.vertices.size(0);
+  const auto on_device = [&](const primitives::IndexedMesh& m) {
+    const auto soup = opaque_render_soup(m, o);
+    return primitives::TriangleSoup{soup.vertices.to(targets.rgb.device()), soup.colors.to(targets.rgb.device()),
+                                    soup.opacities.to(targets.rgb.device()), soup.sigmas.to(targets.rgb.device())};
+  };
+  r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
 
   // 3. Stitch, densify the open border, stitch again, drop floaters.
   auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
                                           selected.sigmas.cpu()});
-  const StitchOptions stitch{o.stitch_distance * r.median_edge, o.stitch_rounds};
+  const StitchOptions stitch{o.stitch_distance * r.median_edge, o.stitch_color_distance, o.stitch_rounds};
   StitchReport sr;
+  r.stage_psnr.emplace_back("as mesh", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   mesh = stitch_boundary_vertices(mesh, stitch, &sr);
   r.stitched_pairs += sr.merged_pairs;
   r.collapsed_faces += sr.collapsed_faces;
+  r.stage_psnr.emplace_back("stitch 1", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
   mesh = stitch_boundary_vertices(mesh, stitch, &sr);
   r.stitched_pairs += sr.merged_pairs;
   r.collapsed_faces += sr.collapsed_faces;
+  r.stage_psnr.emplace_back("stitch 2", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
   require_some(mesh.num_faces(), "floater pruning");
+  r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
 
   // 4. Repair.
   mesh = repair(mesh, targets, o, r);
+  r.stage_psnr.emplace_back("repaired", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   r.mesh_vertices = mesh.num_vertices();
   r.mesh_faces = mesh.num_faces();
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -173,6 +199,9 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
                "{:.1f} s",
                r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
                r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
+  std::string trail;
+  for (const auto& [stage, psnr] : r.stage_psnr) trail += fmt::format("{}{} {:.2f} dB", trail.empty() ? "" : ", ", stage, psnr);
+  spdlog::info("opaque conversion, PSNR over the fitted views after each stage: {}", trail);
   if (report) *report = r;
   return mesh;
 }

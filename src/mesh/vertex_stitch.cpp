@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <set>
 #include <tuple>
 #include <vector>
@@ -64,10 +65,20 @@ at::Tensor boundary_vertices(const primitives::IndexedMesh& mesh) {
   return out;
 }
 
-at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance) {
+at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance,
+                            double max_color_distance) {
   const int64_t v = mesh.num_vertices();
   const auto xyz = mesh.vertices.detach().to(at::kCPU, at::kFloat).contiguous();
   const auto faces = mesh.faces.to(at::kCPU).contiguous();
+  const auto rgb_t = mesh.colors.detach().to(at::kCPU, at::kFloat).contiguous();
+  const float* rgb = rgb_t.data_ptr<float>();
+  const double max_c2 = max_color_distance * max_color_distance;
+  const auto colour_ok = [&](int64_t a, int64_t b) {
+    if (max_color_distance <= 0) return true;
+    double d2 = 0;
+    for (int c = 0; c < 3; ++c) d2 += std::pow(double(rgb[3 * a + c]) - rgb[3 * b + c], 2);
+    return d2 <= max_c2;
+  };
   const auto cand = candidates.to(at::kCPU, at::kBool).contiguous();
   auto out = at::full({v}, -1, at::kLong);
   PointSubset pts{xyz.data_ptr<float>(), {}};
@@ -78,8 +89,9 @@ at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tenso
   KdTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(16));
   const float max_d2 = float(max_distance * max_distance);
   auto* o = out.data_ptr<int64_t>();
-  // Enough neighbours to step over the vertex itself and its face mates (a
-  // vertex of k faces has up to 2k mates); widened when they fill the list.
+  // Enough neighbours to step over the vertex itself, its face mates (a vertex
+  // of k faces has up to 2k mates) and colour mismatches; widened when they
+  // fill the list. Beyond max_distance nothing qualifies, so the search stops.
   for (int64_t id : pts.ids) {
     const auto& mates = adjacent[size_t(id)];
     for (size_t k = std::min(pts.ids.size(), mates.size() + 8);; k = std::min(pts.ids.size(), 2 * k)) {
@@ -89,9 +101,13 @@ at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tenso
       bool decided = false;
       for (size_t q = 0; q < found && !decided; ++q) {
         const int64_t other = pts.ids[idx[q]];
-        if (other == id || std::binary_search(mates.begin(), mates.end(), other)) continue;
-        if (d2[q] <= max_d2) o[id] = other;
-        decided = true;  // the nearest non-mate decides, near enough or not
+        if (d2[q] > max_d2) {
+          decided = true;  // sorted: everything further is too far as well
+          break;
+        }
+        if (other == id || std::binary_search(mates.begin(), mates.end(), other) || !colour_ok(id, other)) continue;
+        o[id] = other;
+        decided = true;
       }
       if (decided || found < k || k == pts.ids.size()) break;
     }
@@ -107,7 +123,7 @@ primitives::IndexedMesh stitch_boundary_vertices(const primitives::IndexedMesh& 
                                    mesh.colors.detach().to(at::kCPU, at::kFloat).clone(),
                                    mesh.faces.to(at::kCPU).clone()};
   for (int64_t round = 0; round < o.rounds; ++round) {
-    const auto partner = nearest_partners(m, boundary_vertices(m), o.max_distance);
+    const auto partner = nearest_partners(m, boundary_vertices(m), o.max_distance, o.max_color_distance);
     const int64_t* p = partner.data_ptr<int64_t>();
     const int64_t v = m.num_vertices();
     std::vector<int64_t> remap(static_cast<size_t>(v));

@@ -133,7 +133,8 @@ void check_cases(const std::vector<Case>& cases) {
 }
 
 const std::vector<std::string> kTools = {"flat_import", "flat_synth", "flat_vae",  "flat_latents", "flat_pack",
-                                         "flat_render", "flat_train", "flat_infer", "flat_eval",    "flat_bench"};
+                                         "flat_render", "flat_train", "flat_infer", "flat_eval",    "flat_bench",
+                                         "flat_mesh"};
 
 }  // namespace
 
@@ -150,7 +151,7 @@ TEST_CASE("every tool: --version exits 0, an unknown flag is a usage error (2), 
     CHECK(tool(t, {"--help"}, f.root, t + "_help").rc == 0);
   }
   // Defaults are shown, and --device/--log-level mean the same in every tool that computes.
-  for (const auto& t : {"flat_latents", "flat_render", "flat_infer", "flat_eval"}) {
+  for (const auto& t : {"flat_latents", "flat_render", "flat_infer", "flat_eval", "flat_mesh"}) {
     INFO(t);
     auto h = tool(t, {"--help"}, f.root, std::string(t) + "_help2");
     CHECK_THAT(h.output, FLAT_CONTAINS("--device"));
@@ -583,6 +584,27 @@ TEST_CASE("flat_infer: contradictory inputs and an unknown --novel are usage err
   CHECK_THAT(help, FLAT_CONTAINS("on the CPU the run is fp32"));
   // A staging folder left by a killed run is explained where the user looks.
   CHECK_THAT(help, FLAT_CONTAINS("the next run on the same --out removes"));
+}
+
+TEST_CASE("flat_mesh: a missing source is a usage error; a soup without a scene names what is missing", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_mesh").string();
+  auto nothing = tool("flat_mesh", {"--from", d + "/none", "--out", d + "/out"}, d, "none");
+  CHECK(nothing.rc == 2);
+  CHECK_THAT(nothing.output, FLAT_CONTAINS("no such file or folder"));
+  CHECK(tool("flat_mesh", {"--out", d + "/out"}, d, "no_from").rc == 2);
+  // A soup PLY alone: which frames to fit is unknown.
+  auto bare = tool("flat_mesh", {"--from", f.root + "/one.ply", "--out", d + "/out"}, d, "bare");
+  CHECK(bare.rc == 1);
+  CHECK_THAT(bare.output, FLAT_CONTAINS("--scene"));
+  // A scene without latents has no window to fit.
+  auto no_latents =
+      tool("flat_mesh", {"--from", f.root + "/one.ply", "--scene", f.synth + "/room_000000", "--out", d + "/out"}, d,
+           "no_latents");
+  CHECK(no_latents.rc == 1);
+  CHECK_THAT(no_latents.output, FLAT_CONTAINS("no latents"));
+  CHECK_FALSE(fs::exists(d + "/out"));
+  CHECK_THAT(tool("flat_mesh", {"--help"}, d, "help").output, FLAT_CONTAINS("paper: 250"));
 }
 
 TEST_CASE("flat_import transforms: a frame whose rotation is all zero is refused, naming the frame", "[cli]") {

@@ -12,6 +12,7 @@
 #include "flat/camera/camera_json.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
+#include "flat/export/mesh_files.h"
 #include "flat/export/triangle_glb.h"
 #include "flat/export/viewer.h"
 #include "flat/render/rasterize.h"
@@ -277,4 +278,50 @@ TEST_CASE("viewer: a 5:3 camera in a 4:3 window is letterboxed, not stretched", 
   // Nothing of the scene is drawn in the bands.
   const auto bg = torch::tensor({1.0f, 0.0f, 1.0f}).view({3, 1, 1});
   CHECK((rgb.narrow(1, 0, 55) - bg).abs().amax(0).lt(0.25).sum().item<int64_t>() == 0);  // not the canvas' magenta
+}
+
+TEST_CASE("viewer: with a mesh GLB the page toggles to the opaque mesh (show=mesh)", "[export][viewer]") {
+  const std::string three = default_three_js_dir();
+  std::string chromium;
+  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  auto dir = flat::test::scratch_dir("viewer_mesh");
+  const int64_t width = 640, height = 480;
+  auto sc = shot_scene(dir, width, height, three);
+  // The "mesh": the same triangles, shared nothing, in one cyan (the soup's
+  // colours all have green >= 0.5 and differ from it).
+  auto mesh = flat::primitives::mesh_from_soup({sc.vertices, sc.colors, sc.opacities, sc.sigmas});
+  mesh.colors = torch::tensor({0.1f, 0.9f, 0.9f}).expand({mesh.num_vertices(), 3}).contiguous();
+  const auto mesh_glb = (dir / "mesh.glb").string();
+  flat::exporter::write_mesh_glb(mesh_glb, mesh);
+  sc.folder = (dir / "viewer_mesh").string();
+  write_viewer(sc.folder, (dir / "scene.glb").string(), one_camera(sc.intrinsics, sc.c2w, width, height), three,
+               mesh_glb);
+  CHECK(decode_base64(script_string(flat::test::slurp(sc.folder + "/mesh_glb.js"), "FLAT_MESH_GLB")) ==
+        flat::test::slurp(mesh_glb));
+  const auto soup_view = raster_view(sc, width, height);
+  auto cyan = sc;
+  cyan.colors = torch::tensor({0.1f, 0.9f, 0.9f}).expand({sc.vertices.size(0), 3}).contiguous();
+  const auto mesh_view = raster_view(cyan, width, height);
+  // The toggle button sits in the top-right corner: that corner is left out of the comparison.
+  const auto hide_button = [&](torch::Tensor shot, flat::render::RenderOutput& view) {
+    shot.narrow(1, 0, 48).narrow(2, width - 320, 320).copy_(torch::tensor({1.f, 0.f, 1.f}).view({3, 1, 1}));
+    view.alpha.narrow(2, 0, 48).narrow(3, width - 320, 320).zero_();
+    return shot;
+  };
+  auto soup_view_c = soup_view, mesh_view_c = mesh_view;
+  soup_view_c.alpha = soup_view.alpha.clone();
+  mesh_view_c.alpha = mesh_view.alpha.clone();
+  const auto soup_shot = hide_button(screenshot(chromium, dir, sc, "camera=0", width, height, "soup"), soup_view_c);
+  const auto mesh_shot =
+      hide_button(screenshot(chromium, dir, sc, "camera=0&show=mesh", width, height, "mesh"), mesh_view_c);
+  const auto [iou_s, err_s] = compare(soup_shot, soup_view_c);
+  const auto [iou_m, err_m] = compare(mesh_shot, mesh_view_c);
+  std::printf("viewer with mesh: soup IoU %.4f colour %.4f; show=mesh IoU %.4f colour %.4f\n", iou_s, err_s, iou_m,
+              err_m);
+  CHECK(iou_s >= 0.9);
+  CHECK(err_s < 0.05);
+  CHECK(iou_m >= 0.9);
+  CHECK(err_m < 0.05);
+  // The mesh shot is not the soup's: the colours differ where both draw.
+  CHECK(compare(mesh_shot, soup_view_c).second > 0.1);
 }

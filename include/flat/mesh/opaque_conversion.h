@@ -21,6 +21,9 @@
 // edges, sharpness sigma_end, opacity snap_opacity.
 #pragma once
 #include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "flat/mesh/refine.h"
 #include "flat/primitives/indexed_mesh.h"
@@ -37,12 +40,14 @@ struct OpaqueOptions {
   double support_min = 0.5;
   double snap_opacity = 0.9999;
   double stitch_distance = 0.5;   // median edge lengths
-  int64_t stitch_rounds = 3;
+  double stitch_color_distance = 0.15;  // RGB: vertices further apart in colour stay an open seam
+  int64_t stitch_rounds = 10;    // until nothing merges, at most this many
   double densify_edge = 2.0;      // split open faces with an open edge longer than this (median edge lengths)
   int64_t min_component_faces = 3;
   int64_t repair_steps = 100;
   int64_t views_per_step = 4;
-  double lr_position = 0.01;      // selection: triangle sizes; repair: median edge lengths
+  double lr_position = 0.01;      // selection: in triangle sizes
+  double repair_lr_position = 0.002;  // repair: in median edge lengths (sharp windows give noisy position gradients)
   double lr_color = 0.02;
   double lr_opacity = 0.05;
   uint64_t seed = 0;
@@ -57,10 +62,13 @@ struct OpaqueOptions {
     v.field("support_min", support_min, config::range(0.0, 1.0), "remove at or below this largest weight");
     v.field("snap_opacity", snap_opacity, config::range(0.0, 1.0), "opacity of the survivors");
     v.field("stitch_distance", stitch_distance, config::non_negative(), "merge distance (median edge lengths)");
+    v.field("stitch_color_distance", stitch_color_distance, config::non_negative(),
+            "largest RGB distance of merged vertices (0 = any)");
     v.field("stitch_rounds", stitch_rounds, config::non_negative(), "stitching rounds");
     v.field("densify_edge", densify_edge, config::positive(), "split open edges longer than this");
     v.field("min_component_faces", min_component_faces, config::positive(), "remove smaller pieces");
     v.field("repair_steps", repair_steps, config::non_negative(), "repair steps");
+    v.field("repair_lr_position", repair_lr_position, config::non_negative(), "repair position step (median edges)");
   }
 };
 
@@ -70,6 +78,8 @@ struct ConversionReport {
   int64_t mesh_vertices = 0, mesh_faces = 0;
   double median_edge = 0;
   std::vector<double> selection_losses, repair_losses;
+  // PSNR over the fitted views after each stage: selection, support, stitched, repaired.
+  std::vector<std::pair<std::string, double>> stage_psnr;
   double seconds = 0;
 };
 

@@ -3,6 +3,11 @@
 // one (at their midpoint, colours averaged), so that separate triangles
 // become a connected mesh. Nearest neighbours come from a KD-tree
 // (nanoflann). Faces that the merge collapses are removed.
+//
+// Colours live on the vertices, so a merge averages them: vertices whose
+// colours differ by more than max_color_distance are not partners, and a
+// colour edge stays an open seam (as texture seams split vertices in any
+// engine mesh) instead of being blurred.
 #pragma once
 #include <cstdint>
 
@@ -14,7 +19,8 @@ namespace flat::mesh {
 
 struct StitchOptions {
   double max_distance = 0;  // world units; pairs farther apart stay open
-  int64_t rounds = 3;       // a corner of k triangles needs about log2(k) rounds
+  double max_color_distance = 0.15;  // RGB Euclidean; <= 0: colours are not compared
+  int64_t rounds = 10;      // at most; stops when a round merges nothing (a corner of k triangles needs several)
 };
 
 struct StitchReport {
@@ -25,9 +31,11 @@ struct StitchReport {
 at::Tensor boundary_vertices(const primitives::IndexedMesh& mesh);
 
 // For each vertex in `candidates` (V,) bool, its nearest candidate vertex that
-// does not share a face with it, when closer than max_distance; else -1.
-// (V,) int64 (entries of non-candidates are -1).
-at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance);
+// does not share a face with it and whose colour is within max_color_distance
+// (<= 0: any), when closer than max_distance; else -1. (V,) int64 (entries
+// of non-candidates are -1).
+at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance,
+                            double max_color_distance = 0);
 
 primitives::IndexedMesh stitch_boundary_vertices(const primitives::IndexedMesh& mesh, const StitchOptions& options,
                                                  StitchReport* report = nullptr);
