@@ -5,6 +5,14 @@ find_package(yaml-cpp REQUIRED)
 find_package(spdlog REQUIRED)
 find_package(CLI11 REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
+# Header-only packages extracted from Debian's .debs into .deps (the GPU
+# machine cannot install them; scripts/prepare_device_carry.sh) are found
+# there without a CMAKE_PREFIX_PATH.
+foreach(_carried glm nanoflann)
+  if(EXISTS "${CMAKE_SOURCE_DIR}/.deps/${_carried}/usr")
+    list(APPEND CMAKE_PREFIX_PATH "${CMAKE_SOURCE_DIR}/.deps/${_carried}/usr")
+  endif()
+endforeach()
 find_package(glm REQUIRED)   # on the GPU machine: a carried prefix (see README, GPU build)
 # KD-tree of the mesh stitching (Debian libnanoflann-dev, header-only; carried like GLM to the GPU machine).
 find_package(nanoflann REQUIRED)

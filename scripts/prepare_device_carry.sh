@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The GPU machine has neither GLM nor CUTLASS and cannot install anything:
-# extract both header-only libraries into .deps (git-ignored) and carry it with
-# each device call (carry: [".deps"]); CMake finds them there.
-#   .deps/glm      Debian's libglm-dev
+# The GPU machine has neither GLM, nanoflann nor CUTLASS and cannot install
+# anything: extract the header-only libraries into .deps (git-ignored) and
+# carry it with each device call (carry: [".deps"]); CMake finds them there.
+#   .deps/glm        Debian's libglm-dev
+#   .deps/nanoflann  Debian's libnanoflann-dev (the mesh stitching's KD-tree)
 #   .deps/cutlass  include/ and tools/util/include/ of NVIDIA's nvidia-cutlass wheel
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -16,6 +17,16 @@ else
   dpkg -x "$tmp"/libglm-dev_*.deb "$ROOT/.deps/glm"
   rm -rf "$tmp"
   echo "GLM extracted to .deps/glm"
+fi
+if [ -f "$ROOT/.deps/nanoflann/usr/include/nanoflann.hpp" ]; then
+  echo "nanoflann already in .deps/nanoflann"
+else
+  tmp=$(mktemp -d)
+  (cd "$tmp" && apt-get download libnanoflann-dev >/dev/null)
+  mkdir -p "$ROOT/.deps/nanoflann"
+  dpkg -x "$tmp"/libnanoflann-dev_*.deb "$ROOT/.deps/nanoflann"
+  rm -rf "$tmp"
+  echo "nanoflann extracted to .deps/nanoflann"
 fi
 if [ -f "$ROOT/.deps/cutlass/include/cutlass/cutlass.h" ]; then
   echo "CUTLASS already in .deps/cutlass"
