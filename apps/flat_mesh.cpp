@@ -69,7 +69,7 @@ int main(int argc, char** argv) {
   app.add_option("--support-min", o.opaque.support_min,
                  "mesh: remove triangles whose largest blending weight over every view is at or below this")
       ->capture_default_str();
-  app.add_option("--stitch-distance", o.opaque.stitch_distance, "mesh: merge distance, in median edge lengths")
+  app.add_option("--stitch-distance", o.opaque.stitch_distance, "mesh: merge distance, in local edge lengths")
       ->capture_default_str();
   app.add_option("--min-component", o.opaque.min_component_faces, "mesh: remove pieces with fewer faces")
       ->check(CLI::PositiveNumber)

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""Do other programs read our triangle soups? (docs/formats.md)
+"""Do other programs read our triangle soups and opaque meshes? (docs/formats.md)
 
     python3 scripts/check_interop.py SCENE.ply SCENE.glb FACES [--require-all]
+    python3 scripts/check_interop.py --mesh MESH.glb MESH.ply MESH.obj [--require-all]
 
 Loads the PLY and the GLB (written from the same scene by write_triangle_ply
 and write_triangle_glb) with three independent readers, each checking the face
@@ -13,9 +14,20 @@ count and, on a few faces, the colours against the PLY's float face properties
   blender  (background mode, scripts/check_interop_blender.py): colour attribute
 
 PLY colours are display (sRGB) values, quantised to bytes on the vertices;
-GLB COLOR_0 is linear (sRGB -> linear), alpha = opacity. One line per reader
-and file: OK, MISMATCH (with numbers) or UNAVAILABLE (with why). Exit status 1
-on any mismatch, and with --require-all also on an unavailable reader.
+GLB COLOR_0 is linear (sRGB -> linear), alpha = opacity.
+
+With --mesh: the opaque indexed mesh (write_mesh_glb / _ply / _obj, shared
+vertices, colours on the vertices). The expected vertex count V, face count F
+and vertex colours (bytes) come from the PLY, parsed here; each reader reads
+all three files and is checked for V vertices, F faces and, on a few faces,
+each corner's colour: PLY bytes; OBJ floats with 4 decimals; GLB COLOR_0
+linear, compared with the PLY bytes after sRGB -> linear (1/255, or half a
+byte's step where the curve is steeper). GLB may be '-' (built without
+tinygltf).
+
+One line per reader and file: OK, MISMATCH (with numbers) or UNAVAILABLE
+(with why). Exit status 1 on any mismatch, and with --require-all also on an
+unavailable reader (or a GLB given as '-').
 Runs with any python3; trimesh is imported only when that reader runs. When
 the interpreter it was started with has no trimesh and the project's venv
 (~/.cache/flat/venv/bin/python3, made by scripts/install_deps.sh; or
@@ -52,9 +64,8 @@ def clamp01(x):
     return min(1.0, max(0.0, x))
 
 
-def read_flat_ply(path):
-    """Our PLY layout (both the current one and the older one without vertex
-    colours): returns the face count and each face's (r, g, b, opacity)."""
+def read_ply_header(path):
+    """(file bytes, offset of the body, {element: count}, {element: [property]})."""
     with open(path, "rb") as f:
         data = f.read()
     end = data.find(b"end_header\n")
@@ -72,12 +83,19 @@ def read_flat_ply(path):
             props[element].append(" ".join(words[1:]))
     if "binary_little_endian" not in data[:end].decode("ascii"):
         raise SystemExit(f"{path}: not binary little-endian (not written by FLAT-C++?)")
+    return data, end + len(b"end_header\n"), counts, props
+
+
+def read_flat_ply(path):
+    """Our PLY layout (both the current one and the older one without vertex
+    colours): returns the face count and each face's (r, g, b, opacity)."""
+    data, body, counts, props = read_ply_header(path)
     vertex_size = {3: 12, 7: 16}.get(len(props.get("vertex", [])))
     want_face = ["list uchar int vertex_indices", "float red", "float green", "float blue", "float opacity",
                  "float sigma"]
     if vertex_size is None or props.get("face") != want_face:
         raise SystemExit(f"{path}: not the FLAT triangle PLY layout (docs/formats.md)")
-    at = end + len(b"end_header\n") + counts["vertex"] * vertex_size
+    at = body + counts["vertex"] * vertex_size
     colours = []
     for _ in range(counts["face"]):
         n = data[at]
@@ -87,6 +105,28 @@ def read_flat_ply(path):
         colours.append((r, g, b, o))
         at += 33
     return counts["face"], colours
+
+
+def read_mesh_ply(path):
+    """Our opaque mesh PLY (write_mesh_ply): returns each vertex's (r, g, b)
+    bytes and each face's three vertex indices."""
+    data, body, counts, props = read_ply_header(path)
+    if (props.get("vertex") != ["float x", "float y", "float z", "uchar red", "uchar green", "uchar blue"]
+            or props.get("face") != ["list uchar int vertex_indices"]):
+        raise SystemExit(f"{path}: not the FLAT opaque mesh PLY layout (docs/formats.md)")
+    nv, nf = counts["vertex"], counts["face"]
+    if len(data) != body + 15 * nv + 13 * nf:
+        raise SystemExit(f"{path}: {len(data) - body} bytes after the header, expected {15 * nv + 13 * nf}")
+    colours = [tuple(data[at + 12:at + 15]) for at in range(body, body + 15 * nv, 15)]
+    faces = []
+    for at in range(body + 15 * nv, len(data), 13):
+        if data[at] != 3:
+            raise SystemExit(f"{path}: a face with {data[at]} vertices")
+        face = struct.unpack_from("<3i", data, at + 1)
+        if not all(0 <= v < nv for v in face):
+            raise SystemExit(f"{path}: face {len(faces)} has vertex indices {face}, {nv} vertices")
+        faces.append(face)
+    return colours, faces
 
 
 def sample_faces(n):
@@ -118,7 +158,8 @@ def compare(got, expected, tolerance, what):
 
 # --- trimesh ---------------------------------------------------------------
 
-def trimesh_read(path, kind, sample):
+def trimesh_load(path):
+    """The meshes trimesh reads from path (process=False: as stored, no merging)."""
     try:
         import numpy  # noqa: F401
         import trimesh
@@ -126,7 +167,11 @@ def trimesh_read(path, kind, sample):
         raise Unavailable(f"python package not importable by {sys.executable}: {e} (pip install trimesh, or run "
                           f"this script with the project's venv: ~/.cache/flat/venv/bin/python3)")
     loaded = trimesh.load(path, process=False)
-    meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
+    return list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
+
+
+def trimesh_read(path, kind, sample):
+    meshes = trimesh_load(path)
     faces = sum(len(m.faces) for m in meshes)
     colours, exact = {}, False
     if meshes:
@@ -145,32 +190,51 @@ def trimesh_read(path, kind, sample):
 
 # --- assimp ----------------------------------------------------------------
 
-def assimp_read(path, kind, sample, face_count):
+def assimp_exe():
     exe = shutil.which("assimp")
     if not exe:
         raise Unavailable("no assimp on PATH (Debian package assimp-utils)")
+    return exe
+
+
+def assimp_info(exe, path):
+    """(faces, vertices) as `assimp info -r` (raw: no post-processing) counts them."""
     info = subprocess.run([exe, "info", path, "-r"], capture_output=True, text=True, timeout=600)
     m = re.search(r"^Faces:\s+(\d+)", info.stdout, re.M)
+    v = re.search(r"^Vertices:\s+(\d+)", info.stdout, re.M)
     if info.returncode != 0 or not m:
         raise Mismatch(f"assimp info failed (status {info.returncode}): {(info.stdout + info.stderr)[-300:]}")
-    faces = int(m.group(1))
+    return int(m.group(1)), int(v.group(1)) if v else None
+
+
+def assimp_dump(exe, path):
+    """The first mesh of `assimp dump`: its faces (vertex indices) and its
+    first colour set (RGBA per vertex; None without one)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "dump.xml")
+        dump = subprocess.run([exe, "dump", path, out], capture_output=True, text=True, timeout=600)
+        if dump.returncode != 0 or not os.path.exists(out):
+            raise Mismatch(f"assimp dump failed (status {dump.returncode}): {dump.stderr[-300:]}")
+        with open(out) as f:
+            xml = f.read()
+    mesh = xml[xml.find("<Mesh"):]
+    face_list = [list(map(int, body.split())) for body in re.findall(r"<Face num=\"\d+\">(.*?)</Face>", mesh, re.S)]
+    cm = re.search(r"<Colors num=\"\d+\" set=\"0\"[^>]*>(.*?)</Colors>", mesh, re.S)
+    per_vertex = None
+    if cm:
+        values = list(map(float, cm.group(1).split()))
+        per_vertex = [values[i:i + 4] for i in range(0, len(values), 4)]
+    return face_list, per_vertex
+
+
+def assimp_read(path, kind, sample, face_count):
+    exe = assimp_exe()
+    faces, _ = assimp_info(exe, path)
     colours = {}
     exact = kind == "GLB"  # floats as stored
     if face_count <= MAX_COLOUR_CHECK_FACES:
-        with tempfile.TemporaryDirectory() as tmp:
-            out = os.path.join(tmp, "dump.xml")
-            dump = subprocess.run([exe, "dump", path, out], capture_output=True, text=True, timeout=600)
-            if dump.returncode != 0 or not os.path.exists(out):
-                raise Mismatch(f"assimp dump failed (status {dump.returncode}): {dump.stderr[-300:]}")
-            with open(out) as f:
-                xml = f.read()
-        # First mesh: its faces and its first colour set.
-        mesh = xml[xml.find("<Mesh"):]
-        face_list = [list(map(int, body.split())) for body in re.findall(r"<Face num=\"\d+\">(.*?)</Face>", mesh, re.S)]
-        cm = re.search(r"<Colors num=\"\d+\" set=\"0\"[^>]*>(.*?)</Colors>", mesh, re.S)
-        if cm:
-            values = list(map(float, cm.group(1).split()))
-            per_vertex = [values[i:i + 4] for i in range(0, len(values), 4)]
+        face_list, per_vertex = assimp_dump(exe, path)
+        if per_vertex is not None:
             for f in sample:
                 if f < len(face_list):
                     colours[f] = [per_vertex[v] for v in face_list[f]]
@@ -179,7 +243,9 @@ def assimp_read(path, kind, sample, face_count):
 
 # --- Blender ---------------------------------------------------------------
 
-def blender_read(path, kind, sample):
+def blender_run(path, sample):
+    """check_interop_blender.py's result for path: faces, vertices, colour
+    attributes and the sampled faces' corner colours as sRGB."""
     exe = shutil.which("blender")
     if not exe:
         raise Unavailable("no blender on PATH (Debian package blender)")
@@ -199,7 +265,158 @@ def blender_read(path, kind, sample):
             out = json.load(f)
     if out.get("colour_attributes") == []:
         raise Mismatch("blender: the imported mesh has no colour attribute")
+    return out
+
+
+def blender_read(path, kind, sample):
+    out = blender_run(path, sample)
     return out["faces"], {int(k): v for k, v in out.get("colours_srgb", {}).items()}, False
+
+
+# --- opaque mesh mode (--mesh) ----------------------------------------------
+# Each reader returns (vertices, faces, {sampled face: [colour per corner]});
+# colours are in the space main_mesh's table says (display or linear), RGB(A).
+
+def corner_colours(per_vertex, face_list, sample):
+    return {f: [list(per_vertex[v]) for v in face_list[f]] for f in sample if f < len(face_list)}
+
+
+def trimesh_mesh_read(path, kind, sample):
+    meshes = trimesh_load(path)
+    vertices, faces = sum(len(m.vertices) for m in meshes), sum(len(m.faces) for m in meshes)
+    colours = {}
+    if meshes:
+        m = meshes[0]
+        # GLB with a material: COLOR_0 kept as stored (linear floats) in
+        # vertex_attributes; PLY and OBJ: vertex colours as bytes (the OBJ's
+        # floats rounded to bytes by trimesh).
+        per_vertex = getattr(m.visual, "vertex_attributes", {}).get("color")
+        if per_vertex is None and m.visual.kind == "vertex":
+            per_vertex = m.visual.vertex_colors / 255.0
+        if per_vertex is not None:
+            colours = corner_colours(per_vertex.tolist(), m.faces.tolist(), sample)
+    return vertices, faces, colours
+
+
+def assimp_mesh_read(path, kind, sample, face_count):
+    exe = assimp_exe()
+    faces, vertices = assimp_info(exe, path)
+    colours = {}
+    if face_count <= MAX_COLOUR_CHECK_FACES:
+        face_list, per_vertex = assimp_dump(exe, path)
+        if per_vertex is not None:
+            colours = corner_colours(per_vertex, face_list, sample)
+    return vertices, faces, colours
+
+
+def blender_mesh_read(path, kind, sample):
+    out = blender_run(path, sample)
+    return out["vertices"], out["faces"], {int(k): v for k, v in out.get("colours_srgb", {}).items()}
+
+
+def compare_corners(got, expected, what):
+    """got: {face: [colour per corner]}; expected: {face: [[(value, tolerance)
+    for r, g, b] per corner]}. Compares r, g, b (the opaque mesh has no alpha;
+    assimp fills a VEC3 COLOR_0's alpha with 0). Raises Mismatch; returns the
+    number of faces checked and the worst error relative to its tolerance."""
+    worst, where = 0.0, None
+    for face, exp in expected.items():
+        corners = got.get(face)
+        if corners is None or len(corners) != len(exp):
+            raise Mismatch(f"{what}: face {face} has {'no colour' if corners is None else f'{len(corners)} corners'}")
+        for corner, exp_corner in zip(corners, exp):
+            for c, (value, tolerance) in enumerate(exp_corner):
+                ratio = abs(corner[c] - value) / tolerance
+                if ratio > worst:
+                    worst, where = ratio, (face, corner, exp_corner, tolerance)
+    if worst > 1.0:
+        face, corner, exp_corner, tolerance = where
+        raise Mismatch(f"{what}: face {face} has a corner {[round(x, 4) for x in corner[:3]]}, expected "
+                       f"{[round(v, 4) for v, _ in exp_corner]} (|error| {worst * tolerance:.4f} > {tolerance:.4f})")
+    return len(expected), worst
+
+
+def main_mesh(args):
+    glb, ply, obj = args.mesh
+    for path, ext in ((glb, ".glb"), (ply, ".ply"), (obj, ".obj")):
+        if path == "-" and ext == ".glb":
+            continue
+        if not path.lower().endswith(ext):
+            raise SystemExit(f"--mesh takes MESH.glb MESH.ply MESH.obj in that order; {path} is not a {ext} file")
+        if not os.path.isfile(path):
+            raise SystemExit(f"{path}: no such file")
+    vertex_bytes, face_list = read_mesh_ply(ply)
+    nv, nf = len(vertex_bytes), len(face_list)
+    print(f"{'reference':9} PLY  {nv} vertices, {nf} faces (parsed here)")
+    sample = sample_faces(nf)
+
+    def display(tolerance):  # byte / 255: PLY bytes, OBJ floats, Blender's sRGB colours
+        return {f: [[(b / 255, tolerance) for b in vertex_bytes[v]] for v in face_list[f]] for f in sample}
+
+    def linear_value(b):
+        # GLB COLOR_0 = sRGB -> linear of the unrounded colour, which is within
+        # half a byte of the PLY's: 1/255 in linear, or that half byte's step
+        # where the curve is steeper (bright colours; up to ~1.15/255).
+        s = b / 255
+        return srgb_to_linear(s), max(BYTE, srgb_to_linear(s + 0.51 * BYTE) - srgb_to_linear(s))
+
+    linear = {f: [[linear_value(b) for b in vertex_bytes[v]] for v in face_list[f]] for f in sample}
+    obj_floats = 0.5 * BYTE + 1e-4  # the OBJ's 4 decimals of the colour the PLY rounds to a byte
+    # (reader, read function, {kind: (expected colours, what the numbers are)})
+    readers = [
+        ("trimesh", lambda p, k: trimesh_mesh_read(p, k, sample),
+         {"PLY": (display(0.51 * BYTE), "vertex colour bytes"),
+          # trimesh rounds the OBJ's 4-decimal floats to bytes: can be one off the PLY's.
+          "OBJ": (display(1.01 * BYTE), "vertex colour bytes"),
+          "GLB": (linear, "linear COLOR_0")}),
+        ("assimp", lambda p, k: assimp_mesh_read(p, k, sample, nf),
+         {"PLY": (display(0.51 * BYTE), "vertex colours"),
+          "OBJ": (display(obj_floats), "vertex colours"),
+          "GLB": (linear, "linear COLOR_0")}),
+        ("blender", lambda p, k: blender_mesh_read(p, k, sample),
+         {"PLY": (display(0.51 * BYTE), "colour attribute (sRGB)"),
+          "OBJ": (display(obj_floats), "colour attribute (sRGB)"),
+          # Blender's glTF importer stores linear COLOR_0 as sRGB bytes: one
+          # off the PLY's where the colour sits on a half byte.
+          "GLB": (display(1.01 * BYTE), "colour attribute (sRGB)")}),
+    ]
+    files = ([("GLB", glb)] if glb != "-" else []) + [("PLY", ply), ("OBJ", obj)]
+    failed = False
+    if glb == "-":
+        print(f"{'all':9} GLB  UNAVAILABLE no GLB given")
+        failed = args.require_all
+    for name, read, expectations in readers:
+        for kind, path in files:
+            expected, what = expectations[kind]
+            try:
+                vertices, faces, colours = read(path, kind)
+                counts = f"{vertices} vertices, {faces} faces"
+                # assimp's OBJ importer makes one vertex per face corner (OBJ
+                # faces may index positions, uvs and normals separately) and
+                # `assimp info -r` joins none: there 3 F vertices is right too.
+                per_corner = (name, kind) == ("assimp", "OBJ")
+                note = ""
+                if per_corner and vertices == 3 * nf != nv:
+                    note = f" (one per face corner: assimp's OBJ importer shares none; the file has {nv})"
+                if faces != nf or (vertices != nv and not note):
+                    alternative = f" (or {3 * nf}, one per face corner)" if per_corner else ""
+                    raise Mismatch(f"{counts}, expected {nv}{alternative} vertices, {nf} faces")
+                if nf <= MAX_COLOUR_CHECK_FACES or colours:
+                    checked, worst = compare_corners(colours, expected, what)
+                    print(f"{name:9} {kind}  OK {counts}{note}; {what} of {checked} faces match "
+                          f"(worst {100 * worst:.0f}% of the tolerance)")
+                else:
+                    print(f"{name:9} {kind}  OK {counts}{note}; colours not checked (large file)")
+            except Unavailable as e:
+                print(f"{name:9} {kind}  UNAVAILABLE {e}")
+                failed |= args.require_all
+            except Mismatch as e:
+                print(f"{name:9} {kind}  MISMATCH {e}")
+                failed = True
+            except Exception as e:  # a reader that crashes on our file is a mismatch
+                print(f"{name:9} {kind}  MISMATCH {type(e).__name__}: {e}")
+                failed = True
+    return 1 if failed else 0
 
 
 def project_python():
@@ -235,12 +452,23 @@ def reexec_with_trimesh():
 def main():
     reexec_with_trimesh()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("ply", help="triangle PLY written by write_triangle_ply")
-    parser.add_argument("glb", help="GLB of the same scene written by write_triangle_glb ('-': none)")
-    parser.add_argument("faces", type=int, help="expected number of faces (triangles)")
+    parser.add_argument("ply", nargs="?", help="triangle PLY written by write_triangle_ply")
+    parser.add_argument("glb", nargs="?", help="GLB of the same scene written by write_triangle_glb ('-': none)")
+    parser.add_argument("faces", nargs="?", type=int, help="expected number of faces (triangles)")
+    parser.add_argument("--mesh", nargs=3, metavar=("MESH.glb", "MESH.ply", "MESH.obj"),
+                        help="check an opaque mesh (write_mesh_glb/_ply/_obj) instead; GLB '-': none")
     parser.add_argument("--require-all", action="store_true", help="an unavailable reader is a failure too")
     args = parser.parse_args()
+    if args.mesh:
+        if args.ply is not None:
+            parser.error("--mesh takes no other files")
+        return main_mesh(args)
+    if args.faces is None:
+        parser.error("the following arguments are required: ply, glb, faces (or --mesh)")
+    return main_soup(args)
 
+
+def main_soup(args):
     ply_faces, face_colours = read_flat_ply(args.ply)
     if ply_faces != args.faces:
         print(f"{'reference':9} PLY  MISMATCH {ply_faces} faces in the file's header, expected {args.faces}")

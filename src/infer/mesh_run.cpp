@@ -191,7 +191,7 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
   auto refine_options = o.refine;
   auto opaque_options = o.opaque;
   use_lpips(refine_options.loss, o.lpips_weights);
-  use_lpips(opaque_options.loss, o.lpips_weights);
+  opaque_options.loss = refine_options.loss;  // one objective for the whole run
   refine_options.raster.check();
 
   const auto source = read_source(o);

@@ -172,7 +172,7 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
   // 3. Stitch, densify the open border, stitch again, drop floaters.
   auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
                                           selected.sigmas.cpu()});
-  const StitchOptions stitch{o.stitch_distance * r.median_edge, o.stitch_color_distance, o.stitch_rounds};
+  const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
   StitchReport sr;
   r.stage_psnr.emplace_back("as mesh", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   mesh = stitch_boundary_vertices(mesh, stitch, &sr);

@@ -65,7 +65,20 @@ at::Tensor boundary_vertices(const primitives::IndexedMesh& mesh) {
   return out;
 }
 
-at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, double max_distance,
+at::Tensor vertex_scales(const primitives::IndexedMesh& mesh) {
+  const auto v = mesh.vertices.detach().to(at::kCPU, at::kFloat);
+  const auto f = mesh.faces.to(at::kCPU);
+  const auto corners = v.index_select(0, f.reshape({-1})).reshape({-1, 3, 3});
+  const auto face_size = (corners - corners.roll(1, 1)).norm(2, -1).mean(1);  // (F,)
+  auto sum = at::zeros({mesh.num_vertices()}, at::kFloat), count = at::zeros({mesh.num_vertices()}, at::kFloat);
+  for (int k = 0; k < 3; ++k) {
+    sum.index_add_(0, f.select(1, k), face_size);
+    count.index_add_(0, f.select(1, k), at::ones_like(face_size));
+  }
+  return sum / count.clamp_min(1);
+}
+
+at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tensor& candidates, const at::Tensor& radius,
                             double max_color_distance) {
   const int64_t v = mesh.num_vertices();
   const auto xyz = mesh.vertices.detach().to(at::kCPU, at::kFloat).contiguous();
@@ -80,20 +93,22 @@ at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tenso
     return d2 <= max_c2;
   };
   const auto cand = candidates.to(at::kCPU, at::kBool).contiguous();
+  const auto radius_t = radius.to(at::kCPU, at::kFloat).contiguous();
+  const float* r = radius_t.data_ptr<float>();
   auto out = at::full({v}, -1, at::kLong);
   PointSubset pts{xyz.data_ptr<float>(), {}};
   for (int64_t i = 0; i < v; ++i)
     if (cand.data_ptr<bool>()[i]) pts.ids.push_back(i);
-  if (pts.ids.size() < 2 || max_distance <= 0) return out;
+  if (pts.ids.size() < 2) return out;
   const auto adjacent = face_neighbours(faces, v);
   KdTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(16));
-  const float max_d2 = float(max_distance * max_distance);
   auto* o = out.data_ptr<int64_t>();
   // Enough neighbours to step over the vertex itself, its face mates (a vertex
   // of k faces has up to 2k mates) and colour mismatches; widened when they
   // fill the list. Beyond max_distance nothing qualifies, so the search stops.
   for (int64_t id : pts.ids) {
     const auto& mates = adjacent[size_t(id)];
+    const float max_d2 = r[id] * r[id];
     for (size_t k = std::min(pts.ids.size(), mates.size() + 8);; k = std::min(pts.ids.size(), 2 * k)) {
       std::vector<uint32_t> idx(k);
       std::vector<float> d2(k);
@@ -105,7 +120,9 @@ at::Tensor nearest_partners(const primitives::IndexedMesh& mesh, const at::Tenso
           decided = true;  // sorted: everything further is too far as well
           break;
         }
-        if (other == id || std::binary_search(mates.begin(), mates.end(), other) || !colour_ok(id, other)) continue;
+        if (other == id || std::binary_search(mates.begin(), mates.end(), other) || !colour_ok(id, other) ||
+            d2[q] > r[other] * r[other])
+          continue;
         o[id] = other;
         decided = true;
       }
@@ -123,7 +140,8 @@ primitives::IndexedMesh stitch_boundary_vertices(const primitives::IndexedMesh& 
                                    mesh.colors.detach().to(at::kCPU, at::kFloat).clone(),
                                    mesh.faces.to(at::kCPU).clone()};
   for (int64_t round = 0; round < o.rounds; ++round) {
-    const auto partner = nearest_partners(m, boundary_vertices(m), o.max_distance, o.max_color_distance);
+    const auto partner =
+        nearest_partners(m, boundary_vertices(m), o.distance_factor * vertex_scales(m), o.max_color_distance);
     const int64_t* p = partner.data_ptr<int64_t>();
     const int64_t v = m.num_vertices();
     std::vector<int64_t> remap(static_cast<size_t>(v));

@@ -10,6 +10,7 @@
 
 #include <torch/torch.h>
 
+#include "flat/export/mesh_files.h"
 #include "flat/export/triangle_glb.h"
 #include "flat/export/triangle_ply.h"
 #include "programs.h"
@@ -53,4 +54,44 @@ TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.intero
   CHECK(report.find("MISMATCH") == std::string::npos);
   if (report.find("UNAVAILABLE") != std::string::npos)
     WARN("some interop readers are unavailable (see above); CI sets FLAT_INTEROP_REQUIRE_ALL=1 to require them");
+}
+
+TEST_CASE("interop: trimesh, assimp and Blender read our opaque mesh GLB, PLY and OBJ", "[.interop][export]") {
+  const char* env = std::getenv("FLAT_INTEROP_REQUIRE_ALL");
+  const bool require_all = env && std::string(env) == "1";
+  const char* home = std::getenv("HOME");
+  std::string python = home ? std::string(home) + "/.cache/flat/venv/bin/python3" : "";
+  if (python.empty() || !std::filesystem::exists(python)) python = flat::test::find_program("python3");
+  if (python.empty()) {
+    REQUIRE_FALSE(require_all);
+    FLAT_SKIP("no python3: interop readers not run");
+  }
+  auto dir = flat::test::scratch_dir("interop_mesh");
+  // 23 triangles whose corners are shared in a fan: vertices used by several faces.
+  const auto s = flat::test::random_soup(23, torch::kFloat, 22);
+  auto mesh = flat::primitives::mesh_from_soup({s.vertices, s.colors, s.opacities, s.sigmas});
+  mesh.faces.select(1, 0).fill_(0);  // every face starts at vertex 0
+  mesh = flat::primitives::compact_vertices(mesh);  // 1 + 2 x 23 vertices, none unused
+  mesh.colors = torch::rand({mesh.num_vertices(), 3});
+  mesh.colors[1] = torch::tensor({0.0f, 1.0f, 0.02f});
+  const auto ply = (dir / "mesh.ply").string(), obj = (dir / "mesh.obj").string();
+  flat::exporter::write_mesh_ply(ply, mesh);
+  flat::exporter::write_mesh_obj(obj, mesh);
+  std::string glb = "-";
+  if (flat::exporter::glb_export_available()) {
+    glb = (dir / "mesh.glb").string();
+    flat::exporter::write_mesh_glb(glb, mesh);
+  }
+  std::vector<std::string> argv = {python, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", "--mesh", glb,
+                                   ply, obj};
+  if (require_all) argv.push_back("--require-all");
+  const auto log = (dir / "check_interop.txt").string();
+  const int rc = flat::test::run_program(argv, log, 1200);
+  const std::string report = flat::test::slurp(log);
+  std::printf("check_interop.py --mesh (%s):\n%s", require_all ? "--require-all" : "readers that are present",
+              report.c_str());
+  INFO(report);
+  CHECK(rc == 0);
+  CHECK(report.find("MISMATCH") == std::string::npos);
+  CHECK(report.find("reference PLY  47 vertices, 23 faces") != std::string::npos);
 }

@@ -1,5 +1,7 @@
 // Stitching merges exactly the mutually nearest boundary vertices (within the
 // distance), floaters go, and the open border is densified where asked.
+#include <cmath>
+
 #include <torch/torch.h>
 
 #include "flat/mesh/boundary_densify.h"
@@ -28,14 +30,26 @@ primitives::IndexedMesh three_triangles() {
 TEST_CASE("stitching: nearest partners skip face mates and respect the distance", "[mesh]") {
   const auto m = three_triangles();
   const auto all = torch::ones({9}, torch::kBool);
-  const auto p = mesh::nearest_partners(m, all, 0.3);
+  const auto p = mesh::nearest_partners(m, all, torch::full({9}, 0.3f));
   CHECK(p[1].item<int64_t>() == 3);   // a1 -> b0
   CHECK(p[3].item<int64_t>() == 1);   // b0 -> a1
   CHECK(p[6].item<int64_t>() == 3);   // c0 -> b0 (0.15), not mutual
   CHECK(p[0].item<int64_t>() == -1);  // (0,0,0): nearest non-mate is b0 at 1.05 > 0.3
   // A vertex's own triangle never offers its partner, however close.
   auto tiny = test::make_mesh({0, 0, 0, 1e-4f, 0, 0, 0, 1e-4f, 0}, {0, 1, 2});
-  CHECK((mesh::nearest_partners(tiny, torch::ones({3}, torch::kBool), 1.0) == -1).all().item<bool>());
+  CHECK((mesh::nearest_partners(tiny, torch::ones({3}, torch::kBool), torch::ones({3})) == -1).all().item<bool>());
+}
+
+TEST_CASE("stitching: a pair must be within both vertices' radius", "[mesh]") {
+  // a1 and b0 are 0.05 apart: a radius of 0.04 on either side keeps them apart.
+  auto radius = torch::full({9}, 0.3f);
+  radius[3] = 0.04f;
+  const auto p = mesh::nearest_partners(three_triangles(), torch::ones({9}, torch::kBool), radius);
+  CHECK(p[3].item<int64_t>() == -1);
+  CHECK(p[1].item<int64_t>() == 6);  // a1 falls back to c0 (0.2 away, within both radii)
+  // Local scales: the mean edge length of the faces at each vertex.
+  const auto s = mesh::vertex_scales(three_triangles());
+  CHECK(s[0].item<double>() == Approx((2 + std::sqrt(2.0)) / 3).epsilon(1e-5));
 }
 
 TEST_CASE("stitching merges exactly the mutually nearest pairs, at their midpoint", "[mesh]") {
@@ -67,7 +81,7 @@ TEST_CASE("stitching leaves colour seams open", "[mesh]") {
   auto m = three_triangles();
   m.colors.copy_(torch::tensor({1.f, 0.f, 0.f}).expand({9, 3}));
   m.colors.slice(0, 3, 6).copy_(torch::tensor({0.f, 0.f, 1.f}).expand({3, 3}));
-  const auto p = mesh::nearest_partners(m, torch::ones({9}, torch::kBool), 0.3, 0.15);
+  const auto p = mesh::nearest_partners(m, torch::ones({9}, torch::kBool), torch::full({9}, 0.3f), 0.15);
   CHECK(p[1].item<int64_t>() == 6);
   CHECK(p[6].item<int64_t>() == 1);
   CHECK(p[3].item<int64_t>() == -1);
@@ -76,7 +90,7 @@ TEST_CASE("stitching leaves colour seams open", "[mesh]") {
   CHECK(r.merged_pairs == 1);
   CHECK(out.num_vertices() == 8);
   // Without the colour limit, a1 and b0 merge first.
-  CHECK(mesh::nearest_partners(m, torch::ones({9}, torch::kBool), 0.3, 0.0)[1].item<int64_t>() == 3);
+  CHECK(mesh::nearest_partners(m, torch::ones({9}, torch::kBool), torch::full({9}, 0.3f), 0.0)[1].item<int64_t>() == 3);
 }
 
 TEST_CASE("stitching: two copies of one triangle merge into one face", "[mesh]") {

@@ -15,8 +15,9 @@
 //      (boundary_densify.h), stitching again, floater pruning (floaters.h);
 //   4. repair (repair_steps): vertex positions and colours fitted again with
 //      the topology fixed.
-// Distances are in units of the soup's median edge length, so the defaults
-// hold at any scene scale. The mesh is drawn (here, in repair and in the
+// Distances are relative: to the local triangle size (stitching) or to the
+// soup's median edge length (densification, repair), so the defaults hold at
+// any scene scale. The mesh is drawn (here, in repair and in the
 // evaluation) with opaque_raster(): FLAT window with no support beyond the
 // edges, sharpness sigma_end, opacity snap_opacity.
 #pragma once
@@ -39,7 +40,7 @@ struct OpaqueOptions {
   double selection_prune_weight = 0.02;
   double support_min = 0.5;
   double snap_opacity = 0.9999;
-  double stitch_distance = 0.5;   // median edge lengths
+  double stitch_distance = 0.5;   // of the local edge length (vertex_stitch.h)
   double stitch_color_distance = 0.15;  // RGB: vertices further apart in colour stay an open seam
   int64_t stitch_rounds = 10;    // until nothing merges, at most this many
   double densify_edge = 2.0;      // split open faces with an open edge longer than this (median edge lengths)
@@ -61,7 +62,7 @@ struct OpaqueOptions {
     v.field("sigma_end", sigma_end, config::positive(), "global sigma at the end");
     v.field("support_min", support_min, config::range(0.0, 1.0), "remove at or below this largest weight");
     v.field("snap_opacity", snap_opacity, config::range(0.0, 1.0), "opacity of the survivors");
-    v.field("stitch_distance", stitch_distance, config::non_negative(), "merge distance (median edge lengths)");
+    v.field("stitch_distance", stitch_distance, config::non_negative(), "merge distance (local edge lengths)");
     v.field("stitch_color_distance", stitch_color_distance, config::non_negative(),
             "largest RGB distance of merged vertices (0 = any)");
     v.field("stitch_rounds", stitch_rounds, config::non_negative(), "stitching rounds");
