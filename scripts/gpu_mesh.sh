@@ -30,10 +30,10 @@ if [ ! -x "$BUILD/flat_mesh" ]; then
     || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
   note "built"
 fi
-grid_png() { python3 "$ROOT/scripts/safetensors_to_png.py" "$1/renders/compare.safetensors" "$OUT/$2.png" >/dev/null; }
-keep() {  # run folder, name: small outputs into $OUT
+grid_png() { python3 "$ROOT/scripts/safetensors_to_png.py" "$1/renders/compare.safetensors" "$OUT/$2.png" ${3:-} >/dev/null; }
+keep() {  # run folder, name[, PNG stride]: small outputs into $OUT
   for f in metrics.json summary.json mesh_stats.json mesh.log; do [ -f "$1/$f" ] && cp "$1/$f" "$OUT/$2_$f"; done
-  [ -f "$1/renders/compare.safetensors" ] && grid_png "$1" "$2_compare"
+  [ -f "$1/renders/compare.safetensors" ] && grid_png "$1" "$2_compare" "${3:-}"
 }
 
 if [ "$PHASE" = "chain" ] || [ "$PHASE" = "all" ]; then
@@ -71,7 +71,7 @@ if [ "$PHASE" = "paper" ] || [ "$PHASE" = "all" ]; then
     --no-renders --no-viewer --prune-opacity 0 --device cuda >"$OUT/paper_infer.log" 2>&1
   note "paper infer rc=$?: $(grep -E 'triangles' "$OUT/paper_infer.log" | tail -1)"
   "$BUILD/flat_mesh" --from "$P/infer" --out "$P/mesh" --device cuda --no-viewer >"$OUT/paper_mesh.txt" 2>&1
-  note "paper mesh rc=$?"; keep "$P/mesh" paper
+  note "paper mesh rc=$?"; keep "$P/mesh" paper 2  # the full-size grid is 17 MB
   tail -14 "$OUT/paper_mesh.txt"
 fi
 cat "$OUT/notes.txt"

@@ -3,7 +3,9 @@
 (core/image_io.h, write_preview_image: tensor "grid", (3,H,W) float32 in
 [0,1]) as an 8-bit PNG, with the standard library and numpy only.
 
-    python3 scripts/safetensors_to_png.py GRID.safetensors [OUT.png]
+    python3 scripts/safetensors_to_png.py GRID.safetensors [OUT.png [STRIDE]]
+
+STRIDE > 1 keeps every STRIDE-th row and column (a smaller file).
 """
 import json
 import struct
@@ -42,5 +44,6 @@ def write_png(path, chw):
 if __name__ == "__main__":
     src = sys.argv[1]
     dst = sys.argv[2] if len(sys.argv) > 2 else src.rsplit(".", 1)[0] + ".png"
-    write_png(dst, read_grid(src))
+    stride = int(sys.argv[3]) if len(sys.argv) > 3 else 1
+    write_png(dst, read_grid(src)[:, ::stride, ::stride])
     print(dst)
