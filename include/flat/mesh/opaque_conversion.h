@@ -40,12 +40,12 @@ struct OpaqueOptions {
   double selection_prune_weight = 0.02;
   double support_min = 0.5;
   double snap_opacity = 0.9999;
-  double stitch_distance = 0.5;   // of the local edge length (vertex_stitch.h)
+  double stitch_distance = 0.75;  // of the local edge length (vertex_stitch.h)
   double stitch_color_distance = 0.15;  // RGB: vertices further apart in colour stay an open seam
   int64_t stitch_rounds = 10;    // until nothing merges, at most this many
   double densify_edge = 2.0;      // split open faces with an open edge longer than this (median edge lengths)
   int64_t min_component_faces = 3;
-  int64_t repair_steps = 100;
+  int64_t repair_steps = 200;
   int64_t views_per_step = 4;
   double lr_position = 0.01;      // selection: in triangle sizes
   double repair_lr_position = 0.002;  // repair: in median edge lengths (sharp windows give noisy position gradients)
