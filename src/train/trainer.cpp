@@ -40,12 +40,14 @@ namespace {
 // ---- stop signals ------------------------------------------------------------
 // The first SIGINT/SIGTERM asks the loop to stop after the current step and
 // write a checkpoint; a second one ends the process at once (default action).
-// A rank of a multi-rank job often gets one request twice: directly (a
-// scheduler signals every process, a terminal its process group) and
-// forwarded by its launcher (flat_train --nproc, torchrun). There a repeat
-// within a second is the same request; a later one still ends the rank.
+// One request often arrives twice: coreutils `timeout` signals the command
+// and then its process group, a scheduler signals every process of a job
+// step and a terminal its process group, a launcher (flat_train --nproc,
+// torchrun) forwards what its rank also got directly. A repeat within a
+// second is therefore the same request; a later one still ends the process.
+// (Before this, a single-process run under `timeout` lost its checkpoint
+// whenever the two copies arrived apart: GPU recipe, 2026-11-26.)
 std::atomic<int> g_stop_signal{0};
-std::atomic<bool> g_merge_repeats{false};
 std::atomic<int64_t> g_first_signal_ms{0};
 
 int64_t monotonic_ms() {
@@ -55,11 +57,6 @@ int64_t monotonic_ms() {
 }
 
 extern "C" void on_stop_signal(int sig) {
-  if (!g_merge_repeats.load()) {
-    g_stop_signal.store(sig);
-    std::signal(sig, SIG_DFL);
-    return;
-  }
   if (g_stop_signal.load() == 0) {
     g_first_signal_ms.store(monotonic_ms());
     g_stop_signal.store(sig);
@@ -74,9 +71,8 @@ extern "C" void on_stop_signal(int sig) {
 struct StopSignals {
   using Handler = void (*)(int);
   Handler old_int, old_term, old_hup;
-  explicit StopSignals(bool merge_repeats) {
+  StopSignals() {
     g_stop_signal.store(0);
-    g_merge_repeats.store(merge_repeats);
     old_int = std::signal(SIGINT, on_stop_signal);
     old_term = std::signal(SIGTERM, on_stop_signal);
     old_hup = std::signal(SIGHUP, on_stop_signal);
@@ -205,7 +201,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // From here to the end a stop request is honoured: one that comes during
   // start-up or a validation is acted on after the next step (a checkpoint,
   // then exit 128 + signal).
-  StopSignals signals(env.distributed());
+  StopSignals signals;
   TrainSummary summary;
   summary.run_dir = cfg.run_dir;
   const RunDir run{cfg.run_dir};  // paths only: created once everything below has loaded

@@ -2,9 +2,11 @@
 // by flat_synth and flat_latents: it learns, it resumes exactly after SIGKILL
 // (several kill points, one inside a checkpoint write), it survives NaN
 // batches, and bad inputs end with a clear message and nothing lost.
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <thread>
 
 #include <nlohmann/json.hpp>
 
@@ -176,6 +178,32 @@ TEST_CASE("flat_train: SIGTERM or SIGHUP writes a checkpoint and exits 128 + sig
     CHECK(log.find("done in") == std::string::npos);
     REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
     CHECK(losses(d + "/run") == losses(reference_run()));
+  }
+}
+
+TEST_CASE("flat_train: a SIGTERM repeated within a second (coreutils timeout sends two) still checkpoints",
+          "[train]") {
+  const std::string d = fresh_dir("train_sigterm_twice").string();
+  auto child = spawn({binary("flat_train"), "--config", write_config(d, 8)}, d + "/log1.txt");
+  const std::string jsonl = d + "/run/metrics/train.jsonl";
+  REQUIRE(wait_until([&] { return count_lines(jsonl) >= 3; }, 300));
+  // As `timeout` does: the command, then its process group; 50 ms apart so
+  // that the second is delivered after the first was handled, not merged.
+  kill(child.pid, SIGTERM);
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  kill(child.pid, SIGTERM);
+  const int rc = wait_for(child);
+  const std::string log = read_file(d + "/log1.txt");
+  INFO(log);
+  if (rc == 0) {
+    SUCCEED("finished before the signals arrived");
+  } else {
+    CHECK(rc == 128 + SIGTERM);
+    CHECK(log.find("stopped by signal 15") != std::string::npos);
+    bool checkpoint = false;
+    for (const auto& e : fs::directory_iterator(d + "/run/checkpoints"))
+      checkpoint |= fs::exists(e.path() / "trainer.json");
+    CHECK(checkpoint);
   }
 }
 
