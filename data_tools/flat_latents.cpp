@@ -131,30 +131,43 @@ void run(const Options& o, PendingLog& log) {
   // Progress per window: one scene can take minutes.
   Progress progress("flat_latents windows", total_windows, 5.0);
   std::vector<at::Tensor> first_windows;  // for the spread across scenes
-  for (auto& scene : scenes) {
-    const int64_t h = H ? H : scene.height - scene.height % 8, w = W ? W : scene.width - scene.width % 8;
-    data::LatentInfo si = info;
-    si.height = h;
-    si.width = w;
-    std::vector<data::WindowLatents> latents;
-    for (int64_t start = 0; start + o.window <= scene.size(); start += step) {
-      std::vector<int64_t> idx(size_t(o.window));
-      for (int64_t i = 0; i < o.window; ++i) idx[size_t(i)] = start + i;
-      data::FrameBatch frames = data::load_frames(scene, idx, false, false);
-      auto cams = scene.cameras(idx);
-      cams.intrinsics = data::fit_frames(frames, cams.intrinsics, h, w);  // crop + resize; intrinsics follow
-      auto video = (frames.images.permute({1, 0, 2, 3}).unsqueeze(0) * 2 - 1).to(weight.device(), weight.scalar_type());
-      data::WindowLatents l;
-      l.video = vae->encode(video, !o.full)[0].to(at::kCPU, at::kFloat);
-      l.camera = model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full)[0].to(at::kCPU, at::kFloat);
-      check_finite(l.video, scene.dir + ": window at frame " + std::to_string(start) + ": video latent");
-      if (latents.empty()) first_windows.push_back(l.video);
-      latents.push_back(l);
-      si.windows.push_back({start, o.window});
-      progress.step();
+  // Every scene is staged first and committed only when all are encoded: a
+  // failure on scene k leaves scenes 0..k-1 as they were, not half updated.
+  std::vector<data::StagedLatents> staged;
+  try {
+    for (auto& scene : scenes) {
+      if (const int stale = data::remove_stale_staged_latents(scene))
+        spdlog::warn("{}: removed {} staged latent file(s) that a killed run left", scene.dir, stale);
+      const int64_t h = H ? H : scene.height - scene.height % 8, w = W ? W : scene.width - scene.width % 8;
+      data::LatentInfo si = info;
+      si.height = h;
+      si.width = w;
+      std::vector<data::WindowLatents> latents;
+      for (int64_t start = 0; start + o.window <= scene.size(); start += step) {
+        std::vector<int64_t> idx(size_t(o.window));
+        for (int64_t i = 0; i < o.window; ++i) idx[size_t(i)] = start + i;
+        data::FrameBatch frames = data::load_frames(scene, idx, false, false);
+        auto cams = scene.cameras(idx);
+        cams.intrinsics = data::fit_frames(frames, cams.intrinsics, h, w);  // crop + resize; intrinsics follow
+        auto video =
+            (frames.images.permute({1, 0, 2, 3}).unsqueeze(0) * 2 - 1).to(weight.device(), weight.scalar_type());
+        data::WindowLatents l;
+        l.video = vae->encode(video, !o.full)[0].to(at::kCPU, at::kFloat);
+        l.camera =
+            model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full)[0].to(at::kCPU, at::kFloat);
+        check_finite(l.video, scene.dir + ": window at frame " + std::to_string(start) + ": video latent");
+        if (latents.empty()) first_windows.push_back(l.video);
+        latents.push_back(l);
+        si.windows.push_back({start, o.window});
+        progress.step();
+      }
+      staged.push_back(data::stage_scene_latents(scene, si, latents));
     }
-    data::write_scene_latents(scene, si, latents);
+  } catch (...) {
+    for (const auto& s : staged) data::discard_staged_latents(s);
+    throw;
   }
+  for (size_t i = 0; i < scenes.size(); ++i) data::commit_scene_latents(scenes[i], staged[i]);
   progress.finish();
   spdlog::info("flat_latents: wrote latents for {} of {} scenes (window {}, encoder {})", scenes.size(), dirs.size(),
                o.window, info.encoder);

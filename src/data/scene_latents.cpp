@@ -1,5 +1,9 @@
 #include "flat/data/scene_latents.h"
 
+#include <unistd.h>
+
+#include <filesystem>
+
 #include "flat/core/error.h"
 #include "flat/core/safetensors.h"
 #include "flat/core/shape.h"
@@ -19,7 +23,7 @@ void check_window(const at::Tensor& t, int64_t channels, const LatentInfo& info,
 
 }  // namespace
 
-void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents) {
+StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents) {
   FLAT_CHECK(latents.size() == info.windows.size(), scene.json_path() + ": " + std::to_string(latents.size()) +
                                                          " latent windows for " + std::to_string(info.windows.size()) +
                                                          " window entries");
@@ -39,7 +43,8 @@ void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<Window
     tensors["frames." + k] = at::arange(w.start, w.start + w.count, at::kLong);
     windows += (i ? "," : "") + std::to_string(w.start) + ":" + std::to_string(w.count);
   }
-  save_safetensors(scene.path(info.file), tensors,
+  const std::string staged = scene.path(info.file) + ".staged-" + std::to_string(::getpid());
+  save_safetensors(staged, tensors,
                    {{"format", "flat-scene-latents"},
                     {"version", "1"},
                     {"encoder", info.encoder},
@@ -48,8 +53,33 @@ void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<Window
                     {"height", std::to_string(info.height)},
                     {"width", std::to_string(info.width)},
                     {"windows", windows}});
-  scene.latents = info;
+  return {staged, info};
+}
+
+void commit_scene_latents(Scene& scene, const StagedLatents& staged) {
+  std::error_code ec;
+  std::filesystem::rename(staged.path, scene.path(staged.info.file), ec);
+  FLAT_CHECK(!ec, staged.path + ": cannot move into place as " + scene.path(staged.info.file) + ": " + ec.message());
+  scene.latents = staged.info;
   write_scene_json(scene);
+}
+
+void discard_staged_latents(const StagedLatents& staged) {
+  std::error_code ec;
+  std::filesystem::remove(staged.path, ec);
+}
+
+int remove_stale_staged_latents(const Scene& scene) {
+  int removed = 0;
+  std::error_code ec;
+  const std::string prefix = std::string(kLatentsFile) + ".staged-";
+  for (const auto& e : std::filesystem::directory_iterator(scene.dir, ec))
+    if (e.path().filename().string().rfind(prefix, 0) == 0 && std::filesystem::remove(e.path(), ec)) ++removed;
+  return removed;
+}
+
+void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents) {
+  commit_scene_latents(scene, stage_scene_latents(scene, std::move(info), latents));
 }
 
 namespace {

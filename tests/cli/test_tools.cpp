@@ -469,6 +469,19 @@ TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input
     INFO(mid.output);
     CHECK(mid.rc == 1);
     CHECK(snapshot(data) == before_frames);
+    // Two scenes, the second's frame cut short: the first, encoded before the
+    // failure, is left as it was too (staged, then discarded; not committed).
+    const std::string two = d + "/two";
+    fs::create_directories(two);
+    fs::copy(f.synth + "/room_000000", two + "/room_a", fs::copy_options::recursive);
+    fs::copy(data + "/room_000000", two + "/room_b", fs::copy_options::recursive);  // the bad frame
+    const auto before_two = snapshot(two);
+    auto second = tool("flat_latents", {"--scenes", two, "--random-weights", "--dim", "4", "--window", "5"}, d,
+                       "latents_second_bad");
+    INFO(second.output);
+    CHECK(second.rc == 1);
+    CHECK_THAT(second.output, FLAT_CONTAINS("room_b"));
+    CHECK(snapshot(two) == before_two);  // no latents.safetensors in room_a, no staged file anywhere
   }
   // A run that succeeds leaves its log there, as docs/cli.md says.
   const std::string good = d + "/good";

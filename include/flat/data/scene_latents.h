@@ -24,7 +24,22 @@ struct WindowLatents {
 
 // Writes latents.safetensors and records `info` (file name set here) in scene.json.
 // info.windows[i] must match latents[i]: T' = 1 + (count-1)/4, h = height/8, w = width/8.
+// Equivalent to stage_scene_latents then commit_scene_latents.
 void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents);
+
+// Two steps for tools that write many scenes and must change none when one
+// fails (flat_latents): staging writes the file under a name no reader looks
+// at ("latents.safetensors.staged-<pid>"), leaving the scene as it was;
+// commit renames it into place and rewrites scene.json; discard removes it.
+struct StagedLatents {
+  std::string path;  // the staged file
+  LatentInfo info;   // what commit records
+};
+StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents);
+void commit_scene_latents(Scene& scene, const StagedLatents& staged);
+void discard_staged_latents(const StagedLatents& staged);  // never throws
+// Removes staged files that a killed run left in the scene folder; returns how many.
+int remove_stale_staged_latents(const Scene& scene);
 
 // Reads window i; checks shapes against scene.json and names scene and file on errors.
 WindowLatents read_window_latents(const Scene& scene, size_t window);
