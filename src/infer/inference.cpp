@@ -166,6 +166,7 @@ InferSummary run_inference(const InferOptions& o) {
     auto r = render_trajectory(pipe, on_device, input.cameras, H, W, o.renders ? out.file("renders/input") : "",
                                o.render_chunk, video, range, "render input views");
     s.input_views = r.views;
+    s.input_uncovered = r.uncovered;
     if (o.renders) s.outputs.push_back("renders/");
     if (video) s.outputs.push_back("videos/");
     if (video) write_video(r, out.file("videos/input.mp4"), o.fps);
@@ -174,6 +175,13 @@ InferSummary run_inference(const InferOptions& o) {
       auto n = render_trajectory(pipe, on_device, novel, H, W, o.renders ? out.file("renders/novel") : "", o.render_chunk,
                                  video, display_depth_range(scene, novel), "render novel views");
       s.novel_views = n.views;
+      s.novel_uncovered = n.uncovered;
+      // Novel views that look where no input frame did show black there: say so.
+      if (n.uncovered > r.uncovered + 0.01)
+        s.notes.push_back(fmt::format("novel views leave {:.1f}% of their pixels uncovered (input views: {:.1f}%): the "
+                                      "trajectory looks where the input frames did not{}",
+                                      100 * n.uncovered, 100 * r.uncovered,
+                                      o.novel.preset == "orbit" ? "; a smaller --orbit-degrees stays inside" : ""));
       if (video) write_video(n, out.file("videos/novel.mp4"), o.fps);
     }
   }
@@ -208,6 +216,7 @@ InferSummary run_inference(const InferOptions& o) {
                       {"input_views", s.input_views},
                       {"novel_views", s.novel_views},
                       {"novel_trajectory", o.novel.preset},
+                      {"uncovered_pixels", {{"input", s.input_uncovered}, {"novel", s.novel_uncovered}}},
                       {"render_size", {H, W}},
                       {"seconds", {{"decode", s.decode_seconds}, {"export", s.export_seconds},
                                    {"render", s.render_seconds}, {"total", s.total_seconds}}},

@@ -60,7 +60,7 @@ TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const pri
   TrajectoryRenders out;
   out.views = cams.size();
   std::vector<at::Tensor> frames;
-  double alpha_sum = 0;
+  double alpha_sum = 0, uncovered = 0;
   Progress progress(progress_label, out.views);
   for (int64_t v0 = 0; v0 < out.views; v0 += chunk) {
     const int64_t v1 = std::min(out.views, v0 + chunk);
@@ -71,6 +71,7 @@ TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const pri
     auto depth = r.depth.to(at::kCPU, at::kFloat);
     auto normal = r.normal.to(at::kCPU, at::kFloat);
     alpha_sum += alpha.sum().item<double>();
+    uncovered += (alpha < 0.5).sum().item<double>();
     auto grey = depth_grey(depth, depth_range.first, depth_range.second);
     auto nvis = at::where(normal.norm(2, 1, true) > 0.5, (normal * 0.5 + 0.5).clamp(0, 1), at::zeros_like(normal));
     for (int64_t k = 0; k < v1 - v0 && !folder.empty(); ++k) {
@@ -92,6 +93,7 @@ TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const pri
   }
   progress.finish();
   out.mean_alpha = alpha_sum / double(std::max<int64_t>(1, out.views * height * width));
+  out.uncovered = uncovered / double(std::max<int64_t>(1, out.views * height * width));
   if (keep_video_frames && !frames.empty()) out.video_frames = at::cat(frames, 0);
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;

@@ -98,6 +98,22 @@ TEST_CASE("flat_infer decodes a scene window and writes PLY, cameras, renders an
   CHECK(no_staging_left(s.dir));
 }
 
+TEST_CASE("flat_infer: novel views that look past the scene are reported, not passed off", "[infer]") {
+  const auto s = setup("infer_uncovered");
+  auto o = options(s, "wide");
+  o.novel.degrees = 80;  // far past what 9 frames of a pan saw
+  const auto summary = infer::run_inference(o);
+  INFO(infer::format_summary(summary));
+  CHECK(summary.novel_uncovered > summary.input_uncovered + 0.01);
+  bool noted = false;
+  for (const auto& n : summary.notes) noted |= n.find("uncovered") != std::string::npos;
+  CHECK(noted);
+  const auto j = nlohmann::json::parse(read_text(fs::path(o.out_dir) / "summary.json"));
+  CHECK(j["uncovered_pixels"]["novel"].get<double>() == Approx(summary.novel_uncovered));
+  // The input views themselves are covered.
+  CHECK(summary.input_uncovered < 0.05);
+}
+
 TEST_CASE("flat_infer: pruning keeps exactly the triangles at or above the threshold", "[infer]") {
   auto s = setup("infer_prune");
   auto o = options(s, "all");

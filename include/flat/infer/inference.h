@@ -50,6 +50,7 @@ struct InferSummary {
   int64_t input_views = 0, novel_views = 0;
   double decode_seconds = 0, export_seconds = 0, render_seconds = 0, total_seconds = 0;
   double decode_peak_gib = 0, render_peak_gib = 0;  // CUDA peak memory (0 on the CPU)
+  double input_uncovered = 0, novel_uncovered = 0;  // share of rendered pixels with alpha < 0.5
   std::vector<std::string> outputs;                // what was written, relative to out_dir
   std::vector<std::string> notes;                  // what was skipped and why
 };

@@ -20,6 +20,7 @@ struct TrajectoryRenders {
   int64_t views = 0;
   double seconds = 0;
   double mean_alpha = 0;       // coverage over all views
+  double uncovered = 0;        // share of pixels with alpha < 0.5 (the scene does not reach there)
   at::Tensor video_frames;     // (V,3,H,3W) uint8: rgb | depth | normals side by side (when asked)
 };
 
