@@ -8,26 +8,21 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 CUTLASS_VERSION="${FLAT_CUTLASS_VERSION:-4.2.0.0}"
-if [ -f "$ROOT/.deps/glm/usr/share/cmake/glm/glmConfig.cmake" ]; then
-  echo "GLM already in .deps/glm"
-else
-  tmp=$(mktemp -d)
-  (cd "$tmp" && apt-get download libglm-dev >/dev/null)
-  mkdir -p "$ROOT/.deps/glm"
-  dpkg -x "$tmp"/libglm-dev_*.deb "$ROOT/.deps/glm"
+# A Debian package's files, extracted (not installed) into .deps/NAME.
+extract_deb() {  # name, package, a file that proves it is there
+  if [ -f "$ROOT/.deps/$1/$3" ]; then
+    echo "$1 already in .deps/$1"
+    return
+  fi
+  local tmp; tmp=$(mktemp -d)
+  (cd "$tmp" && apt-get download "$2" >/dev/null)
+  mkdir -p "$ROOT/.deps/$1"
+  dpkg -x "$tmp"/"$2"_*.deb "$ROOT/.deps/$1"
   rm -rf "$tmp"
-  echo "GLM extracted to .deps/glm"
-fi
-if [ -f "$ROOT/.deps/nanoflann/usr/include/nanoflann.hpp" ]; then
-  echo "nanoflann already in .deps/nanoflann"
-else
-  tmp=$(mktemp -d)
-  (cd "$tmp" && apt-get download libnanoflann-dev >/dev/null)
-  mkdir -p "$ROOT/.deps/nanoflann"
-  dpkg -x "$tmp"/libnanoflann-dev_*.deb "$ROOT/.deps/nanoflann"
-  rm -rf "$tmp"
-  echo "nanoflann extracted to .deps/nanoflann"
-fi
+  echo "$1 extracted to .deps/$1"
+}
+extract_deb glm libglm-dev usr/share/cmake/glm/glmConfig.cmake
+extract_deb nanoflann libnanoflann-dev usr/include/nanoflann.hpp
 if [ -f "$ROOT/.deps/cutlass/include/cutlass/cutlass.h" ]; then
   echo "CUTLASS already in .deps/cutlass"
 else

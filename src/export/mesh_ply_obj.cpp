@@ -15,16 +15,28 @@ namespace flat::exporter {
 
 namespace {
 
+// The mesh as plain arrays: positions, colours clamped to [0,1], int32 faces.
 struct MeshArrays {
-  at::Tensor v, c, f;  // float (V,3), float (V,3) clamped, int32 (F,3); CPU, contiguous
+  at::Tensor vt, ct, ft;  // CPU, contiguous: they own what the pointers show
+  int64_t nv = 0, nf = 0;
+  const float* v = nullptr;
+  const float* c = nullptr;
+  const int32_t* f = nullptr;
 };
 
 MeshArrays mesh_arrays(const std::string& path, const primitives::IndexedMesh& mesh) {
   primitives::check_mesh(mesh, path);
   FLAT_CHECK(mesh.num_vertices() < (int64_t(1) << 31), path + ": too many vertices for int indices");
-  return {mesh.vertices.detach().to(at::kCPU, at::kFloat).contiguous(),
-          mesh.colors.detach().to(at::kCPU, at::kFloat).clamp(0, 1).contiguous(),
-          mesh.faces.to(at::kCPU).to(at::kInt).contiguous()};
+  MeshArrays a;
+  a.vt = mesh.vertices.detach().to(at::kCPU, at::kFloat).contiguous();
+  a.ct = mesh.colors.detach().to(at::kCPU, at::kFloat).clamp(0, 1).contiguous();
+  a.ft = mesh.faces.to(at::kCPU).to(at::kInt).contiguous();
+  a.nv = a.vt.size(0);
+  a.nf = a.ft.size(0);
+  a.v = a.vt.data_ptr<float>();
+  a.c = a.ct.data_ptr<float>();
+  a.f = a.ft.data_ptr<int32_t>();
+  return a;
 }
 
 uint8_t to_byte(float x) { return uint8_t(std::lround(255.f * x)); }
@@ -33,10 +45,9 @@ uint8_t to_byte(float x) { return uint8_t(std::lround(255.f * x)); }
 
 void write_mesh_ply(const std::string& path, const primitives::IndexedMesh& mesh) {
   const auto a = mesh_arrays(path, mesh);
-  const int64_t nv = a.v.size(0), nf = a.f.size(0);
-  const float* v = a.v.data_ptr<float>();
-  const float* c = a.c.data_ptr<float>();
-  const int32_t* f = a.f.data_ptr<int32_t>();
+  const int64_t nv = a.nv, nf = a.nf;
+  const float *v = a.v, *c = a.c;
+  const int32_t* f = a.f;
   write_file_atomic(path, [&](std::ostream& out) {
     out << "ply\nformat binary_little_endian 1.0\ncomment FLAT opaque mesh (docs/formats.md)\n"
         << "element vertex " << nv << "\nproperty float x\nproperty float y\nproperty float z\n"
@@ -59,10 +70,9 @@ void write_mesh_ply(const std::string& path, const primitives::IndexedMesh& mesh
 
 void write_mesh_obj(const std::string& path, const primitives::IndexedMesh& mesh) {
   const auto a = mesh_arrays(path, mesh);
-  const int64_t nv = a.v.size(0), nf = a.f.size(0);
-  const float* v = a.v.data_ptr<float>();
-  const float* c = a.c.data_ptr<float>();
-  const int32_t* f = a.f.data_ptr<int32_t>();
+  const int64_t nv = a.nv, nf = a.nf;
+  const float *v = a.v, *c = a.c;
+  const int32_t* f = a.f;
   write_file_atomic(path, [&](std::ostream& out) {
     out << "# FLAT opaque mesh (docs/formats.md): " << nv << " vertices, " << nf << " faces\n";
     fmt::memory_buffer b;

@@ -17,13 +17,27 @@
 #include "render/render_scenes.h"
 #include "test_support.h"
 
-TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.interop][export]") {
+namespace {
+
+// FLAT_INTEROP_REQUIRE_ALL=1 (CI): every reader must be there.
+bool interop_required() {
   const char* env = std::getenv("FLAT_INTEROP_REQUIRE_ALL");
-  const bool require_all = env && std::string(env) == "1";
-  // The venv of scripts/install_deps.sh holds trimesh; any python3 runs the script.
+  return env && std::string(env) == "1";
+}
+
+// The venv of scripts/install_deps.sh holds trimesh; any python3 runs the script.
+std::string interop_python() {
   const char* home = std::getenv("HOME");
   std::string python = home ? std::string(home) + "/.cache/flat/venv/bin/python3" : "";
   if (python.empty() || !std::filesystem::exists(python)) python = flat::test::find_program("python3");
+  return python;
+}
+
+}  // namespace
+
+TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.interop][export]") {
+  const bool require_all = interop_required();
+  const std::string python = interop_python();
   if (python.empty()) {
     REQUIRE_FALSE(require_all);
     FLAT_SKIP("no python3: interop readers not run");
@@ -57,11 +71,8 @@ TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.intero
 }
 
 TEST_CASE("interop: trimesh, assimp and Blender read our opaque mesh GLB, PLY and OBJ", "[.interop][export]") {
-  const char* env = std::getenv("FLAT_INTEROP_REQUIRE_ALL");
-  const bool require_all = env && std::string(env) == "1";
-  const char* home = std::getenv("HOME");
-  std::string python = home ? std::string(home) + "/.cache/flat/venv/bin/python3" : "";
-  if (python.empty() || !std::filesystem::exists(python)) python = flat::test::find_program("python3");
+  const bool require_all = interop_required();
+  const std::string python = interop_python();
   if (python.empty()) {
     REQUIRE_FALSE(require_all);
     FLAT_SKIP("no python3: interop readers not run");
