@@ -3,6 +3,8 @@
 // CausalConv3d(32, 16, 3x3x3) -> SiLU -> zero-initialised CausalConv3d(16, 16)
 // -> added to the video latent. At initialisation the output is exactly zero,
 // so the pretrained decoder is undisturbed. Children "conv" and "zero_conv".
+// Its input comes from the RPPC map (camera/ray_embeddings.h) encoded by
+// model/camera_latents.h.
 #pragma once
 #include <cstdint>
 

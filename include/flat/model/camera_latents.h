@@ -3,6 +3,8 @@
 // separately by the frozen VAE encoder (normalised mu), concatenated ref then
 // dir: (1, 32, T', H/8, W/8). They depend only on the trajectory, so they can
 // be computed once and cached (save_camera_latents / load_camera_latents).
+// Before: the RPPC map (camera/ray_embeddings.h); after: the fusion layer
+// (model/camera_adapter.h).
 #pragma once
 #include <cstdint>
 #include <string>

@@ -1,7 +1,7 @@
 // Ray-centred triangles (paper, Method, "Decoding Triangles"): one triangle
 // per decoder token, i.e. per 2x2 pixel block of each frame, placed on the
 // block's anchor ray and shaped / oriented in a frame aligned with that ray.
-// The maths (with equations) is in src/primitives/ray_centred_triangle.cpp;
+// The maths (with equations) is in src/primitives/ray_triangles.cpp;
 // docs/primitives.md explains the choices. The raw channel order is in
 // triangle_channels.h.
 #pragma once
