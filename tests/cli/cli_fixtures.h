@@ -10,7 +10,7 @@
 
 #include "data/data_test_dirs.h"
 #include "test_support.h"
-#include "train/process.h"
+#include "support/process.h"
 
 namespace flat::test {
 

@@ -13,7 +13,7 @@
 #include "flat/distributed/process_group.h"
 #include "free_port.h"
 #include "test_support.h"
-#include "train/process.h"
+#include "support/process.h"
 
 namespace fs = std::filesystem;
 using namespace flat::distributed;

@@ -13,7 +13,7 @@
 #include "flat/export/mesh_files.h"
 #include "flat/export/triangle_glb.h"
 #include "flat/export/triangle_ply.h"
-#include "programs.h"
+#include "support/process.h"
 #include "render/render_scenes.h"
 #include "test_support.h"
 

@@ -9,7 +9,7 @@
 #include "flat/core/error.h"
 #include "flat/export/srgb.h"
 #include "flat/export/triangle_glb.h"
-#include "programs.h"
+#include "support/process.h"
 #include "render/render_scenes.h"
 #include "test_support.h"
 

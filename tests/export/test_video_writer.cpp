@@ -9,7 +9,7 @@
 
 #include "flat/core/error.h"
 #include "flat/export/video_writer.h"
-#include "programs.h"
+#include "support/process.h"
 #include "test_support.h"
 
 using flat::exporter::ffmpeg_available;

@@ -16,7 +16,7 @@
 #include "flat/export/triangle_glb.h"
 #include "flat/export/viewer.h"
 #include "flat/render/rasterize.h"
-#include "programs.h"
+#include "support/process.h"
 #include "test_support.h"
 
 using flat::exporter::default_three_js_dir;

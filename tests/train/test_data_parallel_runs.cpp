@@ -15,7 +15,7 @@
 #include "flat/core/tensor_io.h"
 #include "flat/distributed/process_group.h"
 #include "flat/train/checkpoint.h"
-#include "process.h"
+#include "support/process.h"
 #include "train_fixtures.h"
 
 namespace fs = std::filesystem;

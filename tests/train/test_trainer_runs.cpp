@@ -13,7 +13,7 @@
 #include "cli/cli_fixtures.h"
 #include "data/data_test_dirs.h"
 #include "flat/core/tensor_io.h"
-#include "process.h"
+#include "support/process.h"
 #include "test_support.h"
 #include "train_fixtures.h"
 

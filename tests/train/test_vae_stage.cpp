@@ -14,7 +14,7 @@
 #include "flat/eval/image_metrics.h"
 #include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
-#include "process.h"
+#include "support/process.h"
 #include "test_support.h"
 #include "train_fixtures.h"
 

@@ -10,7 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/data_test_dirs.h"
-#include "process.h"
+#include "support/process.h"
 #include "test_support.h"
 
 namespace flat::test {
