@@ -59,6 +59,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--lpips-weights", o.lpips_weights,
                  "LPIPS VGG weights (.safetensors): scored, and in the objective at 0.5 as in training");
+  app.add_option("--baseline-scenes", o.baseline_scenes,
+                 "other scene folders (same window): score the dataset-mean and swap baselines beside the results")
+      ->take_all();
   app.add_flag("--no-mesh", no_mesh, "stop after the post-optimisation (no opaque conversion)");
   app.add_option("--selection-steps", o.opaque.selection_steps, "mesh: opacity selection steps (paper: 50)")
       ->check(CLI::NonNegativeNumber)

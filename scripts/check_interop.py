@@ -336,6 +336,23 @@ def compare_corners(got, expected, what):
     return len(expected), worst
 
 
+def report(name, kind, check, require_all):
+    """Runs check() (the OK text, or Unavailable / Mismatch) and prints one
+    line; returns whether the run has failed because of it."""
+    try:
+        print(f"{name:9} {kind}  OK {check()}")
+        return False
+    except Unavailable as e:
+        print(f"{name:9} {kind}  UNAVAILABLE {e}")
+        return require_all
+    except Mismatch as e:
+        print(f"{name:9} {kind}  MISMATCH {e}")
+        return True
+    except Exception as e:  # a reader that crashes on our file is a mismatch
+        print(f"{name:9} {kind}  MISMATCH {type(e).__name__}: {e}")
+        return True
+
+
 def main_mesh(args):
     glb, ply, obj = args.mesh
     for path, ext in ((glb, ".glb"), (ply, ".ply"), (obj, ".obj")):
@@ -388,7 +405,8 @@ def main_mesh(args):
     for name, read, expectations in readers:
         for kind, path in files:
             expected, what = expectations[kind]
-            try:
+
+            def check():
                 vertices, faces, colours = read(path, kind)
                 counts = f"{vertices} vertices, {faces} faces"
                 # assimp's OBJ importer makes one vertex per face corner (OBJ
@@ -403,19 +421,12 @@ def main_mesh(args):
                     raise Mismatch(f"{counts}, expected {nv}{alternative} vertices, {nf} faces")
                 if nf <= MAX_COLOUR_CHECK_FACES or colours:
                     checked, worst = compare_corners(colours, expected, what)
-                    print(f"{name:9} {kind}  OK {counts}{note}; {what} of {checked} faces match "
-                          f"(worst {100 * worst:.0f}% of the tolerance)")
+                    return (f"{counts}{note}; {what} of {checked} faces match "
+                            f"(worst {100 * worst:.0f}% of the tolerance)")
                 else:
-                    print(f"{name:9} {kind}  OK {counts}{note}; colours not checked (large file)")
-            except Unavailable as e:
-                print(f"{name:9} {kind}  UNAVAILABLE {e}")
-                failed |= args.require_all
-            except Mismatch as e:
-                print(f"{name:9} {kind}  MISMATCH {e}")
-                failed = True
-            except Exception as e:  # a reader that crashes on our file is a mismatch
-                print(f"{name:9} {kind}  MISMATCH {type(e).__name__}: {e}")
-                failed = True
+                    return f"{counts}{note}; colours not checked (large file)"
+
+            failed |= report(name, kind, check, args.require_all)
     return 1 if failed else 0
 
 
@@ -500,24 +511,18 @@ def main_soup(args):
     for name, read, expectations in readers:
         for kind, path in files:
             expected, tolerance, what = expectations[kind]
-            try:
+
+            def check():
                 faces, colours, exact = read(path, kind)
                 if faces != args.faces:
                     raise Mismatch(f"{faces} faces, expected {args.faces}")
                 if args.faces <= MAX_COLOUR_CHECK_FACES or colours:
                     checked = compare(colours, expected, 1e-5 if exact else tolerance, what)
-                    print(f"{name:9} {kind}  OK {faces} faces; {what} of {checked} faces match")
+                    return f"{faces} faces; {what} of {checked} faces match"
                 else:
-                    print(f"{name:9} {kind}  OK {faces} faces; colours not checked (large file)")
-            except Unavailable as e:
-                print(f"{name:9} {kind}  UNAVAILABLE {e}")
-                failed |= args.require_all
-            except Mismatch as e:
-                print(f"{name:9} {kind}  MISMATCH {e}")
-                failed = True
-            except Exception as e:  # a reader that crashes on our file is a mismatch
-                print(f"{name:9} {kind}  MISMATCH {type(e).__name__}: {e}")
-                failed = True
+                    return f"{faces} faces; colours not checked (large file)"
+
+            failed |= report(name, kind, check, args.require_all)
     return 1 if failed else 0
 
 

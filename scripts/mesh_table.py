@@ -19,16 +19,17 @@ def mean(values):
 def main(dirs):
     runs = [json.load(open(f"{d}/metrics.json")) for d in dirs]
     print(f"{len(runs)} scenes: {', '.join(r['scene'] for r in runs)}")
-    print("| stage | views | triangles | PSNR | SSIM | LPIPS | normal cos | mean-colour oracle PSNR |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| stage | views | triangles | PSNR | SSIM | LPIPS | normal cos | mean-colour oracle | dataset mean | swap |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for stage in ("feedforward", "refined", "mesh"):
         for split in ("fitted", "held_out"):
             rows = [r["scores"][stage][split] for r in runs if stage in r["scores"]]
             if not rows or rows[0]["views"] == 0:
                 continue
-            f = lambda k: mean([row[k] for row in rows])
+            f = lambda k: mean([row.get(k) for row in rows])
             print(f"| {stage} | {split} ({rows[0]['views']}/scene) | {f('triangles'):.0f} | {f('psnr'):.2f} | "
-                  f"{f('ssim'):.3f} | {f('lpips'):.3f} | {f('normal_cosine'):.3f} | {f('mean_colour_psnr'):.2f} |")
+                  f"{f('ssim'):.3f} | {f('lpips'):.3f} | {f('normal_cosine'):.3f} | {f('mean_colour_psnr'):.2f} | "
+                  f"{f('dataset_mean_psnr'):.2f} | {f('swap_psnr'):.2f} |")
     stats = [r["mesh_statistics"] for r in runs if r.get("mesh_statistics")]
     if stats:
         keys = ["vertices", "faces", "degenerate_faces_pct", "isolated_faces_pct", "mean_face_neighbours",

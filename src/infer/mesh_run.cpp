@@ -10,6 +10,7 @@
 #include <torch/torch.h>
 
 #include "flat/core/atomic_file.h"
+#include "flat/core/cli.h"
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
@@ -124,8 +125,14 @@ Rendered render_all(const primitives::TriangleSoup& soup, const mesh::ViewTarget
   return {at::cat(rgb), at::cat(normal), at::cat(alpha)};
 }
 
+// Frames of other scenes for the baselines (undefined when none).
+struct Baselines {
+  at::Tensor dataset_mean;  // (V,3,H,W): the other scenes' frames averaged per view
+  at::Tensor swap;          // (V,3,H,W): the first other scene's frames
+};
+
 ViewScores score(const Rendered& r, const mesh::ViewTargets& t, const at::Tensor& views, loss::Lpips& lpips,
-                 int64_t triangles) {
+                 int64_t triangles, const Baselines& b) {
   ViewScores s;
   s.views = views.numel();
   s.triangles = triangles;
@@ -136,6 +143,10 @@ ViewScores score(const Rendered& r, const mesh::ViewTargets& t, const at::Tensor
   s.ssim = eval::ssim(rgb, gt).mean().item<double>();
   if (!lpips.is_empty()) s.lpips = eval::lpips(lpips, rgb, gt).mean().item<double>();
   s.mean_colour_psnr = eval::mean_colour_psnr(gt).mean().item<double>();
+  if (b.swap.defined()) {
+    s.dataset_mean_psnr = eval::psnr(b.dataset_mean.index_select(0, views), gt).mean().item<double>();
+    s.swap_psnr = eval::psnr(rgb, b.swap.index_select(0, views)).mean().item<double>();
+  }
   if (t.normals.defined()) {
     const auto acc = eval::normal_accuracy(r.normal.index_select(0, views), t.normals.cpu().index_select(0, views),
                                            r.alpha.index_select(0, views) > 0.5);
@@ -148,7 +159,8 @@ nlohmann::json to_json(const ViewScores& s) {
   const auto num = [](double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr); };
   return {{"views", s.views},         {"triangles", s.triangles}, {"psnr", num(s.psnr)},
           {"ssim", num(s.ssim)},      {"lpips", num(s.lpips)},    {"normal_cosine", num(s.normal_cosine)},
-          {"mean_colour_psnr", num(s.mean_colour_psnr)}};
+          {"mean_colour_psnr", num(s.mean_colour_psnr)}, {"dataset_mean_psnr", num(s.dataset_mean_psnr)},
+          {"swap_psnr", num(s.swap_psnr)}};
 }
 
 at::Tensor normal_picture(const at::Tensor& n) { return (n * 0.5 + 0.5).clamp(0, 1) * (n.norm(2, 1, true) > 0.5); }
@@ -201,12 +213,7 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
   spdlog::info("flat_mesh: {} triangles from {}; fitting scene {} window {}; writing into {} (appears when finished)",
                source.soup.vertices.size(0), o.from, scene.name, source.window, o.out_dir);
   s.scene = scene.name;
-  const at::Device device = o.device == "cpu" || (o.device == "auto" && !torch::cuda::is_available())
-                                ? at::Device(at::kCPU)
-                                : at::Device(at::kCUDA, 0);
-  FLAT_CHECK(o.device == "auto" || o.device == "cpu" || o.device == "cuda",
-             "--device: expected auto, cpu or cuda, got '" + o.device + "'");
-  FLAT_CHECK(!device.is_cuda() || torch::cuda::is_available(), "--device cuda: no CUDA device is available");
+  const at::Device device = cli::resolve_device(o.device);
 
   const bool want_depth = refine_options.loss.lambda_depth > 0 || opaque_options.loss.lambda_depth > 0;
   const bool want_normals = scene.has_normals;
@@ -225,18 +232,39 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
     s.notes.push_back("no --lpips-weights: LPIPS is not scored and the objective is L2 only");
   }
 
+  Baselines baselines;
+  {
+    std::vector<at::Tensor> others;
+    for (const auto& dir : o.baseline_scenes) {
+      const auto other = data::read_scene(dir);
+      if (fs::equivalent(other.dir, scene.dir)) continue;
+      auto t = load_targets(other, source.window, false, false);
+      FLAT_CHECK(t.size() == all.size() && t.height() == all.height() && t.width() == all.width(),
+                 fmt::format("--baseline-scenes {}: window {} has {} frames of {}x{}, this scene {} of {}x{}", dir,
+                             source.window, t.size(), t.height(), t.width(), all.size(), all.height(), all.width()));
+      others.push_back(t.rgb.cpu());
+    }
+    if (!others.empty()) {
+      baselines.swap = others.front();
+      baselines.dataset_mean = at::stack(others).mean(0);
+      spdlog::info("baselines: {} other scenes (dataset mean); swap against {}", others.size(),
+                   o.baseline_scenes.front());
+    }
+  }
+
   std::vector<Rendered> stages;
   const auto add_stage = [&](const std::string& name, const primitives::TriangleSoup& soup,
                              const render::RasterSettings& raster) {
     stages.push_back(render_all(soup, all, raster, o.render_chunk));
     const int64_t n = soup.vertices.size(0);
-    s.scores[name]["fitted"] = score(stages.back(), all, split.fitted, lpips, n);
-    s.scores[name]["held_out"] = score(stages.back(), all, split.held_out, lpips, n);
+    s.scores[name]["fitted"] = score(stages.back(), all, split.fitted, lpips, n, baselines);
+    s.scores[name]["held_out"] = score(stages.back(), all, split.held_out, lpips, n, baselines);
     const auto& f = s.scores[name]["fitted"];
     const auto& h = s.scores[name]["held_out"];
     spdlog::info("{}: {} triangles; fitted views PSNR {:.2f} dB (mean-colour oracle {:.2f}), normal cosine {:.3f}; "
-                 "held-out views PSNR {:.2f} dB (oracle {:.2f}), normal cosine {:.3f}",
-                 name, n, f.psnr, f.mean_colour_psnr, f.normal_cosine, h.psnr, h.mean_colour_psnr, h.normal_cosine);
+                 "held-out views PSNR {:.2f} dB (oracle {:.2f}, dataset mean {:.2f}, swap {:.2f}), normal cosine {:.3f}",
+                 name, n, f.psnr, f.mean_colour_psnr, f.normal_cosine, h.psnr, h.mean_colour_psnr,
+                 h.dataset_mean_psnr, h.swap_psnr, h.normal_cosine);
   };
 
   reset_peak_memory(device);
@@ -358,16 +386,17 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
 std::string format_summary(const MeshRunSummary& s) {
   std::string text = fmt::format("flat_mesh: done in {:.1f} s (refine {:.1f} s, conversion {:.1f} s) -> {}\n",
                                  s.total_seconds, s.refine_seconds, s.convert_seconds, s.out_dir);
-  text += fmt::format("  {:<12} {:<9} {:>6} {:>9} {:>7} {:>7} {:>9} {:>8}\n", "stage", "views", "tris", "PSNR",
-                      "SSIM", "LPIPS", "normals", "oracle");
+  text += fmt::format("  {:<12} {:<9} {:>6} {:>9} {:>7} {:>7} {:>9} {:>8} {:>8} {:>8}\n", "stage", "views", "tris",
+                      "PSNR", "SSIM", "LPIPS", "normals", "oracle", "mean", "swap");
   for (const char* stage : {"feedforward", "refined", "mesh"}) {
     auto it = s.scores.find(stage);
     if (it == s.scores.end()) continue;
     for (const char* part : {"fitted", "held_out"}) {
       const auto& v = it->second.at(part);
       if (v.views == 0) continue;
-      text += fmt::format("  {:<12} {:<9} {:>6} {:>9.2f} {:>7.3f} {:>7.3f} {:>9.3f} {:>8.2f}\n", stage, part,
-                          v.triangles, v.psnr, v.ssim, v.lpips, v.normal_cosine, v.mean_colour_psnr);
+      text += fmt::format("  {:<12} {:<9} {:>6} {:>9.2f} {:>7.3f} {:>7.3f} {:>9.3f} {:>8.2f} {:>8.2f} {:>8.2f}\n", stage,
+                          part, v.triangles, v.psnr, v.ssim, v.lpips, v.normal_cosine, v.mean_colour_psnr,
+                          v.dataset_mean_psnr, v.swap_psnr);
     }
   }
   if (!s.statistics.empty()) text += "  mesh: " + s.statistics + "\n";

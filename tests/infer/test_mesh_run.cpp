@@ -19,7 +19,7 @@ namespace {
 
 struct Decoded {
   fs::path dir;
-  std::string infer_out, scene;
+  std::string infer_out, scene, other;  // other: a second room, for the baselines
 };
 
 // flat_infer's output for a room of 13 frames, window 0 = frames 0..8.
@@ -31,6 +31,8 @@ const Decoded& decoded() {
     test::write_tiny_model(model);
     x.scene = (x.dir / "room").string();
     test::write_scene_with_latents(x.scene, 3);
+    x.other = (x.dir / "other_room").string();
+    test::write_scene_with_latents(x.other, 8);
     infer::InferOptions o;
     o.model = model;
     o.input.scene_dir = x.scene;
@@ -66,7 +68,8 @@ nlohmann::json read_json(const fs::path& p) {
 }  // namespace
 
 TEST_CASE("flat_mesh refines the decoded soup, converts it and writes every output", "[infer]") {
-  const auto o = options("mesh");
+  auto o = options("mesh");
+  o.baseline_scenes = {decoded().other, decoded().scene};  // its own scene is skipped
   const auto s = infer::run_mesh(o);
   const fs::path out = o.out_dir;
   for (const char* f : {"refined.ply", "mesh.ply", "mesh.obj", "mesh_stats.json", "metrics.json", "summary.json",
@@ -85,6 +88,13 @@ TEST_CASE("flat_mesh refines the decoded soup, converts it and writes every outp
   INFO("feedforward " << ff.psnr << " dB, refined " << refined.psnr << " dB, oracle " << ff.mean_colour_psnr);
   CHECK(refined.psnr > ff.psnr + 3.0);
   CHECK(refined.psnr > refined.mean_colour_psnr);
+  // Baselines from the other room: the refined soup scores its own room far
+  // above the other room's frames and above that room's image.
+  const auto& held = s.scores.at("refined").at("held_out");
+  INFO("held-out refined " << held.psnr << ", swap " << held.swap_psnr << ", dataset mean " << held.dataset_mean_psnr);
+  CHECK(held.psnr > held.swap_psnr + 3.0);
+  CHECK(held.psnr > held.dataset_mean_psnr + 3.0);
+  CHECK(metrics["scores"]["mesh"]["held_out"]["swap_psnr"].is_number());
   CHECK(std::isfinite(s.scores.at("mesh").at("held_out").psnr));
   CHECK(std::isfinite(ff.normal_cosine));  // the room has reference normals
   const auto stats = read_json(out / "mesh_stats.json");

@@ -43,6 +43,10 @@ struct MeshRunOptions {
   bool convert = true;
   mesh::OpaqueOptions opaque;
   std::string lpips_weights;  // LPIPS metric, and the objective's perceptual term (0.5, as training); "" = neither
+  // Other scene folders (same window index and frame count) for two baselines
+  // a result must beat: the dataset mean (their frames averaged per view) and
+  // the swap score (our renders against the first one's frames). Empty: none.
+  std::vector<std::string> baseline_scenes;
   bool viewer = true;
   std::string three_js_dir;   // "" = Debian's libjs-three
   int64_t render_chunk = 8;
@@ -52,6 +56,7 @@ struct MeshRunOptions {
 struct ViewScores {
   int64_t views = 0, triangles = 0;
   double psnr = NAN, ssim = NAN, lpips = NAN, normal_cosine = NAN, mean_colour_psnr = NAN;
+  double dataset_mean_psnr = NAN, swap_psnr = NAN;  // with baseline_scenes
 };
 
 struct MeshRunSummary {
