@@ -29,12 +29,16 @@
 int main(int argc, char** argv) {
   CLI::App app{"flat_train: train the FLAT scene decoder (one stage of the paper's schedule per run folder)"};
   app.get_formatter()->column_width(34);
-  std::string config_file, resume_dir, log_level, device, precision;
+  std::vector<std::string> config_files;
+  std::string resume_dir, log_level, device, precision;
   std::vector<std::string> overrides;
   bool overwrite = false, print_config = false, help_config = false;
   int nproc = 1;
-  app.add_option("--config", config_file, "stage config (YAML), layered over the defaults (--help-config)")
-      ->check(CLI::ExistingFile);
+  app.add_option("--config", config_files,
+                 "stage config (YAML), layered over the defaults (--help-config); repeat it to layer more files in "
+                 "order, e.g. a stage config then an ablation (configs/ablations/)")
+      ->check(CLI::ExistingFile)
+      ->take_all();
   app.add_option("--resume", resume_dir, "continue the run in this folder from its newest checkpoint");
   app.add_option("--set", overrides, "override a key: --set steps=500 --set optim.lr=2e-4")->take_all();
   app.add_flag("--overwrite", overwrite,
@@ -65,7 +69,7 @@ int main(int argc, char** argv) {
     if (!log_level.empty()) overrides.push_back("log.level=" + log_level);
     if (!device.empty()) overrides.push_back(std::string("device=") + (flat::cli::resolve_device(device).is_cuda() ? "cuda" : "cpu"));
     if (!precision.empty()) overrides.push_back("precision=" + precision);
-    if (resume_dir.empty() == config_file.empty()) {
+    if (resume_dir.empty() == config_files.empty()) {
       std::cerr << "flat_train: give exactly one of --config FILE (a new run, e.g. configs/tiny/stage1.yaml) or "
                    "--resume RUN_DIR\n";
       return 2;
@@ -81,7 +85,7 @@ int main(int argc, char** argv) {
       cfg = flat::train::load_run_config(resume_dir, overrides, &yaml);
       mode = flat::train::StartMode::resume;
     } else {
-      cfg = flat::config::load_layered<flat::train::TrainConfig>("", "<defaults>", {config_file}, overrides);
+      cfg = flat::config::load_layered<flat::train::TrainConfig>("", "<defaults>", config_files, overrides);
       yaml = flat::config::to_yaml(cfg);
       if (overwrite) mode = flat::train::StartMode::overwrite;
     }

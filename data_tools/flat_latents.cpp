@@ -44,6 +44,7 @@ namespace {
 struct Options {
   std::vector<std::string> scenes;
   std::string weights, weights_prefix, size, device = "auto", precision = "fp32", store = "fp32", log_level = "info";
+  std::string camera_rays = "rppc";  // "rppc" or "rppc,plucker" (also the Plucker latents of the ablation)
   bool random_weights = false, full = false;
   int64_t seed = 0, dim = 0, window = 17, step = 0;
 };
@@ -155,6 +156,9 @@ void run(const Options& o, PendingLog& log) {
         l.video = vae->encode(video, !o.full)[0].to(at::kCPU, at::kFloat);
         l.camera =
             model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full)[0].to(at::kCPU, at::kFloat);
+        if (o.camera_rays == "rppc,plucker")
+          l.camera_plucker = model::encode_camera_latents(vae, cams.to(weight.device()), h, w, !o.full, "plucker")[0]
+                                 .to(at::kCPU, at::kFloat);
         check_finite(l.video, scene.dir + ": window at frame " + std::to_string(start) + ": video latent");
         if (latents.empty()) first_windows.push_back(l.video);
         latents.push_back(l);
@@ -206,6 +210,10 @@ int main(int argc, char** argv) {
   cli::add_precision(app, o.precision);
   app.add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
   cli::add_store(app, o.store);
+  app.add_option("--camera-rays", o.camera_rays,
+                 "camera latents to write: rppc (the paper), or rppc,plucker (also Plucker-ray latents, for the "
+                 "conditioning ablation: pipeline.model.camera_rays plucker)")
+      ->check(CLI::IsMember({"rppc", "rppc,plucker"}));
   app.add_flag("--full", o.full, "encode the whole window at once instead of streaming chunks");
   if (int rc = cli::parse(app, argc, argv); rc >= 0) return rc;
   cli::apply_threads(threads);

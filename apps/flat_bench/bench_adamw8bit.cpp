@@ -22,7 +22,7 @@
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/model/scene_decoder.h"
-#include "flat/primitives/triangle_channels.h"
+#include "flat/primitives/head_channels.h"
 #include "flat/train/adamw.h"
 
 namespace flat::bench {

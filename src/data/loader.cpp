@@ -168,7 +168,7 @@ Sample Loader::load_sample(const Scene& scene, std::mt19937_64& rng) const {
     s.input_images = inputs.images;
   }
   if (c.latents) {
-    WindowLatents l = read_window_latents(scene, size_t(v.latent_window));
+    WindowLatents l = read_window_latents(scene, size_t(v.latent_window), c.camera_rays);
     s.video_latent = l.video;
     s.camera_latent = l.camera;
   }

@@ -67,6 +67,10 @@ LatentInfo parse_latents(const json& l, const std::string& where) {
   info.height = integer(l, "height", where);
   info.width = integer(l, "width", where);
   if (l.contains("dtype")) info.dtype = optional_string(l, "dtype", where);
+  if (l.contains("camera_plucker")) {
+    if (!l["camera_plucker"].is_boolean()) fail(where + ": 'camera_plucker' must be true or false");
+    info.plucker = l["camera_plucker"].get<bool>();
+  }
   if (!l.contains("windows") || !l["windows"].is_array() || l["windows"].empty())
     fail(where + ": 'windows' must be a non-empty array of {start, count}");
   for (size_t i = 0; i < l["windows"].size(); ++i) {
@@ -85,6 +89,7 @@ json latents_json(const LatentInfo& info) {
   l["height"] = info.height;
   l["width"] = info.width;
   l["dtype"] = info.dtype;
+  if (info.plucker) l["camera_plucker"] = true;
   l["windows"] = json::array();
   for (const auto& w : info.windows) l["windows"].push_back({{"start", w.start}, {"count", w.count}});
   return l;

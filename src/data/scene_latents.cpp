@@ -30,6 +30,7 @@ StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std
   FLAT_CHECK(info.encoder == "pretrained" || info.encoder == "random",
              "write_scene_latents: encoder must be pretrained or random");
   info.file = kLatentsFile;
+  info.plucker = !latents.empty() && latents[0].camera_plucker.defined();
   TensorMap tensors;
   std::string windows;
   for (size_t i = 0; i < latents.size(); ++i) {
@@ -40,6 +41,12 @@ StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std
     auto type = info.dtype == "bfloat16" ? at::kBFloat16 : info.dtype == "float16" ? at::kHalf : at::kFloat;
     tensors["video." + k] = latents[i].video.to(type).cpu().contiguous();
     tensors["camera." + k] = latents[i].camera.to(type).cpu().contiguous();
+    FLAT_CHECK(latents[i].camera_plucker.defined() == latents[0].camera_plucker.defined(),
+               scene.name + ": Plucker camera latents for some windows only");
+    if (latents[i].camera_plucker.defined()) {
+      check_window(latents[i].camera_plucker, 32, info, w, scene.name + ": Plucker camera latent " + k);
+      tensors["camera_plucker." + k] = latents[i].camera_plucker.to(type).cpu().contiguous();
+    }
     tensors["frames." + k] = at::arange(w.start, w.start + w.count, at::kLong);
     windows += (i ? "," : "") + std::to_string(w.start) + ":" + std::to_string(w.count);
   }
@@ -93,7 +100,7 @@ at::Tensor read_latent(const safetensors::MappedFile& file, const std::string& k
 }
 }  // namespace
 
-WindowLatents read_window_latents(const Scene& scene, size_t window) {
+WindowLatents read_window_latents(const Scene& scene, size_t window, const std::string& camera_rays) {
   const auto& info = scene.latents;
   FLAT_CHECK(info.present(), scene.json_path() + ": scene '" + scene.name + "' has no latents");
   FLAT_CHECK(window < info.windows.size(), scene.json_path() + ": latent window " + std::to_string(window) +
@@ -102,10 +109,16 @@ WindowLatents read_window_latents(const Scene& scene, size_t window) {
   auto file = safetensors::MappedFile::open(path);
   const std::string k = std::to_string(window);
   WindowLatents out;
+  FLAT_CHECK(camera_rays == "rppc" || camera_rays == "plucker",
+             "read_window_latents: camera_rays must be rppc or plucker, got '" + camera_rays + "'");
+  FLAT_CHECK(camera_rays == "rppc" || info.plucker,
+             scene.json_path() + ": scene '" + scene.name + "' has no Plucker camera latents (the model is "
+             "conditioned on Plucker rays: flat_latents --camera-rays rppc,plucker writes them)");
+  const std::string camera_key = (camera_rays == "plucker" ? "camera_plucker." : "camera.") + k;
   out.video = read_latent(*file, "video." + k, path + ": 'video." + k + "'");
-  out.camera = read_latent(*file, "camera." + k, path + ": 'camera." + k + "'");
+  out.camera = read_latent(*file, camera_key, path + ": '" + camera_key + "'");
   check_window(out.video, 16, info, info.windows[window], path + ": 'video." + k + "'");
-  check_window(out.camera, 32, info, info.windows[window], path + ": 'camera." + k + "'");
+  check_window(out.camera, 32, info, info.windows[window], path + ": '" + camera_key + "'");
   auto frames = read_tensor(*file, "frames." + k);
   const auto& w = info.windows[window];
   if (frames.numel() != w.count || frames[0].item<int64_t>() != w.start)

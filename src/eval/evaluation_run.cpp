@@ -251,7 +251,8 @@ std::string compare_runs(const std::vector<std::string>& out_dirs) {
       if (other.name == r.name) r.name += " (" + fs::path(d).filename().string() + ")";
     runs.push_back(r);
   }
-  return table1_markdown(runs);
+  const std::string seeds = seeds_markdown(runs);
+  return table1_markdown(runs) + (seeds.empty() ? "" : "\n### Over seeds\n\n" + seeds);
 }
 
 }  // namespace flat::eval

@@ -79,7 +79,7 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   const auto device = pipeline.decoder()->conv2->weight.device();
 
   // Decode the window.
-  auto latents = data::read_window_latents(scene, size_t(s.window));
+  auto latents = data::read_window_latents(scene, size_t(s.window), pipeline.config().model.camera_rays);
   std::vector<int64_t> window_frames;
   for (int64_t i = 0; i < win.count; ++i) window_frames.push_back(win.start + i);
   const auto input_cams = scene.cameras(window_frames);
@@ -88,15 +88,15 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
   in.input_intrinsics = input_cams.intrinsics.unsqueeze(0);
   in.input_c2w = input_cams.c2w.unsqueeze(0);
-  primitives::TriangleSoup tri;
+  primitives::ScenePrimitives prims;
   {
     AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
-    auto t = pipeline.decode(in, s.streaming).scene(0);
-    tri = {t.vertices.to(at::kFloat), t.colors.to(at::kFloat), t.opacities.to(at::kFloat), t.sigmas.to(at::kFloat)};
+    prims = pipeline.decode(in, s.streaming).scene(0).map([](const at::Tensor& t) { return t.to(at::kFloat); });
   }
-  FLAT_CHECK(at::isfinite(tri.vertices).all().item<bool>(),
-             scene.json_path() + ": the decoded triangles hold NaN or infinite vertices");
-  r.triangles = pipeline::prune(tri, pipeline.config().prune_opacity).vertices.size(0);
+  for (const auto& [name, t] : prims.named_tensors())
+    FLAT_CHECK(at::isfinite(t).all().item<bool>(),
+               scene.json_path() + ": the decoded " + prims.representation + " hold NaN or infinite " + name);
+  r.triangles = pipeline::prune(prims, pipeline.config().prune_opacity).size();
 
   // Render and score the views, a chunk at a time.
   std::vector<double> psnr, ssim, lp, mean_colour, dataset_mean, swap;
@@ -111,7 +111,7 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
     pipeline::RenderedViews v;
     {
       AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
-      v = pipeline.render(tri, cams, H, W);
+      v = pipeline.render(prims, cams, H, W);
     }
     auto rgb = v.rgb.to(at::kCPU, at::kFloat).clamp(0, 1);
     auto target = gt.images.to(at::kFloat);

@@ -26,7 +26,7 @@ InferInput from_scene(const InputSpec& spec) {
   FLAT_CHECK(spec.window >= 0 && spec.window < n, scene.json_path() + ": --window " + std::to_string(spec.window) +
                                                       " out of range: the scene has " + std::to_string(n) +
                                                       " latent window(s)");
-  auto w = data::read_window_latents(scene, size_t(spec.window));
+  auto w = data::read_window_latents(scene, size_t(spec.window), spec.camera_rays);
   const auto& win = scene.latents.windows[size_t(spec.window)];
   std::vector<int64_t> idx;
   for (int64_t i = 0; i < win.count; ++i) idx.push_back(win.start + i);

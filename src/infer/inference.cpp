@@ -16,12 +16,14 @@
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/staged_dir.h"
+#include "flat/export/gaussian_ply.h"
 #include "flat/export/triangle_glb.h"
 #include "flat/export/triangle_ply.h"
 #include "flat/export/video_writer.h"
 #include "flat/export/viewer.h"
 #include "flat/infer/trajectory_renders.h"
 #include "flat/pipeline/trained_model.h"
+#include "flat/primitives/splat_ellipses.h"
 
 namespace flat::infer {
 
@@ -75,6 +77,7 @@ InferSummary run_inference(const InferOptions& o) {
   spdlog::info("model: {} (pipeline config from {})", trained.describe(), trained.config_source);
   auto spec = o.input;
   spec.need_camera_latents = trained.config.model.camera;
+  spec.camera_rays = trained.config.model.camera_rays;
   auto input = load_infer_input(spec);
   if (input.latent_encoder == "random")
     s.notes.push_back("RANDOM-ENCODER LATENTS: the input latents come from a random-weight encoder and carry almost "
@@ -100,35 +103,40 @@ InferSummary run_inference(const InferOptions& o) {
   auto t = Clock::now();
   // Streaming moves each latent frame's triangles to the CPU as they are built,
   // so the GPU holds only the decoder's working set, whatever the length.
-  primitives::TriangleSoup all;
+  primitives::ScenePrimitives all;
   {
     AutocastScope autocast(bf16, at::kCUDA);
     if (o.streaming) {
       all = pipe.decode_to(input.input, at::kCPU).scene(0);
     } else {
-      auto t = pipe.decode(input.input, false).scene(0);
-      all = {t.vertices.to(at::kCPU, at::kFloat), t.colors.to(at::kCPU, at::kFloat),
-             t.opacities.to(at::kCPU, at::kFloat), t.sigmas.to(at::kCPU, at::kFloat)};
+      all = pipe.decode(input.input, false).scene(0).map([](const at::Tensor& x) { return x.to(at::kCPU, at::kFloat); });
     }
   }
   if (device.is_cuda()) torch::cuda::synchronize();
   s.decode_seconds = since(t);
   s.decode_peak_gib = peak_memory_gib(device);
-  s.triangles_decoded = all.vertices.size(0);
-  FLAT_CHECK(at::isfinite(all.vertices).all().item<bool>(),
-             input.label + ": the decoded triangles hold NaN or infinite vertices (bad latents or weights)");
+  s.representation = all.representation;
+  s.triangles_decoded = all.size();
+  for (const auto& [name, x] : all.named_tensors())
+    FLAT_CHECK(at::isfinite(x).all().item<bool>(), input.label + ": the decoded " + all.representation +
+                                                       " hold NaN or infinite " + name + " (bad latents or weights)");
   auto scene = pipeline::prune(all, o.prune_opacity);
   s.prune_opacity = o.prune_opacity;
-  s.triangles_kept = scene.vertices.size(0);
-  spdlog::info("decode: {} triangles in {:.2f} s ({}), {} kept at opacity >= {}", s.triangles_decoded,
+  s.triangles_kept = scene.size();
+  const std::string what = scene.is_triangles() ? "triangles" : scene.representation + " Gaussians";
+  spdlog::info("decode: {} {} in {:.2f} s ({}), {} kept at opacity >= {}", s.triangles_decoded, what,
                s.decode_seconds, o.streaming ? "streaming" : "full sequence", s.triangles_kept, o.prune_opacity);
-  if (s.triangles_kept == 0) spdlog::warn("no triangle reaches opacity {}: the exports are empty", o.prune_opacity);
+  if (s.triangles_kept == 0) spdlog::warn("no primitive reaches opacity {}: the exports are empty", o.prune_opacity);
 
   // ---- export ----------------------------------------------------------------------
   t = Clock::now();
-  auto cpu_scene = export_view(scene);
+  // Gaussians: scene.ply in the 3DGS ecosystem's layout; the GLB (and so the
+  // viewer) shows them as ellipse fans (primitives/splat_ellipses.h).
+  const auto cpu_scene =
+      scene.is_triangles() ? export_view(scene.triangles) : primitives::splat_ellipses(scene.gaussians);
   if (o.ply) {
-    exporter::write_triangle_ply(out.file("scene.ply"), cpu_scene);
+    if (scene.is_triangles()) exporter::write_triangle_ply(out.file("scene.ply"), cpu_scene);
+    else exporter::write_gaussian_ply(out.file("scene.ply"), scene.gaussians);
     s.outputs.push_back("scene.ply");
   }
   bool have_glb = false;
@@ -157,8 +165,7 @@ InferSummary run_inference(const InferOptions& o) {
   // ---- render ----------------------------------------------------------------------
   t = Clock::now();
   reset_peak_memory(device);
-  const primitives::TriangleSoup on_device{scene.vertices.to(device), scene.colors.to(device),
-                                           scene.opacities.to(device), scene.sigmas.to(device)};
+  const auto on_device = scene.map([&](const at::Tensor& x) { return x.to(device); });
   const bool video = o.video && exporter::ffmpeg_available();
   if (o.video && !video) s.notes.push_back("videos not written: ffmpeg is not on the PATH (Debian package ffmpeg)");
   if (o.renders || video) {
@@ -210,6 +217,7 @@ InferSummary run_inference(const InferOptions& o) {
                       {"device", device.str()},
                       {"precision", bf16 ? "bf16" : "fp32"},
                       {"streaming", o.streaming},
+                      {"representation", s.representation},
                       {"prune_opacity", o.prune_opacity},
                       {"triangles_decoded", s.triangles_decoded},
                       {"triangles_kept", s.triangles_kept},
@@ -240,7 +248,8 @@ std::string format_summary(const InferSummary& s) {
   std::ostringstream os;
   const double kept = s.triangles_decoded ? 100.0 * double(s.triangles_kept) / double(s.triangles_decoded) : 0.0;
   os << fmt::format("flat_infer: done in {:.1f} s -> {}\n", s.total_seconds, s.out_dir);
-  os << fmt::format("  triangles  {} decoded, {} kept ({:.1f}%, opacity >= {})\n", s.triangles_decoded,
+  os << fmt::format("  {:<10} {} decoded, {} kept ({:.1f}%, opacity >= {})\n",
+                    s.representation == "triangles" ? "triangles" : s.representation, s.triangles_decoded,
                     s.triangles_kept, kept, s.prune_opacity);
   os << fmt::format("  decode     {:.2f} s{}\n", s.decode_seconds,
                     s.decode_peak_gib > 0 ? fmt::format("  (peak {:.2f} GiB)", s.decode_peak_gib) : "");

@@ -60,6 +60,9 @@ Source read_source(const MeshRunOptions& o) {
       } catch (const std::exception& e) {
         fail(summary + ": not valid JSON: " + e.what());
       }
+      if (j.contains("representation") && j["representation"] != "triangles")
+        fail(o.from + ": holds a " + j["representation"].get<std::string>() +
+             " scene; flat_mesh refines and meshes triangle scenes only");
       if (j.contains("scene_dir")) s.scene_dir = j["scene_dir"].get<std::string>();
       if (j.contains("window")) s.window = j["window"].get<int64_t>();
     }

@@ -13,9 +13,10 @@
 
 namespace flat::infer {
 
-std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& cameras) {
-  if (!scene.vertices.defined() || scene.vertices.size(0) == 0) return {0.1, 10.0};
-  auto centroids = scene.vertices.detach().mean(1).to(at::kCPU, at::kFloat);  // (N,3)
+std::pair<double, double> display_depth_range(const primitives::ScenePrimitives& scene,
+                                              const camera::Cameras& cameras) {
+  if (!scene.opacities().defined() || scene.size() == 0) return {0.1, 10.0};
+  auto centroids = scene.centres().detach().to(at::kCPU, at::kFloat);  // (N,3)
   // Percentiles of an evenly spaced sample are enough for display, and keep
   // many cameras of millions of triangles cheap.
   const int64_t n = centroids.size(0), stride = std::max<int64_t>(1, n / 100000);
@@ -49,14 +50,14 @@ at::Tensor depth_grey(const at::Tensor& depth, double lo, double hi) {  // (K,1,
 
 }  // namespace
 
-TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const primitives::TriangleSoup& scene,
+TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const primitives::ScenePrimitives& scene,
                                     const camera::Cameras& cams, int64_t height, int64_t width,
                                     const std::string& folder, int64_t chunk, bool keep_video_frames,
                                     std::pair<double, double> depth_range, const std::string& progress_label) {
   FLAT_CHECK(chunk > 0, "render: chunk must be positive");
   torch::NoGradGuard no_grad;
   const auto t0 = std::chrono::steady_clock::now();
-  const auto device = scene.vertices.device();
+  const auto device = scene.opacities().device();
   TrajectoryRenders out;
   out.views = cams.size();
   std::vector<at::Tensor> frames;

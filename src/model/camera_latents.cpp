@@ -10,22 +10,25 @@
 
 namespace flat::model {
 
-std::pair<at::Tensor, at::Tensor> rppc_videos(const flat::camera::Cameras& cams, int64_t height, int64_t width) {
+std::pair<at::Tensor, at::Tensor> ray_videos(const flat::camera::Cameras& cams, int64_t height, int64_t width,
+                                             const std::string& rays) {
   cams.check("camera latents");
+  FLAT_CHECK(rays == "rppc" || rays == "plucker", "camera latents: rays must be rppc or plucker, got '" + rays + "'");
   // (F,6,H,W) -> (1,6,F,H,W): the frames become the video's time axis.
-  at::Tensor map = flat::camera::rppc_map(flat::camera::pixel_rays(cams, height, width));
+  const auto pixel = flat::camera::pixel_rays(cams, height, width);
+  at::Tensor map = rays == "plucker" ? flat::camera::plucker_map(pixel) : flat::camera::rppc_map(pixel);
   at::Tensor video = map.permute({1, 0, 2, 3}).unsqueeze(0);
   return {video.narrow(1, 0, 3).contiguous(), video.narrow(1, 3, 3).contiguous()};
 }
 
 at::Tensor encode_camera_latents(WanVAE& vae, const flat::camera::Cameras& cams, int64_t height, int64_t width,
-                                 bool streaming) {
+                                 bool streaming, const std::string& rays) {
   latent_frames(cams.size(), "encode_camera_latents: " + std::to_string(cams.size()) + " cameras");
   FLAT_CHECK(height % 8 == 0 && width % 8 == 0, "encode_camera_latents: height and width must be multiples of 8, got " +
                                                     std::to_string(height) + "x" + std::to_string(width));
   torch::NoGradGuard no_grad;
   const at::Tensor probe = vae->conv2->weight;
-  auto [ref, dir] = rppc_videos(cams.to(probe.device()), height, width);  // rays on the VAE's device
+  auto [ref, dir] = ray_videos(cams.to(probe.device()), height, width, rays);  // rays on the VAE's device
   // Both halves in one batch of 2 (one encoder pass), then side by side on channels.
   at::Tensor both = at::cat({ref, dir}, 0).to(probe.device(), probe.scalar_type());
   at::Tensor latents = vae->encode(both, streaming);

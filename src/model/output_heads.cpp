@@ -7,18 +7,17 @@
 
 namespace flat::model {
 
-std::vector<std::pair<std::string, ChannelRange>> head_groups(const primitives::TriangleChannels& c) {
-  // Three free offsets replace the Cholesky shape; the other layouts keep its name.
-  const std::string shape = c.shape_count == 6 ? "offsets" : "cholesky";
-  return {{"depth", ChannelRange{c.depth, 1}},
-          {shape, ChannelRange{c.shape, c.shape_count}},
-          {"rotation", ChannelRange{c.rotation, c.rotation_count}},
-          {"colour", ChannelRange{c.colour, c.colour_count}},
-          {"opacity", ChannelRange{c.opacity, 1}},
-          {"sigma", ChannelRange{c.sigma, 1}}};
+std::vector<std::pair<std::string, ChannelRange>> head_groups(const primitives::HeadChannels& c) {
+  std::vector<std::pair<std::string, ChannelRange>> groups = {{"depth", ChannelRange{c.depth, 1}},
+                                                              {c.shape_name, ChannelRange{c.shape, c.shape_count}},
+                                                              {"rotation", ChannelRange{c.rotation, c.rotation_count}},
+                                                              {"colour", ChannelRange{c.colour, c.colour_count}},
+                                                              {"opacity", ChannelRange{c.opacity, 1}}};
+  if (c.sigma >= 0) groups.push_back({"sigma", ChannelRange{c.sigma, 1}});  // the Gaussian layouts have none
+  return groups;
 }
 
-OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const primitives::TriangleChannels& layout,
+OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const primitives::HeadChannels& layout,
                                  const std::string& mode)
     : channels_(layout) {
   std::vector<std::pair<std::string, ChannelRange>> heads;

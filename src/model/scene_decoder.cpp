@@ -8,12 +8,12 @@
 
 namespace flat::model {
 
-SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config, const primitives::TriangleChannels& layout)
+SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config, const primitives::HeadChannels& layout)
     : config_(config) {
   config_.vae.check();
   if (config_.camera) {
     adapter = register_module("adapter", CameraAdapter(config_.camera_channels, config_.vae.z_dim,
-                                                       config_.adapter_zero_kernel));
+                                                       config_.adapter_zero_kernel, config_.adapter_zero_init));
   }
   conv2 = register_module("conv2", CausalConv3d(config_.vae.z_dim, config_.vae.z_dim, Int3{1, 1, 1}));
   decoder = register_module("decoder", Decoder3d(config_.vae, /*scene_variant=*/true));

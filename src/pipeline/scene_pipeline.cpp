@@ -6,6 +6,10 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "flat/gaussians/rasterize_gaussians.h"
+#include "flat/loss/regularisers_2dgs.h"
+#include "flat/primitives/ray_gaussians.h"
+#include "flat/surfels/rasterize_surfels.h"
 
 namespace flat::pipeline {
 
@@ -21,21 +25,27 @@ RenderedViews normalise_by_alpha(const render::RenderOutput& out) {
   return v;
 }
 
-primitives::TriangleSoup prune(const primitives::TriangleSoup& scene, double min_opacity) {
-  check_shape(scene.vertices, {-1, 3, 3}, "prune: vertices", "(N,3,3)");
+primitives::ScenePrimitives prune(const primitives::ScenePrimitives& scene, double min_opacity) {
+  check_shape(scene.opacities(), {-1}, "prune: opacities", "(N): one scene, no batch dimension");
   if (min_opacity <= 0) return scene;
-  auto keep = (scene.opacities.detach() >= min_opacity).nonzero().squeeze(1);
-  return {scene.vertices.index_select(0, keep), scene.colors.index_select(0, keep),
-          scene.opacities.index_select(0, keep), scene.sigmas.index_select(0, keep)};
+  return scene.index_select((scene.opacities().detach() >= min_opacity).nonzero().squeeze(1));
+}
+
+primitives::HeadChannels PipelineConfig::channels() const {
+  if (representation == primitives::kGaussians3d) return primitives::gaussian_channels(3);
+  if (representation == primitives::kSurfels2d) return primitives::gaussian_channels(2);
+  return triangles.channels();
 }
 
 ScenePipeline::ScenePipeline(PipelineConfig config, model::SceneDecoder decoder)
     : config_(std::move(config)), decoder_(std::move(decoder)) {
   FLAT_CHECK(!decoder_.is_empty(), "ScenePipeline: no scene decoder");
-  FLAT_CHECK(decoder_->channels().total == config_.triangles.channels().total,
+  const std::string layout = config_.representation == primitives::kTriangles
+                                 ? "the triangle layout '" + config_.triangles.parameterisation + "'"
+                                 : "the " + config_.representation + " layout";
+  FLAT_CHECK(decoder_->channels().total == config_.channels().total,
              "ScenePipeline: the decoder's heads give " + std::to_string(decoder_->channels().total) +
-                 " channels but the triangle layout '" + config_.triangles.parameterisation + "' needs " +
-                 std::to_string(config_.triangles.channels().total));
+                 " channels but " + layout + " needs " + std::to_string(config_.channels().total));
 }
 
 namespace {
@@ -48,9 +58,19 @@ int64_t check_input(const SceneInput& in) {
   check_shape(in.input_c2w, {B, T, 4, 4}, "pipeline: input camera-to-world", "(B,T,4,4)");
   return T;
 }
+
+// Raw head outputs (B,C,t,H/2,W/2) of `cams` (B*t anchors) -> primitives.
+primitives::ScenePrimitives build_primitives(const at::Tensor& raw, const camera::Cameras& cams,
+                                             const PipelineConfig& cfg) {
+  const int64_t h = raw.size(3) * 2, w = raw.size(4) * 2;
+  if (cfg.representation == primitives::kTriangles)
+    return primitives::ScenePrimitives::of(primitives::build_triangles(raw, cams, h, w, cfg.triangles));
+  const int64_t scales = cfg.representation == primitives::kGaussians3d ? 3 : 2;
+  return primitives::ScenePrimitives::of(primitives::build_gaussians(raw, cams, h, w, cfg.triangles, scales));
+}
 }  // namespace
 
-primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool streaming) {
+primitives::ScenePrimitives ScenePipeline::decode(const SceneInput& in, bool streaming) {
   const int64_t B = in.video_latents.size(0), T = check_input(in);
   const auto device = decoder_->conv2->weight.device();
   auto latents = in.video_latents.to(device, at::kFloat);
@@ -58,47 +78,61 @@ primitives::TriangleSoup ScenePipeline::decode(const SceneInput& in, bool stream
   auto raw = decoder_->forward(latents, camera_latents, streaming);  // (B,C,T,h*4,w*4)
   FLAT_CHECK(raw.size(2) == T, "pipeline: decoded " + std::to_string(raw.size(2)) + " frames, expected " +
                                    std::to_string(T));
-  const int64_t image_h = raw.size(3) * 2, image_w = raw.size(4) * 2;
   camera::Cameras anchors{in.input_intrinsics.reshape({B * T, 4}).to(device, at::kFloat),
                           in.input_c2w.reshape({B * T, 4, 4}).to(device, at::kFloat)};
-  return primitives::build_triangles(raw, anchors, image_h, image_w, config_.triangles);
+  return build_primitives(raw, anchors, config_);
 }
 
-primitives::TriangleSoup ScenePipeline::decode_to(const SceneInput& in, const at::Device& out_device) {
+primitives::ScenePrimitives ScenePipeline::decode_to(const SceneInput& in, const at::Device& out_device) {
   const int64_t B = in.video_latents.size(0), T = check_input(in);
   at::NoGradGuard no_grad;
   const auto device = decoder_->conv2->weight.device();
   auto latents = in.video_latents.to(device, at::kFloat);
   auto camera_latents = in.camera_latents.defined() ? in.camera_latents.to(device, at::kFloat) : at::Tensor();
-  std::vector<primitives::TriangleSoup> parts;
+  std::vector<primitives::ScenePrimitives> parts;
   int64_t first = 0;
   decoder_->forward_chunks(latents, camera_latents, [&](const at::Tensor& raw) {
     const int64_t t = raw.size(2);
     FLAT_CHECK(first + t <= T, "pipeline: the decoder gave more than " + std::to_string(T) + " frames");
     camera::Cameras anchors{in.input_intrinsics.narrow(1, first, t).reshape({B * t, 4}).to(device, at::kFloat),
                             in.input_c2w.narrow(1, first, t).reshape({B * t, 4, 4}).to(device, at::kFloat)};
-    auto tri = primitives::build_triangles(raw, anchors, raw.size(3) * 2, raw.size(4) * 2, config_.triangles);
-    parts.push_back({tri.vertices.to(out_device, at::kFloat), tri.colors.to(out_device, at::kFloat),
-                     tri.opacities.to(out_device, at::kFloat), tri.sigmas.to(out_device, at::kFloat)});
+    parts.push_back(build_primitives(raw, anchors, config_).map(
+        [&](const at::Tensor& x) { return x.to(out_device, at::kFloat); }));
     first += t;
   });
   FLAT_CHECK(first == T, "pipeline: decoded " + std::to_string(first) + " frames, expected " + std::to_string(T));
-  auto cat = [&](auto member) {
-    std::vector<at::Tensor> xs;
-    for (const auto& p : parts) xs.push_back(p.*member);
-    return at::cat(xs, 1);
-  };
-  return {cat(&primitives::TriangleSoup::vertices), cat(&primitives::TriangleSoup::colors),
-          cat(&primitives::TriangleSoup::opacities), cat(&primitives::TriangleSoup::sigmas)};
+  return primitives::cat(parts, 1);
 }
 
-RenderedViews ScenePipeline::render(const primitives::TriangleSoup& scene, const camera::Cameras& cams,
+RenderedViews ScenePipeline::render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams,
                                     int64_t height, int64_t width) const {
-  auto kept = prune(scene, config_.prune_opacity);
-  auto out = render::rasterize(kept.vertices, kept.colors, kept.opacities, kept.sigmas, cams, height, width,
-                               config_.raster);
+  FLAT_CHECK(scene.representation == config_.representation,
+             "pipeline: a " + scene.representation + " scene given to a " + config_.representation + " pipeline");
+  const auto kept = prune(scene, config_.prune_opacity);
+  render::RenderOutput out;
+  if (kept.is_triangles()) {
+    const auto& t = kept.triangles;
+    out = render::rasterize(t.vertices, t.colors, t.opacities, t.sigmas, cams, height, width, config_.raster);
+  } else if (kept.representation == primitives::kGaussians3d) {
+    const auto& g = kept.gaussians;
+    out = gaussians::rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
+                                         config_.raster);
+  } else {
+    const auto& g = kept.gaussians;
+    out = surfels::rasterize_surfels(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
+                                     config_.raster);
+  }
+  // 3DGS has no surface normal: the paper takes its normals from the rendered
+  // depth by finite differences (zero outside the covered pixels).
+  if (!out.normal.defined()) {
+    const auto has = out.alpha > kMinAlphaForGeometry;
+    const auto depth = at::where(has, out.depth / at::where(has, out.alpha, at::ones_like(out.alpha)),
+                                 at::zeros_like(out.depth));
+    out.normal = loss::normals_from_depth(depth, cams.intrinsics.to(depth.device(), depth.scalar_type())) * out.alpha;
+  }
   auto views = normalise_by_alpha(out);
-  views.triangles = kept.vertices.size(0);
+  views.distortion = out.distortion;
+  views.triangles = kept.size();
   return views;
 }
 

@@ -91,10 +91,17 @@ ModelSignature model_signature(const PipelineConfig& p) {
   model.visit(d);
   std::string yaml;
   for (const auto& row : d.rows)
-    // Keys that change how the decoder runs, not its weights, stay out.
-    if (row.key != "pipeline.model.stream_trunk_frames" && row.key != "pipeline.model.activation_checkpointing")
+    // Keys that change how the decoder runs, not its weights, stay out, and
+    // so does the initialisation; the ablations' camera rays enter only when
+    // not the paper's (older signatures stay valid).
+    if (row.key != "pipeline.model.stream_trunk_frames" && row.key != "pipeline.model.activation_checkpointing" &&
+        row.key != "pipeline.model.adapter_zero_init" &&
+        !(row.key == "pipeline.model.camera_rays" && row.value == "rppc"))
       yaml += row.key + ": " + row.value + "\n";
-  yaml += "pipeline.triangles.channels: " + std::to_string(p.triangles.channels().total) + "\n";
+  // Triangle models keep the signature they always had; the Gaussian
+  // baselines name their representation (3DGS and triangles both have 12).
+  if (p.representation != primitives::kTriangles) yaml += "pipeline.representation: " + p.representation + "\n";
+  yaml += "pipeline.triangles.channels: " + std::to_string(p.channels().total) + "\n";
   return {yaml, config::to_yaml(p)};
 }
 
@@ -175,7 +182,7 @@ TrainedModel load_trained_model(const std::string& path, const std::string& conf
   config::apply_overrides(node, overrides, "--set");
   m.config = config::from_yaml<PipelineConfig>(node, m.config_source);
 
-  m.decoder = model::SceneDecoder(m.config.model, m.config.triangles.channels());
+  m.decoder = model::SceneDecoder(m.config.model, m.config.channels());
   const ModelSignature found{meta.count("model_signature") ? meta["model_signature"] : "", ""};
   load_model_weights(*m.decoder, tensors, found, model_signature(m.config), m.model_file);
   m.decoder->eval();

@@ -77,7 +77,9 @@ std::string write_random_lpips_weights(const std::string& path, uint64_t seed) {
 StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps) {
   torch::manual_seed(uint64_t(cfg.seed));
   TrainingSession session(cfg);
-  data::Loader loader(cfg.data);
+  data::LoaderConfig data_cfg = cfg.data;
+  data_cfg.camera_rays = cfg.pipeline.model.camera_rays;
+  data::Loader loader(data_cfg);
   StepBenchmark r;
   r.parameters_m = double(model::count_parameters(session.model())) / 1e6;
   std::vector<double> data, dec_f, ren_f, loss_f, rl_b, dec_b, opt, whole, unsynced;

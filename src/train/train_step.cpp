@@ -47,31 +47,35 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   AutocastScope autocast(bf16 && device.is_cuda(), device.type());
 
   pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
-  auto soup = pipeline.decode(in);
+  auto scene = pipeline.decode(in);
   clock.lap(&StepTimes::decode_forward);
-  // Non-finite triangles (NaN latents, a diverged model): the rasterizer
+  // Non-finite primitives (NaN latents, a diverged model): the rasterizer
   // refuses them, and the step is skipped like a non-finite loss.
-  auto finite = at::isfinite(soup.vertices).all() & at::isfinite(soup.colors).all() &
-                at::isfinite(soup.opacities).all() & at::isfinite(soup.sigmas).all();
+  const auto named = scene.named_tensors();
+  at::Tensor finite;
+  for (const auto& [name, t] : named) finite = finite.defined() ? finite & at::isfinite(t).all() : at::isfinite(t).all();
   if (!finite.item<bool>()) {
     r.finite = false;
     r.loss = NAN;
-    r.nonfinite = "decoded triangles:" + nonfinite_names({{"vertices", soup.vertices}, {"colors", soup.colors},
-                                                          {"opacities", soup.opacities}, {"sigmas", soup.sigmas}});
+    std::vector<std::pair<const char*, at::Tensor>> tensors;
+    for (const auto& [name, t] : named) tensors.push_back({name.c_str(), t});
+    r.nonfinite = "decoded " + scene.representation + ":" + nonfinite_names(tensors);
     return r;
   }
 
-  // Phase split: the rasterizer and losses see leaf copies of the triangles.
-  std::vector<at::Tensor> decoded = {soup.vertices, soup.colors, soup.opacities, soup.sigmas};
-  std::vector<at::Tensor> leaves;
-  for (const auto& t : decoded) leaves.push_back(t.detach().requires_grad_(true));
-  primitives::TriangleSoup leaf_soup{leaves[0], leaves[1], leaves[2], leaves[3]};
+  // Phase split: the rasterizer and losses see leaf copies of the primitives.
+  std::vector<at::Tensor> decoded, leaves;
+  for (const auto& [name, t] : named) {
+    decoded.push_back(t);
+    leaves.push_back(t.detach().requires_grad_(true));
+  }
+  const primitives::ScenePrimitives leaf_scene = scene.with_tensors(leaves);
 
-  const int64_t B = soup.batch();
+  const int64_t B = scene.batch();
   std::vector<pipeline::RenderedViews> rendered;
   for (int64_t b = 0; b < B; ++b) {
     const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
-    rendered.push_back(pipeline.render(leaf_soup.scene(b), batch.target_cameras(b).to(device), H, W));
+    rendered.push_back(pipeline.render(leaf_scene.scene(b), batch.target_cameras(b).to(device), H, W));
     r.triangles += rendered.back().triangles;
   }
   clock.lap(&StepTimes::render_forward);
@@ -89,7 +93,8 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
       li.target_depth = batch.target_depth[b].to(device, at::kFloat);
     if (batch.target_normals.defined() && batch.normals_present[b].item<bool>())
       li.target_normal = batch.target_normals[b].to(device, at::kFloat);
-    li.opacities = leaf_soup.opacities[b];
+    li.opacities = leaf_scene.opacities()[b];
+    li.distortion = views.distortion;
     li.intrinsics = batch.target_intrinsics[b].to(device, at::kFloat);
     auto result = objective(li);
     total = total.defined() ? total + result.total / double(B) : result.total / double(B);

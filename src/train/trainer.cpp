@@ -277,6 +277,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   // samples (b*W + r)*B/W ... of the stream, so the W shares together are the
   // batch one process would load (loader.h).
   data::LoaderConfig train_data = cfg.data;
+  train_data.camera_rays = cfg.pipeline.model.camera_rays;  // the camera latents the model reads
   if (dp) {
     FLAT_CHECK(cfg.data.batch_size % env.world_size == 0,
                "data.batch_size " + std::to_string(cfg.data.batch_size) + " is the global batch and must be a "
@@ -288,6 +289,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   if (!cfg.validation.datasets.empty()) {
     data::LoaderConfig v = cfg.data;
     v.datasets = cfg.validation.datasets;
+    v.camera_rays = cfg.pipeline.model.camera_rays;
     v.batch_size = 1;
     v.workers = 0;
     v.seed = 1000003;  // fixed: the same held-out views at every validation

@@ -83,7 +83,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
     optimiser = std::make_unique<AdamW>(vae->named_parameters().pairs(), adamw);
     return;
   }
-  decoder = model::SceneDecoder(cfg.pipeline.model, cfg.pipeline.triangles.channels());
+  decoder = model::SceneDecoder(cfg.pipeline.model, cfg.pipeline.channels());
   signature = pipeline::model_signature(cfg.pipeline);
   if (cfg.init.from == "wan_vae") {
     auto report = decoder->load_pretrained_vae(cfg.init.path);

@@ -282,3 +282,42 @@ TEST_CASE("loader: a start batch resumes the stream; ranks split it without over
   CHECK(resumed.next_batch_index() == 3);
   REQUIRE_THROWS_WITH(data::Loader(c, 0, 2, 2), FLAT_CONTAINS("rank 2 of world size 2"));
 }
+
+TEST_CASE("loader: the camera latents the model reads (RPPC, or the Plucker ablation's)", "[data][loader]") {
+  // Dataset "both": its scene holds RPPC (= 1) and Plucker (= 2) camera
+  // latents; dataset "rppc": only RPPC.
+  auto write = [](const fs::path& root, bool plucker) {
+    auto scene = data::read_scene((root / "s0").string());
+    data::LatentInfo info;
+    info.encoder = "random";
+    info.height = 8;
+    info.width = 8;
+    info.windows = {{0, 5}};
+    data::WindowLatents l{torch::zeros({16, 2, 1, 1}), torch::full({32, 2, 1, 1}, 1.0f)};
+    if (plucker) l.camera_plucker = torch::full({32, 2, 1, 1}, 2.0f);
+    data::write_scene_latents(scene, info, {l});
+    return data::read_scene((root / "s0").string());
+  };
+  auto both_root = make_dataset("loader_plucker_both", 1), rppc_root = make_dataset("loader_plucker_none", 1);
+  auto both = write(both_root, true), rppc = write(rppc_root, false);
+  CHECK(both.latents.plucker);
+  CHECK_FALSE(rppc.latents.plucker);
+  CHECK(data::read_window_latents(both, 0).camera.min().item<float>() == 1.0f);
+  CHECK(data::read_window_latents(both, 0, "plucker").camera.min().item<float>() == 2.0f);
+  REQUIRE_THROWS_WITH(data::read_window_latents(rppc, 0, "plucker"),
+                      FLAT_CONTAINS("no Plucker camera latents") && FLAT_CONTAINS("--camera-rays rppc,plucker"));
+  for (const auto& [root, want] : {std::make_pair(both_root, 2.0f), std::make_pair(rppc_root, -1.0f)}) {
+    auto c = tiny_config(root);
+    c.workers = 0;
+    c.batch_size = 1;
+    c.latents = true;
+    c.camera_rays = "plucker";
+    if (want > 0) {
+      CHECK(data::Loader(c).next().camera_latents.min().item<float>() == want);
+    } else {
+      REQUIRE_THROWS_WITH(data::Loader(c).next(), FLAT_CONTAINS("no Plucker camera latents"));
+    }
+    c.camera_rays = "rppc";
+    CHECK(data::Loader(c).next().camera_latents.min().item<float>() == 1.0f);
+  }
+}

@@ -122,6 +122,23 @@ TEST_CASE("means per dataset skip failures and scenes without normals; the table
   CHECK(back.psnr == 22);
 }
 
+TEST_CASE("runs over seeds: one row per ablation, mean and spread beside the baselines", "[eval]") {
+  CHECK(eval::seed_group("three_offsets seed 1") == "three_offsets");
+  CHECK(eval::seed_group("stage1").empty());
+  CHECK(eval::seed_group("a seed x").empty());
+  auto run = [](const std::string& name, double psnr) {
+    eval::EvalResults r;
+    r.name = name;
+    r.scores = {score("rooms", "a", psnr, 0.8), score("rooms", "b", psnr + 2, 0.6)};
+    return r;
+  };
+  CHECK(eval::seeds_markdown({run("paper seed 0", 20), run("ts seed 0", 18)}).empty());  // no row has two seeds
+  auto t = eval::seeds_markdown({run("paper seed 0", 20), run("paper seed 1", 23), run("ts seed 0", 18)});
+  CHECK(t.find("| paper | 2 | 22.50 ± 3.00 |") != std::string::npos);
+  CHECK(t.find("| ts | 1 | 19.00 |") != std::string::npos);
+  CHECK(t.find("spread") != std::string::npos);
+}
+
 TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings guarded, --compare", "[eval]") {
   const auto dir = test::scratch_dir("eval_run");
   const std::string model = (dir / "model.safetensors").string();

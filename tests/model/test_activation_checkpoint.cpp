@@ -4,7 +4,7 @@
 
 #include "flat/model/activation_checkpoint.h"
 #include "flat/model/scene_decoder.h"
-#include "flat/primitives/triangle_channels.h"
+#include "flat/primitives/head_channels.h"
 #include "test_support.h"
 
 using namespace flat;

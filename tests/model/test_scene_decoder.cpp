@@ -156,7 +156,7 @@ TEST_CASE("Camera latents: RPPC halves encoded separately, cached on disk", "[mo
   auto cams = orbit(5);
   auto lat = encode_camera_latents(vae, cams, 16, 24);
   REQUIRE(lat.sizes() == at::IntArrayRef({1, 32, 2, 2, 3}));
-  auto [ref, dir] = rppc_videos(cams, 16, 24);
+  auto [ref, dir] = ray_videos(cams, 16, 24);
   torch::NoGradGuard no_grad;
   CHECK(flat::test::rel_error(lat.narrow(1, 0, 16), vae->encode(ref)) < 1e-6);
   CHECK(flat::test::rel_error(lat.narrow(1, 16, 16), vae->encode(dir)) < 1e-6);
@@ -165,4 +165,30 @@ TEST_CASE("Camera latents: RPPC halves encoded separately, cached on disk", "[mo
   save_camera_latents((dir_path / "cam.safetensors").string(), lat, 16, 24);
   CHECK(torch::equal(load_camera_latents((dir_path / "cam.safetensors").string()), lat));
   REQUIRE_THROWS_WITH(encode_camera_latents(vae, orbit(4), 16, 24), FLAT_CONTAINS("1+4k"));
+}
+
+TEST_CASE("Fusion ablation: without zero-init the camera term changes the output from the start", "[model][scene]") {
+  torch::manual_seed(8);
+  auto cfg = tiny_config();
+  cfg.adapter_zero_init = false;
+  SceneDecoder scene(cfg);
+  CHECK(scene->adapter->zero_conv->weight.abs().sum().item<double>() > 0.0);
+  torch::NoGradGuard no_grad;
+  auto latent = torch::randn({1, 16, 2, 2, 2});
+  auto cams = torch::randn({1, 32, 2, 2, 2});
+  CHECK((scene->forward(latent, cams) - scene->forward(latent)).abs().max().item<double>() > 1e-4);
+}
+
+TEST_CASE("Camera latents of the conditioning ablation: Plucker rays (o x d, d)", "[model][scene]") {
+  flat::camera::Cameras cams;
+  cams.intrinsics = torch::tensor({0.8, 1.0, 0.5, 0.5}, torch::kFloat).repeat({5, 1});
+  cams.c2w = torch::eye(4).repeat({5, 1, 1});
+  cams.c2w.select(2, 3).narrow(1, 0, 3).copy_(torch::tensor({1.0f, -2.0f, 0.5f}));
+  auto [ref, dir] = ray_videos(cams, 8, 16, "plucker");
+  auto [rref, rdir] = ray_videos(cams, 8, 16, "rppc");
+  CHECK(torch::equal(dir, rdir));  // both carry the direction second
+  // moment = o x d: orthogonal to d, and not the RPPC point.
+  CHECK((ref * dir).sum(1).abs().max().item<float>() < 1e-5);
+  CHECK((ref - rref).abs().max().item<float>() > 0.1);
+  REQUIRE_THROWS_WITH(ray_videos(cams, 8, 16, "pluecker"), FLAT_CONTAINS("rppc or plucker"));
 }

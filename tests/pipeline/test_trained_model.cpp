@@ -77,3 +77,20 @@ TEST_CASE("--config layers over the config the model carries", "[pipeline]") {
   CHECK(m.config.triangles.depth_far == 12.0);      // kept from the model
   CHECK(m.config_source.find("window.yaml") != std::string::npos);
 }
+
+TEST_CASE("the model signature names the ablations that change what the weights mean", "[pipeline]") {
+  pipeline::PipelineConfig p;
+  const std::string paper = pipeline::model_signature(p).yaml;
+  CHECK(paper.find("camera_rays") == std::string::npos);  // older files stay valid
+  CHECK(paper.find("representation") == std::string::npos);
+  p.model.adapter_zero_init = false;  // an initialisation: the weights mean the same
+  CHECK(pipeline::model_signature(p).yaml == paper);
+  p.model.camera_rays = "plucker";
+  CHECK(pipeline::model_signature(p).yaml.find("pipeline.model.camera_rays: plucker") != std::string::npos);
+  pipeline::PipelineConfig g;
+  g.representation = "3dgs";
+  CHECK(pipeline::model_signature(g).yaml.find("pipeline.representation: 3dgs") != std::string::npos);
+  CHECK(g.channels().total == 12);
+  g.representation = "2dgs";
+  CHECK(g.channels().total == 11);
+}

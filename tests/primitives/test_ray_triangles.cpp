@@ -5,32 +5,14 @@
 
 #include "flat/camera/rays.h"
 #include "flat/primitives/ray_triangles.h"
+#include "primitive_cameras.h"
 #include "test_support.h"
 
 using namespace flat::primitives;
 using flat::camera::Cameras;
+using flat::test::make_cameras;
 
 namespace {
-
-// V cameras with varied rotations, positions and (anisotropic) intrinsics.
-Cameras make_cameras(int64_t V, at::ScalarType dtype = at::kFloat) {
-  auto g = at::make_generator<at::CPUGeneratorImpl>(7);
-  auto q = at::randn({V, 4}, g, at::kDouble);
-  q = q / q.norm(2, -1, true);
-  auto w = q.select(1, 0), x = q.select(1, 1), y = q.select(1, 2), z = q.select(1, 3);
-  auto R = at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}, -1).view({V, 3, 3});
-  auto c2w = at::eye(4, at::kDouble).repeat({V, 1, 1});
-  c2w.narrow(1, 0, 3).narrow(2, 0, 3).copy_(R);
-  c2w.narrow(1, 0, 3).select(2, 3).copy_(at::randn({V, 3}, g, at::kDouble));
-  auto K = at::empty({V, 4}, at::kDouble);
-  K.select(1, 0).copy_(0.7 + 0.3 * at::rand({V}, g, at::kDouble));  // fx/W: up to ~70 deg FOV
-  K.select(1, 1).copy_(0.9 + 0.3 * at::rand({V}, g, at::kDouble));
-  K.select(1, 2).copy_(0.4 + 0.2 * at::rand({V}, g, at::kDouble));
-  K.select(1, 3).copy_(0.4 + 0.2 * at::rand({V}, g, at::kDouble));
-  return Cameras{K.to(dtype), c2w.to(dtype)};
-}
 
 at::Tensor normals_of(const at::Tensor& v) {  // (...,3,3) -> unit (...,3)
   auto n = at::cross(v.select(-2, 1) - v.select(-2, 0), v.select(-2, 2) - v.select(-2, 0), -1);
@@ -48,7 +30,7 @@ constexpr int64_t B = 2, T = 2, H = 12, W = 16;
 
 TEST_CASE("triangle channel layout: 12 channels in the documented order", "[primitives]") {
   auto c = triangle_channels("ray_centred");
-  CHECK(c.total == kDefaultTriangleChannels);
+  CHECK(c.total == kDefaultHeadChannels);
   CHECK(c.depth == 0);
   CHECK(c.shape == 1);
   CHECK(c.rotation == 4);

@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "flat/model/scene_decoder.h"
-#include "flat/primitives/triangle_channels.h"
+#include "flat/primitives/head_channels.h"
 #include "flat/train/adamw.h"
 #include "flat/train/blockwise_quantisation.h"
 #include "test_support.h"

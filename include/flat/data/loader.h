@@ -58,6 +58,9 @@ struct LoaderConfig {
   bool input_images = false;  // also load the F input frames (for on-the-fly encoding)
   bool latents = false;       // require and load the window's precomputed latents
   bool skip_bad_scenes = false;
+  // Not a YAML key: the trainer copies pipeline.model.camera_rays here, so the
+  // loader reads the camera latents the model is conditioned on.
+  std::string camera_rays = "rppc";
 
   template <class V>
   void visit(V& v) {

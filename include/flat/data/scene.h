@@ -41,6 +41,7 @@ struct LatentInfo {
   int64_t seed = 0;              // initialisation seed when random
   int64_t height = 0, width = 0; // frame size the latents were encoded at
   std::string dtype = "float32";
+  bool plucker = false;          // "camera_plucker.<i>" are present too (the conditioning ablation)
   std::vector<LatentWindow> windows;
   bool present() const { return !file.empty(); }
 };

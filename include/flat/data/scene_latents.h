@@ -2,6 +2,8 @@
 // precompute its latents using the frozen VAE"), in <scene>/latents.safetensors:
 //   "video.<i>"  (16,T',h,w) normalised VAE latent of window i
 //   "camera.<i>" (32,T',h,w) RPPC camera latents of window i (E_ref ; E_dir)
+//   "camera_plucker.<i>" (32,T',h,w) optional: Plucker camera latents (the
+//                conditioning ablation; flat_latents --camera-rays rppc,plucker)
 //   "frames.<i>" (F,) int64 the frames window i covers, F = 1+4(T'-1)
 // Metadata: format "flat-scene-latents", version, encoder "pretrained"|"random",
 // weights (file name), seed, height, width. scene.json repeats this under
@@ -20,6 +22,7 @@ inline constexpr const char* kLatentsFile = "latents.safetensors";
 struct WindowLatents {
   at::Tensor video;   // (16,T',h,w)
   at::Tensor camera;  // (32,T',h,w)
+  at::Tensor camera_plucker;  // (32,T',h,w) or undefined (written only when asked for)
 };
 
 // Writes latents.safetensors and records `info` (file name set here) in scene.json.
@@ -42,6 +45,8 @@ void discard_staged_latents(const StagedLatents& staged);  // never throws
 int remove_stale_staged_latents(const Scene& scene);
 
 // Reads window i; checks shapes against scene.json and names scene and file on errors.
-WindowLatents read_window_latents(const Scene& scene, size_t window);
+// camera_rays: "rppc" (the paper) puts "camera.<i>" in .camera, "plucker" puts
+// "camera_plucker.<i>" there (an error naming the scene when it has none).
+WindowLatents read_window_latents(const Scene& scene, size_t window, const std::string& camera_rays = "rppc");
 
 }  // namespace flat::data

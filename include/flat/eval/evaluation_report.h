@@ -50,6 +50,14 @@ EvalResults read_results_json(const std::string& path);
 // One row per run; datasets are the union over runs. Definitions follow the table.
 std::string table1_markdown(const std::vector<EvalResults>& runs);
 
+// Runs named "<row> seed <n>" grouped by row: per metric the mean over the
+// seeds and the spread (max - min), and the baselines' means beside them, so
+// that a gap between rows can be told from seed noise. "" when no row has two
+// or more seeds.
+std::string seeds_markdown(const std::vector<EvalResults>& runs);
+// The row of a run name "<row> seed <n>" ("" when the name has no seed).
+std::string seed_group(const std::string& name);
+
 // The metric definitions printed under every table.
 std::string metric_definitions(const std::string& ssim_convention);
 

@@ -23,6 +23,7 @@ struct InputSpec {
   std::string latents_file, cameras_file;
   std::string vae_weights;  // Wan VAE weights to encode missing camera latents ("" = none)
   bool need_camera_latents = true;  // the model has a camera adapter
+  std::string camera_rays = "rppc";  // which camera latents the model reads (pipeline.model.camera_rays)
 };
 
 struct InferInput {

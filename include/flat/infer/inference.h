@@ -45,7 +45,8 @@ struct InferOptions {
 
 struct InferSummary {
   std::string out_dir;
-  int64_t triangles_decoded = 0, triangles_kept = 0;
+  std::string representation = "triangles";  // pipeline.representation of the model
+  int64_t triangles_decoded = 0, triangles_kept = 0;  // primitives (triangles or Gaussians)
   double prune_opacity = 0;  // kept: opacity at or above this
   int64_t input_views = 0, novel_views = 0;
   double decode_seconds = 0, export_seconds = 0, render_seconds = 0, total_seconds = 0;

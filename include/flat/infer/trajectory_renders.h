@@ -12,7 +12,7 @@
 
 #include "flat/camera/cameras.h"
 #include "flat/pipeline/scene_pipeline.h"
-#include "flat/primitives/triangle_soup.h"
+#include "flat/primitives/scene_primitives.h"
 
 namespace flat::infer {
 
@@ -27,11 +27,11 @@ struct TrajectoryRenders {
 // Depth range for display: the 2nd and 98th percentile of the triangle
 // centroids' depth (those in front) in each of `cameras`, the lowest and the
 // highest of them; falls back to [0.1, 10].
-std::pair<double, double> display_depth_range(const primitives::TriangleSoup& scene, const camera::Cameras& cameras);
+std::pair<double, double> display_depth_range(const primitives::ScenePrimitives& scene, const camera::Cameras& cameras);
 
 // scene: one scene, already pruned (the pipeline prunes again with its own
 // threshold). folder: where the files go ("" = write nothing).
-TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const primitives::TriangleSoup& scene,
+TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const primitives::ScenePrimitives& scene,
                                     const camera::Cameras& cams, int64_t height, int64_t width,
                                     const std::string& folder, int64_t chunk, bool keep_video_frames,
                                     std::pair<double, double> depth_range, const std::string& progress_label);

@@ -19,8 +19,9 @@ namespace flat::model {
 
 class CameraAdapterImpl : public torch::nn::Module {
  public:
-  // zero_kernel: 3 (3x3x3 zero conv) or 1 (1x1x1).
-  CameraAdapterImpl(int64_t camera_channels, int64_t latent_channels, int64_t zero_kernel);
+  // zero_kernel: 3 (3x3x3 zero conv) or 1 (1x1x1). zero_init false keeps the
+  // conv's default (random) initialisation: the ablation "without zero-init".
+  CameraAdapterImpl(int64_t camera_channels, int64_t latent_channels, int64_t zero_kernel, bool zero_init = true);
   // (B,32,T',h,w) -> (B,16,T',h,w), the term added to the latent.
   at::Tensor forward(const at::Tensor& camera_latents, StreamCache* cache = nullptr);
 

@@ -16,13 +16,16 @@
 
 namespace flat::model {
 
-// The RPPC map as two videos (1,3,F,H,W): reference point and direction.
-std::pair<at::Tensor, at::Tensor> rppc_videos(const flat::camera::Cameras& cams, int64_t height, int64_t width);
+// The ray map as two videos (1,3,F,H,W): rays "rppc" (reference point,
+// direction: the paper) or "plucker" (moment o x d, direction: the
+// conditioning ablation).
+std::pair<at::Tensor, at::Tensor> ray_videos(const flat::camera::Cameras& cams, int64_t height, int64_t width,
+                                             const std::string& rays = "rppc");
 
 // Runs without autograd, on the VAE's device and dtype. F = cams.size() must be
 // 1+4k; height and width are the video's (multiples of 8).
 at::Tensor encode_camera_latents(WanVAE& vae, const flat::camera::Cameras& cams, int64_t height, int64_t width,
-                                 bool streaming = true);
+                                 bool streaming = true, const std::string& rays = "rppc");
 
 // Cache files: tensor "camera_latents" plus metadata (frames, height, width).
 void save_camera_latents(const std::string& path, const at::Tensor& latents, int64_t height, int64_t width);

@@ -34,6 +34,13 @@ struct SceneDecoderConfig {
   bool camera = true;                // build the camera adapter
   int64_t camera_channels = 32;      // [E_ref; E_dir]
   int64_t adapter_zero_kernel = 3;   // the zero conv's kernel (3: 3x3x3, 1: 1x1x1)
+  // Ablations of the paper's Camera Conditioning (Table "Ablation studies"):
+  // the rays the camera latents encode ("rppc", the paper, or "plucker"; the
+  // data must hold them: flat_latents --camera-rays), and whether the fusion
+  // conv starts at zero (false: PyTorch's default init, so the pretrained
+  // decoder sees a random camera term from the first step).
+  std::string camera_rays = "rppc";
+  bool adapter_zero_init = true;
   // Streaming: latent frames the low-resolution trunk (adapter, conv1, middle,
   // up to the first temporal upsample) takes per step. Its activations are
   // small (~14 MB a latent frame at 54x96, bf16), and one frame at a time
@@ -51,6 +58,9 @@ struct SceneDecoderConfig {
     v.field("camera", camera, "camera conditioning through the zero-initialised adapter");
     v.field("camera_channels", camera_channels, config::positive(), "channels of the camera latents");
     v.field("adapter_zero_kernel", adapter_zero_kernel, config::range(1, 3), "kernel of the zero conv: 1 or 3");
+    v.field("camera_rays", camera_rays, config::one_of({"rppc", "plucker"}),
+            "rays of the camera latents: rppc (paper) | plucker (ablation; needs flat_latents --camera-rays)");
+    v.field("adapter_zero_init", adapter_zero_init, "start the fusion conv at zero (paper); false: the ablation");
     v.field("stream_trunk_frames", stream_trunk_frames, config::positive(),
             "streaming: latent frames per step of the low-resolution trunk");
     v.field("activation_checkpointing", activation_checkpointing,
@@ -64,7 +74,7 @@ class SceneDecoderImpl : public torch::nn::Module {
   // colour model: primitives::TriangleParamConfig::channels()); the default is
   // the paper's ray-centred RGB layout, 12 channels.
   explicit SceneDecoderImpl(const SceneDecoderConfig& config = {},
-                            const primitives::TriangleChannels& layout = primitives::triangle_channels("ray_centred"));
+                            const primitives::HeadChannels& layout = primitives::triangle_channels("ray_centred"));
 
   // latent (B,16,T',h,w) normalised; camera_latents (B,32,T',h,w) or undefined
   // (no camera term). Returns raw head outputs (B, channels().total, T, 4h, 4w).
@@ -83,7 +93,7 @@ class SceneDecoderImpl : public torch::nn::Module {
   // x re-laid out as ChannelsLast3d when the weights are (to_channels_last_3d).
   at::Tensor channels_last_input(const at::Tensor& x) const;
 
-  const primitives::TriangleChannels& channels() const { return heads->channels(); }
+  const primitives::HeadChannels& channels() const { return heads->channels(); }
   const SceneDecoderConfig& config() const { return config_; }
 
   // Initialise conv2 and the decoder from a Wan 2.1 VAE file (either naming);

@@ -3,8 +3,10 @@
 //   video latents + camera latents + input cameras
 //     -> model::SceneDecoder (adapter, Wan decoder without the last x2, heads)
 //     -> primitives::build_triangles (ray-centred, one triangle per 2x2 block)
+//        (or build_gaussians: the 3DGS / 2DGS baselines, pipeline.representation)
 //     -> prune (opacity below a threshold; paper: 0.4 at the high-resolution stage)
-//     -> render::rasterize into target cameras
+//     -> render::rasterize into target cameras (gaussians:: / surfels:: rasterizers;
+//        3DGS normals from depth finite differences, as the paper)
 //     -> RenderedViews with depth and normals divided by alpha
 //
 // Training, validation, flat_infer, flat_eval and the mesh post-optimisation
@@ -18,14 +20,20 @@
 #include "flat/camera/cameras.h"
 #include "flat/core/config.h"
 #include "flat/model/scene_decoder.h"
+#include "flat/primitives/head_channels.h"
 #include "flat/primitives/ray_triangles.h"
-#include "flat/primitives/triangle_soup.h"
+#include "flat/primitives/scene_primitives.h"
 #include "flat/render/rasterize.h"
 
 namespace flat::pipeline {
 
 struct PipelineConfig {
+  // "triangles" (the paper), or the Table 1 baselines "3dgs" / "2dgs": the same
+  // decoder, data and losses with Gaussian heads and rasterizers.
+  std::string representation = primitives::kTriangles;
   model::SceneDecoderConfig model;
+  // The triangles' parameterisation; its depth_*, init_scale, shape_min,
+  // colour_activation and opacity_shift also configure the Gaussian heads.
   primitives::TriangleParamConfig triangles;
   render::RasterSettings raster;
   // Triangles with opacity below this are removed before rendering (no
@@ -34,12 +42,17 @@ struct PipelineConfig {
 
   template <class V>
   void visit(V& v) {
+    v.field("representation", representation,
+            config::one_of({primitives::kTriangles, primitives::kGaussians3d, primitives::kSurfels2d}),
+            "primitives: triangles | 3dgs | 2dgs (the paper's Table 1 baselines)");
     v.section("model", model);
     v.section("triangles", triangles);
     v.section("raster", raster);
     v.field("prune_opacity", prune_opacity, config::range(0.0, 1.0),
-            "remove triangles below this opacity before rendering (paper: 0.4 at 768p)");
+            "remove primitives below this opacity before rendering (paper: 0.4 at 768p)");
   }
+  // The heads' channel layout for this representation.
+  primitives::HeadChannels channels() const;
 };
 
 // A batch of scenes to decode: latents and the cameras of the T input frames.
@@ -55,8 +68,9 @@ struct RenderedViews {
   at::Tensor alpha;   // (V,1,H,W)
   at::Tensor depth;   // (V,1,H,W) alpha-normalised (expected depth of what is hit); 0 where alpha <= min_alpha
   at::Tensor normal;  // (V,3,H,W) alpha-normalised camera-space normal; 0 where alpha <= min_alpha
-  at::Tensor max_weight;  // (N,) largest blending weight per triangle (no gradient)
-  int64_t triangles = 0;  // triangles rendered (after pruning)
+  at::Tensor distortion;  // (V,1,H,W) 2DGS depth distortion map (representation 2dgs only)
+  at::Tensor max_weight;  // (N,) largest blending weight per primitive (no gradient)
+  int64_t triangles = 0;  // primitives rendered (after pruning)
 };
 
 // Below this alpha a pixel has no depth or normal (division would amplify noise).
@@ -65,10 +79,10 @@ inline constexpr double kMinAlphaForGeometry = 1e-4;
 // Depth and normal divided by alpha where alpha > kMinAlphaForGeometry.
 RenderedViews normalise_by_alpha(const render::RenderOutput& out);
 
-// The scene's triangles whose opacity is >= min_opacity (a copy through
-// index_select, differentiable for the kept ones). scene: one scene
-// (vertices (N,3,3)). min_opacity <= 0 returns the scene as is.
-primitives::TriangleSoup prune(const primitives::TriangleSoup& scene, double min_opacity);
+// The scene's primitives whose opacity is >= min_opacity (a copy through
+// index_select, differentiable for the kept ones). scene: one scene (no batch
+// dimension). min_opacity <= 0 returns the scene as is.
+primitives::ScenePrimitives prune(const primitives::ScenePrimitives& scene, double min_opacity);
 
 class ScenePipeline {
  public:
@@ -78,15 +92,15 @@ class ScenePipeline {
   // Decodes B scenes: (B, N = T*H/2*W/2) triangles; the image size of the
   // input frames is 8x the latent's. streaming: bounded-memory decoding
   // (model::SceneDecoder::forward), same result.
-  primitives::TriangleSoup decode(const SceneInput& input, bool streaming = false);
-  // Streaming decode whose triangles are built a latent frame at a time and
+  primitives::ScenePrimitives decode(const SceneInput& input, bool streaming = false);
+  // Streaming decode whose primitives are built a latent frame at a time and
   // moved to `out_device` as they come (e.g. the CPU), so the decoding memory
   // on the model's device stays bounded whatever the number of latent frames.
   // Same triangles as decode(input, true); no autograd graph is kept.
-  primitives::TriangleSoup decode_to(const SceneInput& input, const at::Device& out_device);
-  // Renders one scene (vertices (N,3,3)) into cams, after pruning by the
-  // config's prune_opacity.
-  RenderedViews render(const primitives::TriangleSoup& scene, const camera::Cameras& cams, int64_t height,
+  primitives::ScenePrimitives decode_to(const SceneInput& input, const at::Device& out_device);
+  // Renders one scene (no batch dimension) into cams, after pruning by the
+  // config's prune_opacity, with the rasterizer of its representation.
+  RenderedViews render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams, int64_t height,
                        int64_t width) const;
 
   const PipelineConfig& config() const { return config_; }

@@ -12,7 +12,7 @@
 
 #include "flat/camera/cameras.h"
 #include "flat/core/config.h"
-#include "flat/primitives/triangle_channels.h"
+#include "flat/primitives/head_channels.h"
 #include "flat/primitives/triangle_soup.h"
 
 namespace flat::primitives {
@@ -85,7 +85,7 @@ struct TriangleParamConfig {
   // throws flat::Error naming the fields.
   void check() const;
   // The raw channel layout this config expects.
-  TriangleChannels channels() const;
+  HeadChannels channels() const;
 };
 
 // raw: (B,C,T,H/2,W/2) head outputs, C = cfg.channels().total, any float dtype

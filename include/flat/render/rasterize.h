@@ -56,6 +56,7 @@ struct RenderOutput {
   at::Tensor normal;        // (V,3,H,W)  sum_k w_k n_k: camera space, facing the camera, alpha-weighted
   at::Tensor median_depth;  // (V,1,H,W)  depth where transmittance crosses 0.5 (no gradient)
   at::Tensor max_weight;    // (N,)       max blending weight over all pixels and views (no gradient)
+  at::Tensor distortion;    // (V,1,H,W)  2DGS depth distortion (surfels::rasterize_surfels only; else undefined)
 };
 
 // vertices (N,3,3) world, colors (N,3), opacities (N) in [0,1], sigmas (N) > 0.

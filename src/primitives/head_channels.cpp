@@ -1,15 +1,18 @@
-#include "flat/primitives/triangle_channels.h"
+#include "flat/primitives/head_channels.h"
 
 #include "flat/core/error.h"
 #include "flat/primitives/ray_triangles.h"
 
 namespace flat::primitives {
 
-TriangleChannels triangle_channels(const std::string& parameterisation, int64_t sh_degree) {
+HeadChannels triangle_channels(const std::string& parameterisation, int64_t sh_degree) {
   FLAT_CHECK(sh_degree >= 0 && sh_degree <= 3,
              "triangle_channels: sh_degree must be in [0, 3], got " + std::to_string(sh_degree));
-  TriangleChannels c;
-  if (parameterisation == "three_offsets") c.shape_count = 6;
+  HeadChannels c;
+  if (parameterisation == "three_offsets") {
+    c.shape_count = 6;
+    c.shape_name = "offsets";
+  }
   else if (parameterisation == "global_rotation") c.rotation_count = 4;
   else FLAT_CHECK(parameterisation == "ray_centred",
                   "triangle_channels: unknown parameterisation '" + parameterisation +
@@ -26,6 +29,24 @@ TriangleChannels triangle_channels(const std::string& parameterisation, int64_t 
   return c;
 }
 
+HeadChannels gaussian_channels(int64_t scale_count) {
+  FLAT_CHECK(scale_count == 2 || scale_count == 3,
+             "gaussian_channels: scale_count must be 3 (3DGS) or 2 (2DGS), got " + std::to_string(scale_count));
+  HeadChannels c;
+  c.depth = 0;
+  c.shape = 1;
+  c.shape_count = scale_count;
+  c.shape_name = "scale";
+  c.rotation = c.shape + scale_count;
+  c.rotation_count = 4;
+  c.colour = c.rotation + 4;
+  c.colour_count = 3;
+  c.opacity = c.colour + 3;
+  c.sigma = -1;
+  c.total = c.opacity + 1;
+  return c;
+}
+
 void TriangleParamConfig::check() const {
   FLAT_CHECK(depth_far > depth_near, "triangle config: depth_far (" + std::to_string(depth_far) +
                                          ") must exceed depth_near (" + std::to_string(depth_near) + ")");
@@ -38,7 +59,7 @@ void TriangleParamConfig::check() const {
   (void)triangle_channels(parameterisation, sh_degree);  // checks the names
 }
 
-TriangleChannels TriangleParamConfig::channels() const {
+HeadChannels TriangleParamConfig::channels() const {
   return triangle_channels(parameterisation, colour_activation == "sh" ? sh_degree : 0);
 }
 

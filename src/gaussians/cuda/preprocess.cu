@@ -1,0 +1,105 @@
+// Per-(view, Gaussian) kernels, one thread a Gaussian (the maths is
+// gaussians/gaussian_math.h, shared with the CPU reference):
+//   preprocess  screen data (ScreenGaussian), pixel box, depth key and tiles
+//               touched, with the view's pair count (one atomic a block);
+//   chain       the backward's chain rule: a Gaussian's summed screen
+//               gradient of the view -> its mean, scales, quaternion, colour
+//               and opacity (one thread a Gaussian: no atomics, views in turn).
+#include "gaussians/cuda/gaussian_kernels.h"
+
+namespace flat::gaussians::cuda {
+namespace {
+
+constexpr int kThreads = 128;
+
+__global__ void __launch_bounds__(kThreads)
+    preprocess_kernel(const float* __restrict__ means, const float* __restrict__ scales,
+                      const float* __restrict__ rotations, const float* __restrict__ colors,
+                      const float* __restrict__ opacities, int64_t n, ViewParams vp,
+                      ScreenGaussian<float>* __restrict__ screen, PixelBox* __restrict__ boxes,
+                      uint32_t* __restrict__ depth_keys, int32_t* __restrict__ tile_counts,
+                      unsigned long long* __restrict__ total) {
+  __shared__ long long warp_sums[kThreads / 32];
+  const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
+  int32_t count = 0;
+  if (i < n) {
+    ScreenGaussian<float> g;
+    PixelBox b;
+    const float opacity = opacities[i];
+    if (preprocess_forward(means + 3 * i, scales + 3 * i, rotations + 4 * i, opacity, vp.cam, vp.k, vp.width,
+                           vp.height, g, b)) {
+      count = (tile_hi(b.x1) - tile_lo(b.x0)) * (tile_hi(b.y1) - tile_lo(b.y0));
+      g.opacity = opacity;
+      for (int c = 0; c < 3; ++c) g.color[c] = colors[3 * i + c];
+      g.pad[0] = g.pad[1] = 0.f;
+      screen[i] = g;
+      boxes[i] = b;
+      depth_keys[i] = render::depth_sort_key(g.z);
+    }
+    tile_counts[i] = count;
+  }
+  // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
+  long long sum = count;
+  for (int d = 16; d > 0; d >>= 1) sum += __shfl_down_sync(0xffffffffu, sum, d);
+  if ((threadIdx.x & 31) == 0) warp_sums[threadIdx.x / 32] = sum;
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    long long block_sum = 0;
+    for (int w = 0; w < kThreads / 32; ++w) block_sum += warp_sums[w];
+    if (block_sum > 0) atomicAdd(total, (unsigned long long)block_sum);
+  }
+}
+
+__global__ void __launch_bounds__(kThreads)
+    chain_kernel(const float* __restrict__ means, const float* __restrict__ scales,
+                 const float* __restrict__ rotations, int64_t n, ViewParams vp,
+                 const int32_t* __restrict__ tile_counts, float* __restrict__ screen_grads,
+                 float* __restrict__ g_means, float* __restrict__ g_scales, float* __restrict__ g_rotations,
+                 float* __restrict__ g_colors, float* __restrict__ g_opacities) {
+  const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
+  if (i >= n || tile_counts[i] == 0) return;  // culled in this view: its row was never written
+  float4* row = reinterpret_cast<float4*>(screen_grads + kGradStride * i);
+  float r[kGradStride];
+#pragma unroll
+  for (int v = 0; v < kGradStride / 4; ++v) {
+    const float4 a = row[v];
+    r[4 * v] = a.x, r[4 * v + 1] = a.y, r[4 * v + 2] = a.z, r[4 * v + 3] = a.w;
+    row[v] = make_float4(0.f, 0.f, 0.f, 0.f);  // ready for the next view
+  }
+  ScreenGrad<float> g;
+  g.mean2d[0] = r[0], g.mean2d[1] = r[1];
+  g.conic[0] = r[2], g.conic[1] = r[3], g.conic[2] = r[4];
+  g.opacity = r[5];
+  g.color[0] = r[6], g.color[1] = r[7], g.color[2] = r[8];
+  g.z = r[9];
+  for (int c = 0; c < 3; ++c) g_colors[3 * i + c] += g.color[c];
+  g_opacities[i] += g.opacity;
+  float gm[3] = {0.f, 0.f, 0.f}, gs[3] = {0.f, 0.f, 0.f}, gq[4] = {0.f, 0.f, 0.f, 0.f};
+  preprocess_backward(means + 3 * i, scales + 3 * i, rotations + 4 * i, vp.cam, vp.width, vp.height, g, gm, gs, gq);
+  for (int c = 0; c < 3; ++c) g_means[3 * i + c] += gm[c], g_scales[3 * i + c] += gs[c];
+  for (int c = 0; c < 4; ++c) g_rotations[4 * i + c] += gq[c];
+}
+
+int blocks_of(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
+
+}  // namespace
+
+void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
+                       const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
+                       PixelBox* boxes, uint32_t* depth_keys, int32_t* tile_counts, unsigned long long* total,
+                       cudaStream_t stream) {
+  cudaMemsetAsync(total, 0, sizeof(unsigned long long), stream);
+  if (n == 0) return;
+  preprocess_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, colors, opacities, n, vp, screen,
+                                                           boxes, depth_keys, tile_counts, total);
+}
+
+void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n, const ViewParams& vp,
+                  const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales,
+                  float* g_rotations, float* g_colors, float* g_opacities, cudaStream_t stream) {
+  if (n == 0) return;
+  chain_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, n, vp, tile_counts, screen_grads,
+                                                      g_means, g_scales, g_rotations, g_colors, g_opacities);
+}
+
+}  // namespace flat::gaussians::cuda

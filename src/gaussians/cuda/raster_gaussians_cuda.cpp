@@ -1,0 +1,191 @@
+// libtorch glue of the CUDA Gaussian rasterizer: allocation, the per-view loop
+// and the launch checks. Per view: preprocess all Gaussians (screen data,
+// pixel boxes, depth keys, tile counts), wait for the view's pair count (the
+// one host sync a view; the input value checks ride on the first), bin and
+// sort the pairs, composite. The backward recomputes the screen data per view
+// (one cheap kernel) instead of keeping it.
+#include "gaussians/cuda/raster_gaussians_cuda.h"
+
+#include <limits>
+#include <vector>
+
+#include <ATen/cuda/CUDAContext.h>
+#include <c10/cuda/CUDAGuard.h>
+
+#include "flat/core/error.h"
+#include "gaussians/cuda/gaussian_kernels.h"
+
+namespace flat::gaussians::cuda {
+
+void check_launch(const char* what) {
+  const cudaError_t err = cudaGetLastError();
+  if (err != cudaSuccess)
+    fail(std::string("rasterize_gaussians (cuda): ") + what + " failed: " + cudaGetErrorString(err));
+}
+
+namespace {
+
+constexpr int64_t kScreenFloats = sizeof(ScreenGaussian<float>) / sizeof(float);
+static_assert(sizeof(ScreenGaussian<float>) == 12 * sizeof(float), "ScreenGaussian layout (three float4)");
+static_assert(sizeof(ScreenGrad<float>) == kScreenGradSize * sizeof(float), "ScreenGrad layout");
+static_assert(sizeof(PixelBox) == 4 * sizeof(int), "PixelBox layout");
+// Per view, kept for the backward: sorted ids, tile ranges, final T, last entry.
+constexpr int64_t kViewState = 4;
+
+ViewParams make_params(const GaussianInputs& in, int64_t view) {
+  ViewParams vp;
+  vp.cam = make_camera_view(in.w2c.data_ptr<float>() + 16 * view, in.K.data_ptr<float>() + 4 * view);
+  vp.k = in.k;
+  vp.width = (int)in.width;
+  vp.height = (int)in.height;
+  vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
+  vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
+  for (int c = 0; c < 3; ++c) vp.background[c] = in.background.data_ptr<float>()[c];
+  return vp;
+}
+
+void check_dtype(const GaussianInputs& in) {
+  FLAT_CHECK(in.means.scalar_type() == at::kFloat, "rasterize_gaussians (cuda): expected float32 tensors");
+  FLAT_CHECK(in.means.size(0) < std::numeric_limits<int32_t>::max(),
+             "rasterize_gaussians (cuda): at most 2^31-1 Gaussians, got " + std::to_string(in.means.size(0)));
+}
+
+// One view's preprocessing state over all N Gaussians (reused across views).
+struct Preprocessed {
+  at::Tensor screen, boxes, depth_keys, counts, total;
+  explicit Preprocessed(int64_t n, const at::TensorOptions& f)
+      : screen(at::empty({n * kScreenFloats}, f)),
+        boxes(at::empty({n * 4}, f.dtype(at::kInt))),
+        depth_keys(at::empty({n}, f.dtype(at::kInt))),
+        counts(at::empty({n}, f.dtype(at::kInt))),
+        total(at::empty({1}, f.dtype(at::kLong))) {}
+  void run(const GaussianInputs& in, const ViewParams& vp, cudaStream_t stream) {
+    launch_preprocess(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(),
+                      in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), in.means.size(0), vp, screen_ptr(),
+                      reinterpret_cast<PixelBox*>(boxes.data_ptr<int>()),
+                      reinterpret_cast<uint32_t*>(depth_keys.data_ptr<int>()), counts.data_ptr<int>(),
+                      reinterpret_cast<unsigned long long*>(total.data_ptr<int64_t>()), stream);
+    check_launch("preprocessing");
+  }
+  ScreenGaussian<float>* screen_ptr() { return reinterpret_cast<ScreenGaussian<float>*>(screen.data_ptr<float>()); }
+};
+
+// Bins one view's pairs: returns the sorted ids and the tile ranges ((tiles, 2) int).
+void bin_view(Preprocessed& pre, int64_t n, int64_t pairs, const ViewParams& vp, const at::TensorOptions& f,
+              cudaStream_t stream, at::Tensor& ids_sorted, at::Tensor& ranges) {
+  const int tiles = vp.tiles_x * vp.tiles_y;
+  ranges = at::zeros({tiles, 2}, f.dtype(at::kInt));
+  ids_sorted = at::empty({pairs}, f.dtype(at::kInt));
+  if (pairs == 0) return;
+  const at::Tensor ends = at::empty({n}, f.dtype(at::kInt));
+  size_t scan_bytes = 0;
+  scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
+  at::Tensor keys = at::empty({pairs}, f.dtype(at::kLong)), keys_sorted = at::empty({pairs}, f.dtype(at::kLong));
+  at::Tensor ids = at::empty({pairs}, f.dtype(at::kInt));
+  size_t sort_bytes = 0;
+  sort_pairs(nullptr, sort_bytes, nullptr, nullptr, nullptr, nullptr, pairs, tiles, stream);
+  at::Tensor temp = at::empty({(int64_t)std::max(scan_bytes, sort_bytes) + 1}, f.dtype(at::kByte));
+  scan_tile_counts(temp.data_ptr(), scan_bytes, pre.counts.data_ptr<int>(), ends.data_ptr<int>(), n, stream);
+  check_launch("tile count scan");
+  auto* key_ptr = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
+  auto* sorted_ptr = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
+  launch_duplicate(pre.counts.data_ptr<int>(), ends.data_ptr<int>(), reinterpret_cast<PixelBox*>(pre.boxes.data_ptr<int>()),
+                   reinterpret_cast<uint32_t*>(pre.depth_keys.data_ptr<int>()), n, vp, key_ptr, ids.data_ptr<int>(),
+                   stream);
+  check_launch("pair duplication");
+  sort_pairs(temp.data_ptr(), sort_bytes, key_ptr, sorted_ptr, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), pairs,
+             tiles, stream);
+  check_launch("pair sort");
+  launch_tile_ranges(sorted_ptr, pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+  check_launch("tile ranges");
+}
+
+}  // namespace
+
+GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector<at::Tensor>& views) {
+  check_dtype(in);
+  const c10::cuda::CUDAGuard guard(in.means.device());
+  const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
+  const int64_t V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W, N = in.means.size(0);
+  const auto f = in.means.options();
+  GaussianOutputs out = GaussianOutputs::images_for(in);
+  at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
+  Preprocessed pre(N, f);
+  at::Tensor host_total = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
+  views.clear();
+  for (int64_t v = 0; v < V; ++v) {
+    const ViewParams vp = make_params(in, v);
+    pre.run(in, vp, stream);
+    FLAT_CHECK(cudaMemcpyAsync(host_total.data_ptr(), pre.total.data_ptr(), sizeof(int64_t), cudaMemcpyDeviceToHost,
+                               stream) == cudaSuccess,
+               "rasterize_gaussians (cuda): copying the pair count to the host failed");
+    FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): preprocessing failed");
+    if (v == 0) check_input_values(in);  // the statistics' copy was enqueued before: now on the host
+    const int64_t pairs = host_total.data_ptr<int64_t>()[0];
+    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(),
+               "rasterize_gaussians (cuda): " + std::to_string(pairs) + " (Gaussian, tile) pairs in view " +
+                   std::to_string(v) + ", more than 2^31-1");
+    at::Tensor ids, ranges;
+    bin_view(pre, N, pairs, vp, f, stream, ids, ranges);
+    at::Tensor t_final, last;
+    if (for_backward) {
+      t_final = at::empty({H, W}, f);
+      last = at::empty({H, W}, f.dtype(at::kInt));
+    }
+    ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,
+                      out.alpha.data_ptr<float>() + v * HW,
+                      out.depth.data_ptr<float>() + v * HW,
+                      out.median_depth.data_ptr<float>() + v * HW,
+                      for_backward ? t_final.data_ptr<float>() : nullptr,
+                      for_backward ? last.data_ptr<int>() : nullptr};
+    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(),
+                          pre.screen_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()),
+                          stream);
+    check_launch("forward compositing");
+    if (for_backward) views.insert(views.end(), {ids, ranges, t_final, last});
+  }
+  if (V == 0) {
+    FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): value checks failed");
+    check_input_values(in);
+  }
+  out.max_weight = max_bits.view(at::kFloat);  // non-negative floats, stored as their bits
+  return out;
+}
+
+GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
+                       const at::Tensor& grad_alpha, const at::Tensor& grad_depth) {
+  check_dtype(in);
+  const c10::cuda::CUDAGuard guard(in.means.device());
+  const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
+  const int64_t V = in.w2c.size(0), HW = in.height * in.width, N = in.means.size(0);
+  FLAT_CHECK((int64_t)views.size() == V * kViewState, "rasterize_gaussians (cuda): backward state does not match the views");
+  const auto f = in.means.options();
+  GaussianGrads g;
+  g.means = at::zeros_like(in.means);
+  g.scales = at::zeros_like(in.scales);
+  g.rotations = at::zeros_like(in.rotations);
+  g.colors = at::zeros_like(in.colors);
+  g.opacities = at::zeros_like(in.opacities);
+  at::Tensor screen_grads = at::zeros({N * kGradStride}, f);  // zeroed again row by row by the chain
+  Preprocessed pre(N, f);
+  for (int64_t v = 0; v < V; ++v) {
+    const ViewParams vp = make_params(in, v);
+    pre.run(in, vp, stream);  // the forward's screen data, recomputed bit for bit
+    const at::Tensor& ids = views[kViewState * v];
+    const at::Tensor& ranges = views[kViewState * v + 1];
+    BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
+                       grad_depth.data_ptr<float>() + v * HW, views[kViewState * v + 2].data_ptr<float>(),
+                       views[kViewState * v + 3].data_ptr<int>()};
+    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(),
+                           pre.screen_ptr(), vp, img, screen_grads.data_ptr<float>(), stream);
+    check_launch("backward compositing");
+    launch_chain(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(), N, vp,
+                 pre.counts.data_ptr<int>(), screen_grads.data_ptr<float>(), g.means.data_ptr<float>(),
+                 g.scales.data_ptr<float>(), g.rotations.data_ptr<float>(), g.colors.data_ptr<float>(),
+                 g.opacities.data_ptr<float>(), stream);
+    check_launch("chain rule");
+  }
+  return g;
+}
+
+}  // namespace flat::gaussians::cuda

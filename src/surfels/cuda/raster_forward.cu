@@ -1,0 +1,89 @@
+// Forward compositing: one block per 16x16 tile, one thread per pixel. The
+// block reads the tile's depth-sorted list in rounds of kBlockSize surfels
+// staged in shared memory (one record a thread); each pixel walks the round
+// front to back with shade() (surfels/surfel_math.h) and stops before its
+// transmittance would drop below t_min; the block leaves once all its pixels
+// have stopped. Same per-pixel semantics as surfels/cpu/raster_surfels_cpu.cpp.
+#include "surfels/cuda/surfel_kernels.h"
+
+namespace flat::surfels::cuda {
+namespace {
+
+__global__ void __launch_bounds__(kBlockSize)
+    raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ values,
+                          const PixelSurfel<float>* __restrict__ surfels, ViewParams vp, ForwardImages out,
+                          unsigned int* __restrict__ max_weight_bits) {
+  __shared__ PixelSurfel<float> stage[kBlockSize];
+  __shared__ unsigned int wmax[kBlockSize];  // per staged surfel: its largest weight in the tile (float bits)
+  const int tile = blockIdx.x, tid = threadIdx.x;
+  const int x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
+  const int y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
+  const bool inside = x < vp.width && y < vp.height;
+  const float px = (float)x + 0.5f, py = (float)y + 0.5f;
+  const int2 range = ranges[tile];
+  bool done = !inside;
+  float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
+  float m_ref = 0.f, m1 = 0.f, m2 = 0.f, dist = 0.f;
+  int last = 0;
+  for (int base = range.x; base < range.y; base += kBlockSize) {
+    if (__syncthreads_count(done) == kBlockSize) break;
+    const int count = min(kBlockSize, range.y - base);
+    if (tid < count) stage[tid] = surfels[values[base + tid]];
+    wmax[tid] = 0u;
+    __syncthreads();
+    for (int j = 0; !done && j < count; ++j) {
+      const PixelSurfel<float>& s = stage[j];
+      SurfelFragment<float> f;
+      if (!shade(s, px, py, vp.k, f)) continue;
+      const float test_T = T * (1.f - f.alpha);
+      if (test_T < vp.k.t_min) {
+        done = true;
+        break;
+      }
+      const float w = f.alpha * T;
+#pragma unroll
+      for (int c = 0; c < 3; ++c) acc[c] += w * s.color[c], acc[4 + c] += w * s.normal[c];
+      acc[3] += w * f.z;
+      if (T > 0.5f) median = f.z;
+      const float m_abs = ndc_depth(f.z);
+      if (last == 0) m_ref = m_abs;
+      const float m = m_abs - m_ref;
+      dist += w * (m * m * (1.f - T) + m2 - 2.f * m * m1);
+      m1 += w * m;
+      m2 += w * m * m;
+      atomicMax(&wmax[j], __float_as_uint(w));  // non-negative floats order as their bits
+      T = test_T;
+      last = base + j - range.x + 1;
+    }
+    __syncthreads();
+    if (tid < count && wmax[tid] != 0u) atomicMax(&max_weight_bits[stage[tid].index], wmax[tid]);
+  }
+  if (!inside) return;
+  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+#pragma unroll
+  for (int c = 0; c < 3; ++c) {
+    out.rgb[c * HW + p] = acc[c] + T * vp.background[c];
+    out.normal[c * HW + p] = acc[4 + c];
+  }
+  out.alpha[p] = 1.f - T;
+  out.depth[p] = acc[3];
+  out.median[p] = median;
+  out.distortion[p] = dist;
+  out.t_final[p] = T;
+  out.last[p] = last;
+  out.dist[p] = m_ref;
+  out.dist[HW + p] = m1;
+  out.dist[2 * HW + p] = m2;
+}
+
+}  // namespace
+
+void launch_raster_forward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
+                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
+                           cudaStream_t stream) {
+  const int tiles = vp.tiles_x * vp.tiles_y;
+  if (tiles == 0) return;
+  raster_forward_kernel<<<tiles, kBlockSize, 0, stream>>>(ranges, values, surfels, vp, out, max_weight_bits);
+}
+
+}  // namespace flat::surfels::cuda

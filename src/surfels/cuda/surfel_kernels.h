@@ -1,0 +1,105 @@
+// Launchers of the surfel rasterizer's CUDA kernels. Plain header (no torch):
+// the .cu files implement these; surfels/cuda/raster_surfels_cuda.cpp calls
+// them, one view at a time, with buffers it allocates through libtorch.
+// Everything is enqueued on `stream`, nothing synchronises.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+
+#include <cuda_runtime.h>
+
+#include "surfels/surfel_math.h"
+
+namespace flat::surfels::cuda {
+
+// 16 x 16 pixels per tile, one thread per pixel (surfels cover tens of pixels
+// each, unlike FLAT's ~2x2-pixel triangles: larger tiles, fewer pairs).
+constexpr int kTileSize = 16;
+constexpr int kBlockSize = kTileSize * kTileSize;
+
+struct ViewParams {
+  CameraView<float> cam;
+  RasterConstants k;
+  int width = 0, height = 0;
+  int tiles_x = 0, tiles_y = 0;
+  float background[3] = {0.f, 0.f, 0.f};
+};
+
+// Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
+FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
+FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
+
+// Per surfel of all n (surfels/cuda/preprocess.cu): tiles touched (0 when
+// culled) and, for the others only, the PixelSurfel screen data, support box
+// and depth sort key (render::depth_sort_key of the centre's camera z).
+void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
+                       const float* opacities, int64_t n, const ViewParams& vp, PixelSurfel<float>* surfels,
+                       SurfelRect* rects, int32_t* tile_counts, uint32_t* depth_keys, cudaStream_t stream);
+
+// Binning (surfels/cuda/binning.cu). Inclusive prefix sum of the tile counts
+// (cub; `temp` of temp_bytes, ask with temp == nullptr);
+void scan_tile_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* offsets, int64_t n,
+                      cudaStream_t stream);
+// one (key, surfel) pair per touched tile, key = tile << 24 | depth key;
+void launch_duplicate(const int32_t* offsets, const int32_t* tile_counts, const SurfelRect* rects,
+                      const uint32_t* depth_keys, int64_t n, const ViewParams& vp, uint64_t* keys, int32_t* values,
+                      cudaStream_t stream);
+// stable radix sort of the pairs by key (tile, then depth, then surfel index);
+void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* values_in,
+                int32_t* values_out, int64_t count, int num_tiles, cudaStream_t stream);
+// ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
+void launch_tile_ranges(const uint64_t* sorted_keys, int64_t count, int2* ranges, cudaStream_t stream);
+
+// Per-pixel state the forward keeps for the backward, (H,W) each: final
+// transmittance, number of list entries processed, and the distortion's
+// totals (the reference NDC depth m_ref and the sums of w m, w m^2, m from
+// m_ref: the (3,H,W) `dist` map).
+struct ForwardImages {  // channel-major (C,H,W), one view
+  float* rgb;
+  float* alpha;
+  float* depth;
+  float* normal;
+  float* median;
+  float* distortion;
+  float* t_final;
+  int32_t* last;
+  float* dist;
+};
+
+// Compositing (surfels/cuda/raster_forward.cu): one block per tile. values:
+// the sorted surfel indices; max_weight_bits (N): each surfel's largest
+// blending weight so far (float bits, atomicMax).
+void launch_raster_forward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
+                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
+                           cudaStream_t stream);
+
+constexpr int kSurfelGradStride = 20;  // SurfelGrad's 18 floats, padded
+static_assert(kSurfelGradStride >= kSurfelGradSize, "padded SurfelGrad rows");
+
+struct BackwardImages {  // one view: upstream gradients and the forward's per-pixel state
+  const float* g_rgb;
+  const float* g_alpha;
+  const float* g_depth;
+  const float* g_normal;
+  const float* g_distortion;
+  const float* t_final;
+  const int32_t* last;
+  const float* dist;
+};
+
+// Accumulates SurfelGrad<float> rows (kSurfelGradStride floats, by surfel
+// index) into surfel_grads (surfels/cuda/raster_backward.cu).
+void launch_raster_backward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
+                            const ViewParams& vp, const BackwardImages& in, float* surfel_grads, cudaStream_t stream);
+
+// Chain rule of one view (surfels/cuda/preprocess_backward.cu): the rows of the
+// surfels visible in it (tile_counts > 0) to the inputs' gradients (added).
+void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n,
+                  const CameraView<float>& cam, const int32_t* tile_counts, const float* surfel_grads,
+                  float* g_means, float* g_scales, float* g_rotations, float* g_colors, float* g_opacities,
+                  cudaStream_t stream);
+
+// Throws flat::Error naming `what` if the last launch failed (defined in the glue).
+void check_launch(const char* what);
+
+}  // namespace flat::surfels::cuda

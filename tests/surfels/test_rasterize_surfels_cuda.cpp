@@ -1,0 +1,159 @@
+// CUDA surfel kernels against the CPU reference on random scenes: every
+// forward output and every gradient. Tolerances as docs/rasterizer_2dgs.md
+// ("Tolerances"). Skipped without a GPU.
+#include <torch/torch.h>
+
+#include "flat/surfels/rasterize_surfels.h"
+#include "surfel_scenes.h"
+#include "test_support.h"
+
+using flat::render::RasterSettings;
+using flat::render::RenderOutput;
+using flat::surfels::rasterize_surfels;
+
+namespace {
+
+// CUDA vs CPU, float32 both. Forward: relative L2 error, and the fraction of
+// elements that differ by more than 1e-4 (a fragment whose alpha sits within
+// rounding of alpha_min, or whose rho3d and rho2d are within rounding of each
+// other, may take another branch on each side).
+constexpr double kForwardTol = 1e-4;
+constexpr double kForwardMismatchFraction = 1e-3;
+// The distortion sums squared differences of nearby NDC depths: float keeps
+// fewer of its digits.
+constexpr double kDistortionTol = 1e-3;
+constexpr double kGradTol = 2e-3;  // colours, opacities
+// Geometry (means, scales, rotations): fragments within rounding of a branch
+// (alpha_min, the alpha cap, the low-pass switch, whose depth jumps) can move
+// a surfel's gradient by O(itself): at most kGeomOutliers of the surfels may
+// differ by more than 1e-3 of the largest gradient, the others must agree to
+// kGeomGradTol (relative L2). A wrong kernel moves most surfels and fails both.
+constexpr double kGeomGradTol = 2e-3;
+constexpr double kGeomOutliers = 0.01;
+
+struct Result {
+  RenderOutput out;
+  std::vector<torch::Tensor> grads;
+};
+
+Result run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int64_t H, int64_t W,
+           const RasterSettings& settings, const torch::Device& dev, const std::vector<torch::Tensor>& weights) {
+  std::vector<torch::Tensor> in = {s.means.to(dev), s.scales.to(dev), s.rotations.to(dev), s.colors.to(dev),
+                                   s.opacities.to(dev)};
+  for (auto& t : in) t.requires_grad_(true);
+  auto out = rasterize_surfels(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, settings);
+  auto loss = (out.rgb * weights[0].to(dev)).sum() + (out.alpha * weights[1].to(dev)).sum() +
+              (out.depth * weights[2].to(dev)).sum() + (out.normal * weights[3].to(dev)).sum() +
+              (out.distortion * weights[4].to(dev)).sum();
+  auto grads = torch::autograd::grad({loss}, in);
+  for (auto& g : grads) g = g.cpu();
+  return {out, grads};
+}
+
+void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s, uint64_t seed, double scale_lo = 0.03,
+             double scale_hi = 0.4) {
+  auto scene = flat::test::random_surfels(n, torch::kFloat, seed, scale_lo, scale_hi);
+  auto cams = flat::test::test_cameras(V);
+  torch::manual_seed(seed);
+  const std::vector<torch::Tensor> w = {torch::randn({V, 3, H, W}), torch::randn({V, 1, H, W}),
+                                        torch::randn({V, 1, H, W}) * 0.3, torch::randn({V, 3, H, W}),
+                                        torch::randn({V, 1, H, W}) * 100.0};
+  auto cpu = run(scene, cams, H, W, s, torch::kCPU, w);
+  auto gpu = run(scene, cams, H, W, s, torch::Device(torch::kCUDA, 0), w);
+  const char* out_names[] = {"rgb", "alpha", "depth", "normal", "median_depth", "max_weight", "distortion"};
+  const torch::Tensor c_out[] = {cpu.out.rgb,          cpu.out.alpha,      cpu.out.depth,     cpu.out.normal,
+                                 cpu.out.median_depth, cpu.out.max_weight, cpu.out.distortion};
+  const torch::Tensor g_out[] = {gpu.out.rgb,          gpu.out.alpha,      gpu.out.depth,     gpu.out.normal,
+                                 gpu.out.median_depth, gpu.out.max_weight, gpu.out.distortion};
+  for (int i = 0; i < 7; ++i) {
+    const double e = flat::test::rel_error(g_out[i].cpu(), c_out[i]);
+    const double frac = (g_out[i].cpu() - c_out[i]).abs().gt(1e-4).to(torch::kDouble).mean().item<double>();
+    INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
+    std::printf("surfels cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed,
+                out_names[i], e, frac);
+    CHECK(e < (i == 6 ? kDistortionTol : kForwardTol));
+    CHECK(frac < kForwardMismatchFraction);
+  }
+  REQUIRE(cpu.out.alpha.max().item<float>() > 0.5f);
+  REQUIRE(cpu.out.distortion.max().item<float>() > 0.0f);
+  const char* g_names[] = {"means", "scales", "rotations", "colors", "opacities"};
+  for (int i = 0; i < 5; ++i) {
+    const double e = flat::test::rel_error(gpu.grads[i], cpu.grads[i]);
+    INFO("grad " << g_names[i] << " rel error " << e);
+    std::printf("surfels cuda-vs-cpu seed %llu grad %s: rel %.2e\n", (unsigned long long)seed, g_names[i], e);
+    CHECK(torch::isfinite(gpu.grads[i]).all().item<bool>());
+    CHECK(cpu.grads[i].abs().max().item<double>() > 0.0);
+    if (i >= 3) {
+      CHECK(e < kGradTol);
+      continue;
+    }
+    const auto per_surfel = (gpu.grads[i] - cpu.grads[i]).abs().reshape({n, -1}).amax(1);
+    const auto outlier = per_surfel.gt(1e-3 * cpu.grads[i].abs().max().item<double>());
+    const double frac = outlier.to(torch::kDouble).mean().item<double>();
+    const auto keep = outlier.logical_not();
+    const double e_rest = flat::test::rel_error(gpu.grads[i].index({keep}), cpu.grads[i].index({keep}));
+    INFO(g_names[i] << " gradient outliers " << frac << ", rel error of the others " << e_rest);
+    std::printf("surfels cuda-vs-cpu seed %llu grad %s: %lld outlier surfels of %lld, rel error of the others %.2e\n",
+                (unsigned long long)seed, g_names[i], (long long)outlier.sum().item<int64_t>(), (long long)n, e_rest);
+    CHECK(frac <= kGeomOutliers);
+    CHECK(e_rest < kGeomGradTol);
+  }
+}
+
+}  // namespace
+
+TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 1)", "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  compare(200, 1, 40, 56, RasterSettings{}, 101);
+}
+
+TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 3, partial tiles, background, alpha cap)",
+          "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  RasterSettings s;
+  s.background = {0.3, 0.6, 0.1};
+  s.alpha_max = 0.9;
+  compare(500, 3, 45, 70, s, 202);
+}
+
+TEST_CASE("rasterize_surfels cuda: many surfels per tile (several shared-memory rounds) and large surfels",
+          "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  compare(1500, 2, 32, 48, RasterSettings{}, 303, 0.1, 1.0);
+}
+
+TEST_CASE("rasterize_surfels cuda: pixel-sized surfels (low-pass filter) match the CPU reference", "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  compare(3000, 2, 64, 96, RasterSettings{}, 404, 0.02, 0.12);
+}
+
+TEST_CASE("rasterize_surfels cuda: empty scene, culled surfels and bad values", "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  const torch::Device dev(torch::kCUDA, 0);
+  auto cams = flat::test::test_cameras(2).to(dev);
+  auto opts = torch::TensorOptions().device(dev);
+  RasterSettings settings;
+  settings.background = {0.1, 0.2, 0.3};
+  auto m = torch::zeros({0, 3}, opts).requires_grad_(true);
+  auto out = rasterize_surfels(m, torch::zeros({0, 2}, opts), torch::zeros({0, 4}, opts), torch::zeros({0, 3}, opts),
+                               torch::zeros({0}, opts), cams, 20, 30, settings);
+  CHECK(out.alpha.abs().max().item<float>() == 0.0f);
+  CHECK((out.rgb[1][2] - 0.3f).abs().max().item<float>() < 1e-7f);
+  (out.rgb.sum() + out.distortion.sum()).backward();
+  CHECK(m.grad().numel() == 0);
+  auto behind = torch::tensor({{0.0f, 0.0f, -2.0f}, {0.0f, 0.0f, 0.005f}}, opts).requires_grad_(true);
+  auto r = rasterize_surfels(behind, torch::full({2, 2}, 0.5f, opts), torch::tensor({{1.f, 0.f, 0.f, 0.f}}, opts).repeat({2, 1}),
+                             torch::ones({2, 3}, opts), torch::full({2}, 0.9f, opts), cams, 20, 30, settings);
+  CHECK(r.alpha.abs().max().item<float>() == 0.0f);
+  (r.rgb.sum() + r.depth.sum()).backward();
+  CHECK(behind.grad().abs().max().item<float>() == 0.0f);
+  auto s = flat::test::random_surfels(50, torch::kFloat, 7);
+  auto nan_means = s.means.clone();
+  nan_means[3][1] = std::nanf("");
+  REQUIRE_THROWS_WITH(rasterize_surfels(nan_means.to(dev), s.scales.to(dev), s.rotations.to(dev), s.colors.to(dev),
+                                        s.opacities.to(dev), cams, 20, 30, settings),
+                      FLAT_CONTAINS("means"));
+  REQUIRE_THROWS_WITH(rasterize_surfels(s.means.to(dev), -s.scales.to(dev), s.rotations.to(dev), s.colors.to(dev),
+                                        s.opacities.to(dev), cams, 20, 30, settings),
+                      FLAT_CONTAINS("scales"));
+}
