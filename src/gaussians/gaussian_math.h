@@ -45,7 +45,8 @@ struct alignas(16) ScreenGaussian {
   T opacity;
   T color[3];
   T z;           // camera depth of the mean (the depth output's value)
-  T pad[2];
+  T extent2;     // the support's bound e2 on q (below): no kept fragment has q > extent2
+  T pad;
 };
 
 // Pixels [x0,x1) x [y0,y1) whose centres may reach alpha_min (and q <= 9).
@@ -196,6 +197,7 @@ FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T 
   T e2 = T(kSupportSq);
   if (k.alpha_min > 0.f) e2 = tmin(e2, T(2) * std::log(opacity / T(k.alpha_min)));
   e2 *= T(1.001);
+  out.extent2 = e2;
   const T hx = std::sqrt(e2 * pr.cov[0]), hy = std::sqrt(e2 * pr.cov[2]);
   // Pixel x is covered when its centre x + 0.5 lies in [mx - hx, mx + hx]; clamp before int conversion.
   const T big = T(1 << 24);
@@ -282,6 +284,33 @@ FLAT_HD void preprocess_backward(const T* mean, const T* scale, const T* quat, c
   for (int c = 0; c < 3; ++c) gm[c] += cam.R[c] * gt[0] + cam.R[3 + c] * gt[1] + cam.R[6 + c] * gt[2];
 }
 
+// ---------------------------------------------------------------- tiles
+// d^T conic d.
+template <class T>
+FLAT_HD T quad_form(const ScreenGaussian<T>& g, T dx, T dy) {
+  return g.conic[0] * dx * dx + T(2) * g.conic[1] * dx * dy + g.conic[2] * dy * dy;
+}
+
+// Smallest q = d^T conic d over the rectangle of points [x0, x1] x [y0, y1]
+// (x0 <= x1, y0 <= y1; pixel units): 0 when it holds the mean, else the
+// smallest over its four edges (conic is positive definite), each a 1-D
+// quadratic minimised in closed form and clamped to the edge. The CUDA
+// binning skips a tile whose pixel centres all have q > extent2.
+template <class T>
+FLAT_HD T min_q_over_rect(const ScreenGaussian<T>& g, T x0, T x1, T y0, T y1) {
+  const T lx = x0 - g.mx, hx = x1 - g.mx, ly = y0 - g.my, hy = y1 - g.my;
+  if (lx <= T(0) && hx >= T(0) && ly <= T(0) && hy >= T(0)) return T(0);
+  const T a = g.conic[0], b = g.conic[1], c = g.conic[2];
+  T best = T(1e30);
+  for (int side = 0; side < 2; ++side) {
+    const T dx = side ? hx : lx;  // vertical edge: q minimal at dy = -b dx / c
+    best = tmin(best, quad_form(g, dx, tmin(tmax(-b * dx / c, ly), hy)));
+    const T dy = side ? hy : ly;  // horizontal edge: at dx = -b dy / a
+    best = tmin(best, quad_form(g, tmin(tmax(-b * dy / a, lx), hx), dy));
+  }
+  return best;
+}
+
 // ---------------------------------------------------------------- fragment
 // What one pixel computes of one Gaussian; reused by the backward.
 template <class T>
@@ -297,7 +326,7 @@ template <class T>
 FLAT_HD bool shade(const ScreenGaussian<T>& g, T px, T py, const GaussianConstants& k, Fragment<T>& f) {
   f.dx = px - g.mx;
   f.dy = py - g.my;
-  const T q = g.conic[0] * f.dx * f.dx + T(2) * g.conic[1] * f.dx * f.dy + g.conic[2] * f.dy * f.dy;
+  const T q = quad_form(g, f.dx, f.dy);
   if (!(q <= T(kSupportSq))) return false;
   f.G = gauss_exp(T(-0.5) * q);
   f.alpha = tmin(T(k.alpha_max), g.opacity * f.G);

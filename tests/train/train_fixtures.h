@@ -16,7 +16,8 @@
 namespace flat::test {
 
 // Two training rooms and one held-out room, 9 frames of 32x48, latents of a
-// random dim-4 encoder over windows of 5 frames. Made once per test process.
+// random dim-4 encoder over windows of 5 frames, RPPC and Plucker camera
+// latents (the conditioning ablation). Made once per test process.
 inline const std::string& tiny_data() {
   static std::string dir = [] {
     const std::string d = fresh_dir("train_data").string();
@@ -27,7 +28,7 @@ inline const std::string& tiny_data() {
                    "--frames", "9", "--size", "32x48", "--motion", "mixed"},
                   log) == 0);
       REQUIRE(run({binary("flat_latents"), "--scenes", out, "--random-weights", "--seed", "0", "--dim", "4",
-                   "--window", "5", "--step", "4"},
+                   "--window", "5", "--step", "4", "--camera-rays", "rppc,plucker"},
                   log) == 0);
     }
     return d;

@@ -29,27 +29,36 @@ FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
 // Pass 1 over all n Gaussians (gaussians/cuda/preprocess.cu): screen data,
-// pixel box, depth sort key (render::depth_sort_key) and tiles touched
-// (0 when culled; the other arrays are then left unwritten); the sum of the
-// tile counts (the view's pair count) into *total, zeroed first.
+// pixel box, depth sort key (render::depth_sort_key; kCulledKey when culled)
+// and tiles touched (0 when culled; screen data and box are then left
+// unwritten), order[i] = i (the depth sort's values); the sum of the tile
+// counts (the view's pair count) into *total, zeroed first.
+constexpr uint32_t kCulledKey = (1u << render::kDepthKeyBits) - 1u;  // sorts last
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
-                       PixelBox* boxes, uint32_t* depth_keys, int32_t* tile_counts, unsigned long long* total,
-                       cudaStream_t stream);
+                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, int32_t* tile_counts,
+                       unsigned long long* total, cudaStream_t stream);
 
-// Binning (gaussians/cuda/binning.cu), in this order:
-// inclusive prefix sum of the tile counts (cub; temp sized with temp == nullptr);
-void scan_tile_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n,
-                      cudaStream_t stream);
-// one pair per touched tile: key (tile << 24 | depth key), value the Gaussian's index;
-void launch_duplicate(const int32_t* counts, const int32_t* ends, const PixelBox* boxes, const uint32_t* depth_keys,
-                      int64_t n, const ViewParams& vp, uint64_t* keys, int32_t* ids, cudaStream_t stream);
-// stable radix sort of the pairs by key (num_tiles: the bits it needs): each
-// tile's list front to back, ties by index;
-void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* ids_in,
-                int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
+// Binning (gaussians/cuda/binning.cu), as the triangle rasterizer's: one
+// sort of the Gaussians by depth, then the pairs, written in that order, by
+// tile id alone (a short key), so each tile's list comes out front to back.
+// In this order (temporary storage sized with temp == nullptr):
+// stable radix sort of order (0..n-1) by depth key (cub);
+void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
+                   const int32_t* order_in, int32_t* order_out, int64_t n, cudaStream_t stream);
+// tiles touched by each Gaussian in depth order, and their inclusive prefix sum;
+void launch_ordered_counts(const int32_t* order, int64_t n, const int32_t* tile_counts, int32_t* counts,
+                           cudaStream_t stream);
+void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n,
+                 cudaStream_t stream);
+// one (tile id, Gaussian index) pair per touched tile, in depth order;
+void launch_duplicate(const int32_t* order, const int32_t* counts, const int32_t* ends, const PixelBox* boxes,
+                      int64_t n, const ViewParams& vp, uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream);
+// stable radix sort of the pairs by tile id (num_tiles: the bits it needs);
+void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
+                  const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
 // ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
-void launch_tile_ranges(const uint64_t* sorted_keys, int64_t count, int2* ranges, cudaStream_t stream);
+void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
 
 struct ForwardImages {  // one view, channel-major (C,H,W)
   float* rgb;

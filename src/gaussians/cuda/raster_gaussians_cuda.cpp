@@ -6,6 +6,7 @@
 // (one cheap kernel) instead of keeping it.
 #include "gaussians/cuda/raster_gaussians_cuda.h"
 
+#include <algorithm>
 #include <limits>
 #include <vector>
 
@@ -52,51 +53,61 @@ void check_dtype(const GaussianInputs& in) {
 
 // One view's preprocessing state over all N Gaussians (reused across views).
 struct Preprocessed {
-  at::Tensor screen, boxes, depth_keys, counts, total;
+  at::Tensor screen, boxes, depth_keys, order, counts, total;
   explicit Preprocessed(int64_t n, const at::TensorOptions& f)
       : screen(at::empty({n * kScreenFloats}, f)),
         boxes(at::empty({n * 4}, f.dtype(at::kInt))),
         depth_keys(at::empty({n}, f.dtype(at::kInt))),
+        order(at::empty({n}, f.dtype(at::kInt))),
         counts(at::empty({n}, f.dtype(at::kInt))),
         total(at::empty({1}, f.dtype(at::kLong))) {}
   void run(const GaussianInputs& in, const ViewParams& vp, cudaStream_t stream) {
     launch_preprocess(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(),
                       in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), in.means.size(0), vp, screen_ptr(),
-                      reinterpret_cast<PixelBox*>(boxes.data_ptr<int>()),
-                      reinterpret_cast<uint32_t*>(depth_keys.data_ptr<int>()), counts.data_ptr<int>(),
+                      box_ptr(), key_ptr(), order.data_ptr<int>(), counts.data_ptr<int>(),
                       reinterpret_cast<unsigned long long*>(total.data_ptr<int64_t>()), stream);
     check_launch("preprocessing");
   }
   ScreenGaussian<float>* screen_ptr() { return reinterpret_cast<ScreenGaussian<float>*>(screen.data_ptr<float>()); }
+  PixelBox* box_ptr() { return reinterpret_cast<PixelBox*>(boxes.data_ptr<int>()); }
+  uint32_t* key_ptr() { return reinterpret_cast<uint32_t*>(depth_keys.data_ptr<int>()); }
 };
 
-// Bins one view's pairs: returns the sorted ids and the tile ranges ((tiles, 2) int).
+uint32_t* u32(const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); }
+
+// Bins one view's pairs (binning.cu): returns the sorted Gaussian ids and the
+// tile ranges ((tiles, 2) int).
 void bin_view(Preprocessed& pre, int64_t n, int64_t pairs, const ViewParams& vp, const at::TensorOptions& f,
               cudaStream_t stream, at::Tensor& ids_sorted, at::Tensor& ranges) {
   const int tiles = vp.tiles_x * vp.tiles_y;
   ranges = at::zeros({tiles, 2}, f.dtype(at::kInt));
   ids_sorted = at::empty({pairs}, f.dtype(at::kInt));
   if (pairs == 0) return;
-  const at::Tensor ends = at::empty({n}, f.dtype(at::kInt));
-  size_t scan_bytes = 0;
-  scan_tile_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
-  at::Tensor keys = at::empty({pairs}, f.dtype(at::kLong)), keys_sorted = at::empty({pairs}, f.dtype(at::kLong));
-  at::Tensor ids = at::empty({pairs}, f.dtype(at::kInt));
-  size_t sort_bytes = 0;
-  sort_pairs(nullptr, sort_bytes, nullptr, nullptr, nullptr, nullptr, pairs, tiles, stream);
-  at::Tensor temp = at::empty({(int64_t)std::max(scan_bytes, sort_bytes) + 1}, f.dtype(at::kByte));
-  scan_tile_counts(temp.data_ptr(), scan_bytes, pre.counts.data_ptr<int>(), ends.data_ptr<int>(), n, stream);
+  size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
+  sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, n, stream);
+  scan_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
+  sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, pairs, tiles, stream);
+  const at::Tensor temp =
+      at::empty({(int64_t)std::max({depth_bytes, scan_bytes, tile_bytes}) + 1}, f.dtype(at::kByte));
+  const auto i32 = f.dtype(at::kInt);
+  const at::Tensor depth_sorted = at::empty({n}, i32), order_sorted = at::empty({n}, i32);
+  const at::Tensor counts = at::empty({n}, i32), ends = at::empty({n}, i32);
+  const at::Tensor pair_tiles = at::empty({pairs}, i32), tiles_sorted = at::empty({pairs}, i32);
+  const at::Tensor pair_ids = at::empty({pairs}, i32);
+  sort_by_depth(temp.data_ptr(), depth_bytes, pre.key_ptr(), u32(depth_sorted), pre.order.data_ptr<int>(),
+                order_sorted.data_ptr<int>(), n, stream);
+  check_launch("depth sort");
+  launch_ordered_counts(order_sorted.data_ptr<int>(), n, pre.counts.data_ptr<int>(), counts.data_ptr<int>(), stream);
+  check_launch("ordered tile counts");
+  scan_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), ends.data_ptr<int>(), n, stream);
   check_launch("tile count scan");
-  auto* key_ptr = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
-  auto* sorted_ptr = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
-  launch_duplicate(pre.counts.data_ptr<int>(), ends.data_ptr<int>(), reinterpret_cast<PixelBox*>(pre.boxes.data_ptr<int>()),
-                   reinterpret_cast<uint32_t*>(pre.depth_keys.data_ptr<int>()), n, vp, key_ptr, ids.data_ptr<int>(),
-                   stream);
+  launch_duplicate(order_sorted.data_ptr<int>(), counts.data_ptr<int>(), ends.data_ptr<int>(), pre.box_ptr(), n, vp,
+                   u32(pair_tiles), pair_ids.data_ptr<int>(), stream);
   check_launch("pair duplication");
-  sort_pairs(temp.data_ptr(), sort_bytes, key_ptr, sorted_ptr, ids.data_ptr<int>(), ids_sorted.data_ptr<int>(), pairs,
-             tiles, stream);
-  check_launch("pair sort");
-  launch_tile_ranges(sorted_ptr, pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
+  sort_by_tile(temp.data_ptr(), tile_bytes, u32(pair_tiles), u32(tiles_sorted), pair_ids.data_ptr<int>(),
+               ids_sorted.data_ptr<int>(), pairs, tiles, stream);
+  check_launch("tile sort");
+  launch_tile_ranges(u32(tiles_sorted), pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
   check_launch("tile ranges");
 }
 
