@@ -11,6 +11,12 @@
 #          variant, if set);
 #   train2 stage 2 from stage 1 (and the variant's); flat_eval of each model on
 #          the held-out rooms, with the baselines.
+#   ablate the paper's ablations and Table 1 baselines (configs/ablations/*.yaml
+#          layered over configs/recipe/stage1.yaml) for the seeds in
+#          ABLATE_SEEDS (default "0"), ABLATE_PARALLEL side by side (default 8),
+#          each bounded by ABLATE_SECONDS (default 450); scripts/run_ablations.sh
+#          trains, evaluates on the held-out rooms and tabulates every seed
+#          run so far (runs/recipe/ablations/table.md).
 # Runs and builds go under the repo root given; on the device machine copy the
 # tree to /tmp first (ignored folders of the repo do not survive between calls;
 # /tmp does while the machine stays warm).
@@ -86,7 +92,8 @@ if [ "$PHASE" = "data" ]; then
     done
     wait
   }
-  latents "$R/data" latents --vae "$R/vae/vae.safetensors" --window 17 --step 32
+  # Windows of 17 also carry Plucker camera latents (the conditioning ablation).
+  latents "$R/data" latents --vae "$R/vae/vae.safetensors" --window 17 --step 32 --camera-rays rppc,plucker
   latents "$R/data49" latents49 --vae "$R/vae/vae.safetensors" --window 49
   latents "$R/data_random" latents_random --random-weights --seed 0 --dim "$DIM" --window 17 --step 32
   note "latents: trained encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_train.log" | tail -1); random encoder $(grep -oE 'correlate [0-9.-]+ on average' "$OUT/latents_random_train.log" | tail -1)"
@@ -153,5 +160,24 @@ if [ "$PHASE" = "train" ] || [ "$PHASE" = "train2" ]; then
   tar czf "$OUT/renders.tgz" -C "$R" $(cd "$R" && ls -d */renders */metrics 2>/dev/null) 2>/dev/null
   tar czf "$OUT/logs.tgz" -C "$OUT" $(cd "$OUT" && ls *.log) 2>/dev/null
 fi
+if [ "$PHASE" = "ablate" ]; then
+  [ -f "$R/vae/vae.safetensors" ] || { echo "no $R/vae/vae.safetensors: run the data phase first (same warm machine)"; exit 1; }
+  ninja -C "$BUILD" flat_train flat_eval >"$OUT/build_ablate.log" 2>&1 || { tail -20 "$OUT/build_ablate.log"; exit 1; }
+  A="$R/ablations"
+  bash "$ROOT/scripts/run_ablations.sh" --base configs/recipe/stage1.yaml --out "$A" --build "$BUILD" --device cuda \
+    --seeds "${ABLATE_SEEDS:-0}" --parallel "${ABLATE_PARALLEL:-8}" --seconds "${ABLATE_SECONDS:-450}" \
+    --set steps="${ABLATE_STEPS:-700}" --set data.workers=2 --set pipeline.model.vae.dim="$DIM" \
+    --set validation.every=250 --set validation.scenes=8 --set checkpoint.every=250 \
+    ${ABLATE_ROWS:-configs/ablations/*.yaml} 2>&1 | tee "$OUT/ablate.log" | grep -vE "^\|" | tail -30
+  nvidia-smi --query-gpu=memory.used,memory.total --format=csv >>"$OUT/ablate.log" 2>&1
+  # The table over every seed evaluated so far (this call's and earlier ones').
+  "$BUILD/flat_eval" --compare "$A"/eval_* --out-table "$A/table_all.md" --overwrite >/dev/null 2>&1
+  cp "$A/table_all.md" "$OUT/ablation_table.md" 2>/dev/null
+  for e in "$A"/eval_*; do cp "$e/results.json" "$OUT/results_$(basename "$e").json" 2>/dev/null; done
+  tar czf "$OUT/ablate_logs.tgz" -C "$A" logs 2>/dev/null
+  tar czf "$OUT/ablate_renders.tgz" -C "$A" $(cd "$A" && ls -d *_s*/renders 2>/dev/null) 2>/dev/null
+  note "ablations (seeds ${ABLATE_SEEDS:-0}): $(grep -c . "$A/table_all.md" 2>/dev/null) table lines"
+fi
+
 echo "==== recipe summary ($PHASE) ===="
 for s in "${summary[@]}"; do echo "$s"; done

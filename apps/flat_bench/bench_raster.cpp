@@ -26,6 +26,9 @@
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/export/triangle_ply.h"
+#include "flat/pipeline/scene_pipeline.h"
+#include "flat/primitives/scene_primitives.h"
+#include "flat/primitives/triangle_gaussians.h"
 #include "flat/render/raster_load.h"
 #include "flat/render/rasterize.h"
 
@@ -173,8 +176,21 @@ LoadSummary summarise_load(const RasterWorkload& sc, const render::RasterSetting
   return s;
 }
 
-void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings, int repeats) {
+// The workload's triangles, or the Gaussians made from them (same count,
+// positions and footprint: primitives/triangle_gaussians.h).
+primitives::ScenePrimitives workload_primitives(const RasterWorkload& sc, const std::string& representation) {
+  primitives::TriangleSoup t{sc.vertices, sc.colors, sc.opacities, sc.sigmas};
+  if (representation == primitives::kTriangles) return primitives::ScenePrimitives::of(t);
+  return primitives::ScenePrimitives::of(
+      primitives::gaussians_from_triangles(t, representation == primitives::kGaussians3d ? 3 : 2));
+}
+
+void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings, int repeats,
+                const std::string& representation) {
   const auto dev = sc.vertices.device();
+  const auto scene = workload_primitives(sc, representation);
+  const bool triangles = scene.is_triangles();
+  const std::string what = triangles ? "triangles" : representation + " Gaussians";
   auto sync = [&] {
     if (dev.is_cuda()) torch::cuda::synchronize();
   };
@@ -186,8 +202,8 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   int64_t contributing = 0;
   // Said before the first run, and after each run slower than 2 s: on the CPU
   // the paper's workload takes minutes, and must not be silent.
-  spdlog::info("raster {}: {} triangles, {} views at {}x{} on {}: 2 warm-up + {} timed forward+backward run(s)",
-               sc.name, sc.vertices.size(0), V, sc.height, sc.width, dev.is_cuda() ? "cuda" : "cpu", repeats);
+  spdlog::info("raster {}: {} {}, {} views at {}x{} on {}: 2 warm-up + {} timed forward+backward run(s)", sc.name,
+               scene.size(), what, V, sc.height, sc.width, dev.is_cuda() ? "cuda" : "cpu", repeats);
   for (int it = 0; it < repeats + 2; ++it) {
     const double t_run = now_ms();
     {
@@ -195,8 +211,7 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
       sync();
       reset_peak_memory(dev);
       const double t0 = now_ms();
-      auto r = render::rasterize(sc.vertices, sc.colors, sc.opacities, sc.sigmas, sc.targets, sc.height, sc.width,
-                                 settings);
+      auto r = pipeline::rasterize_scene(scene, sc.targets, sc.height, sc.width, settings);
       const double t_host = now_ms();
       sync();
       const double t1 = now_ms();
@@ -205,13 +220,14 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
       peak_fwd = std::max(peak_fwd, peak_memory_gib(dev));
       if (it == 0) contributing = (r.max_weight > 0).sum().item<int64_t>();
     }
-    auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
-    auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
+    const auto leaves = scene.map([](const at::Tensor& x) { return x.detach().requires_grad_(true); });
     sync();
     reset_peak_memory(dev);
     const double t0 = now_ms();
-    auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
-    auto loss = (r.rgb * w_rgb).sum() + r.alpha.sum() + 0.1 * r.depth.sum() + r.normal.sum();
+    auto r = pipeline::rasterize_scene(leaves, sc.targets, sc.height, sc.width, settings);
+    auto loss = (r.rgb * w_rgb).sum() + r.alpha.sum() + 0.1 * r.depth.sum();
+    if (r.normal.defined()) loss = loss + r.normal.sum();  // 3DGS renders no normal
+    if (r.distortion.defined()) loss = loss + r.distortion.sum();
     loss.backward();
     sync();
     const double t1 = now_ms();
@@ -222,10 +238,10 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
       spdlog::info("  run {} of {} took {:.1f} s; about {:.0f} s to go for {}", it + 1, repeats + 2, run_ms / 1000,
                    run_ms / 1000 * (repeats + 1 - it), sc.name);
   }
-  spdlog::info("raster {}: {} triangles ({} blended somewhere), {} views at {}x{}, window {}", sc.name,
-               sc.vertices.size(0), contributing, V, sc.height, sc.width, settings.window);
+  spdlog::info("raster {}: {} {} ({} blended somewhere), {} views at {}x{}{}", sc.name, scene.size(), what,
+               contributing, V, sc.height, sc.width, triangles ? ", window " + settings.window : "");
   std::string load_cells = "- | - | -";
-  if (dev.is_cuda()) {
+  if (dev.is_cuda() && triangles) {
     const LoadSummary l = summarise_load(sc, settings);
     spdlog::info("raster {}: per view, mean (max): {:.3f} M ({:.3f} M) visible triangles ({:.3f} M blended), "
                  "{:.3f} M ({:.3f} M) triangle-tile pairs, {:.0f} ({:.0f}) list entries per pixel",
@@ -236,9 +252,9 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   spdlog::info("raster {}: forward {:.2f} ms (median of {}; the host call returns after {:.2f} ms), forward+backward "
                "{:.2f} ms, peak {:.2f} GiB forward, {:.2f} GiB forward+backward",
                sc.name, median(fwd), repeats, median(fwd_host), median(fwdbwd), peak_fwd, peak_all);
-  std::printf("| %s | %lld | %lld | %lldx%lld | %s | %s | %.2f | %.2f | %.2f |\n", sc.name.c_str(),
-              (long long)sc.vertices.size(0), (long long)V, (long long)sc.height, (long long)sc.width,
-              settings.window.c_str(), load_cells.c_str(), median(fwd), median(fwdbwd), peak_all);
+  std::printf("| %s | %s | %lld | %lld | %lldx%lld | %s | %s | %.2f | %.2f | %.2f |\n", sc.name.c_str(),
+              representation.c_str(), (long long)scene.size(), (long long)V, (long long)sc.height, (long long)sc.width,
+              triangles ? settings.window.c_str() : "-", load_cells.c_str(), median(fwd), median(fwdbwd), peak_all);
   std::fflush(stdout);
 }
 
@@ -264,6 +280,7 @@ void add_raster(CLI::App& app) {
   struct Opts {
     std::vector<std::string> workloads = {"anchor-large", "anchor-small"};
     std::string ply, cams, window = "flat", device = "auto", write_dir;
+    std::vector<std::string> representations = {"triangles"};
     int repeats = 5, views_per_bin = 2;
     uint64_t seed = 0;
     bool profile = false;
@@ -278,6 +295,11 @@ void add_raster(CLI::App& app) {
   cli::add_device(*sub, opts->device);
   sub->add_option("--triangles", opts->ply, "time this triangle soup PLY instead (with --cameras)");
   sub->add_option("--cameras", opts->cams, "cameras JSON for --triangles");
+  sub->add_option("--primitives", opts->representations,
+                  "triangles | 3dgs | 2dgs (several: each timed on the same scene; the Gaussians are made from the "
+                  "workload's triangles, one each, 1-sigma ellipse = incircle)")
+      ->check(CLI::IsMember({"triangles", "3dgs", "2dgs"}))
+      ->capture_default_str();
   sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}))->capture_default_str();
   sub->add_option("--views-per-bin", opts->views_per_bin,
                   "views binned by one sort: 1 | 2 (the rasterizer's default)")
@@ -294,14 +316,16 @@ void add_raster(CLI::App& app) {
   sub->callback([opts] {
     const torch::Device dev = cli::resolve_device(opts->device);
     FLAT_CHECK(!opts->profile || dev.is_cuda(), "flat_bench raster: --profile needs --device cuda (GPU kernel times)");
+    FLAT_CHECK(!opts->profile || opts->representations == std::vector<std::string>{"triangles"},
+               "flat_bench raster: --profile times the triangle rasterizer only (--primitives triangles)");
     render::RasterSettings settings;
     settings.window = opts->window;
     settings.views_per_bin = opts->views_per_bin;
-    std::printf("| workload | triangles | views | HxW | window | visible / view | pairs / view | entries / px | "
-                "forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
+    std::printf("| workload | primitives | count | views | HxW | window | visible / view | pairs / view | "
+                "entries / px | forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     auto run = [&](const RasterWorkload& sc) {
       if (!opts->write_dir.empty()) write_workload(sc, opts->write_dir);
-      time_scene(sc, settings, opts->repeats);
+      for (const auto& rep : opts->representations) time_scene(sc, settings, opts->repeats, rep);
       if (opts->profile) profile_scene(sc, settings);
     };
     if (!opts->ply.empty()) {

@@ -40,12 +40,12 @@ constexpr double kSupportSq = 9.0;    // support: q = d^T conic d <= 3^2
 // record on CUDA: 12 floats, three 16-byte loads).
 template <class T>
 struct alignas(16) ScreenGaussian {
-  T mx, my;      // projected mean (pixels, pixel-centre convention)
-  T conic[3];    // inverse 2-D covariance: a, b, c of [[a, b], [b, c]]
+  T mx, my;    // projected mean (pixels, pixel-centre convention)
+  T conic[3];  // inverse 2-D covariance: a, b, c of [[a, b], [b, c]]
   T opacity;
   T color[3];
-  T z;           // camera depth of the mean (the depth output's value)
-  T extent2;     // the support's bound e2 on q (below): no kept fragment has q > extent2
+  T z;        // camera depth of the mean (the depth output's value)
+  T extent2;  // the support's bound e2 on q (below): no kept fragment has q > extent2
   T pad;
 };
 
@@ -114,15 +114,15 @@ FLAT_HD T scaled_rotation(const T* scale, const T* quat, T qn[4], T M[9]) {
 // Everything the projection's forward and backward share, recomputed by both.
 template <class T>
 struct Projection {
-  T t[3];        // camera-space mean
-  T qn[4];       // unit quaternion
-  T qnorm;       // |q|
-  T M[9];        // R diag(s)
-  T u, v;        // t.x / t.z and t.y / t.z, clamped (J's screen position)
+  T t[3];               // camera-space mean
+  T qn[4];              // unit quaternion
+  T qnorm;              // |q|
+  T M[9];               // R diag(s)
+  T u, v;               // t.x / t.z and t.y / t.z, clamped (J's screen position)
   bool free_u, free_v;  // false where the clamp is active (no gradient to t.x / t.y through J)
-  T P[6];        // J W (2x3, row-major): cov = P Sigma P^T + 0.3 I
-  T Sigma[9];    // world-space 3-D covariance
-  T cov[3];      // 2-D covariance a, b, c (dilated)
+  T P[6];               // J W (2x3, row-major): cov = P Sigma P^T + 0.3 I
+  T Sigma[9];           // world-space 3-D covariance
+  T cov[3];             // 2-D covariance a, b, c (dilated)
 };
 
 // The image's clamp of J's screen position, as ratios x/z: [-lo, hi].
@@ -145,7 +145,8 @@ FLAT_HD void project(const T* mean, const T* scale, const T* quat, const CameraV
   pr.qnorm = scaled_rotation(scale, quat, pr.qn, pr.M);
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
-      pr.Sigma[3 * r + c] = pr.M[3 * r] * pr.M[3 * c] + pr.M[3 * r + 1] * pr.M[3 * c + 1] + pr.M[3 * r + 2] * pr.M[3 * c + 2];
+      pr.Sigma[3 * r + c] =
+          pr.M[3 * r] * pr.M[3 * c] + pr.M[3 * r + 1] * pr.M[3 * c + 1] + pr.M[3 * r + 2] * pr.M[3 * c + 2];
   T lo_x, hi_x, lo_y, hi_y;
   clamp_limits(cam, width, height, lo_x, hi_x, lo_y, hi_y);
   const T z = pr.t[2];
@@ -315,9 +316,9 @@ FLAT_HD T min_q_over_rect(const ScreenGaussian<T>& g, T x0, T x1, T y0, T y1) {
 // What one pixel computes of one Gaussian; reused by the backward.
 template <class T>
 struct Fragment {
-  T dx, dy;   // pixel centre - projected mean
-  T G;        // exp(-q/2), 0 outside the 3-sigma support
-  T alpha;    // min(alpha_max, opacity G)
+  T dx, dy;  // pixel centre - projected mean
+  T G;       // exp(-q/2), 0 outside the 3-sigma support
+  T alpha;   // min(alpha_max, opacity G)
 };
 
 // px, py: pixel centre. Returns false when the fragment is skipped (outside

@@ -72,8 +72,18 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    GaussianInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
-                      ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), load_constants(ctx), at::Tensor()};
+    GaussianInputs in{saved[0],
+                      saved[1],
+                      saved[2],
+                      saved[3],
+                      saved[4],
+                      saved[5],
+                      saved[6],
+                      saved[7],
+                      ctx->saved_data["H"].toInt(),
+                      ctx->saved_data["W"].toInt(),
+                      load_constants(ctx),
+                      at::Tensor()};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
     auto grad_or_zero = [&](const at::Tensor& g, int64_t C) {
@@ -92,8 +102,8 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
     } else {
       g = cpu::backward(in, g_rgb, g_alpha, g_depth);
     }
-    return {g.means, g.scales, g.rotations, g.colors, g.opacities, at::Tensor(), at::Tensor(),
-            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+    return {g.means,      g.scales,     g.rotations,  g.colors,     g.opacities,  at::Tensor(),
+            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
   }
 };
 
@@ -110,8 +120,8 @@ void check_inputs(const at::Tensor& means, const at::Tensor& scales, const at::T
   cams.check("rasterize_gaussians: cameras");
   FLAT_CHECK(height > 0 && width > 0, "rasterize_gaussians: image size must be positive, got " +
                                           std::to_string(height) + "x" + std::to_string(width));
-  FLAT_CHECK(height * width <= (int64_t(1) << 30), "rasterize_gaussians: image too large (" + std::to_string(height) +
-                                                       "x" + std::to_string(width) + ")");
+  FLAT_CHECK(height * width <= (int64_t(1) << 30),
+             "rasterize_gaussians: image too large (" + std::to_string(height) + "x" + std::to_string(width) + ")");
   for (const auto* t : {&means, &scales, &rotations, &colors, &opacities})
     FLAT_CHECK(t->is_floating_point(), "rasterize_gaussians: inputs must be floating point, got " +
                                            std::string(c10::toString(t->scalar_type())));
@@ -155,10 +165,10 @@ void check_input_values(const GaussianInputs& in) {
   FLAT_CHECK(s[4] > 0.0, "rasterize_gaussians: rotations must be non-zero quaternions (w,x,y,z)");
 }
 
-render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tensor& scales,
-                                         const at::Tensor& rotations, const at::Tensor& colors,
-                                         const at::Tensor& opacities, const camera::Cameras& cams, int64_t height,
-                                         int64_t width, const render::RasterSettings& settings) {
+render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
+                                         const at::Tensor& colors, const at::Tensor& opacities,
+                                         const camera::Cameras& cams, int64_t height, int64_t width,
+                                         const render::RasterSettings& settings) {
   settings.check();
   // The cameras on the host (a few hundred bytes): both back ends read them there.
   const camera::Cameras host_cams = cams.to(at::kCPU);

@@ -31,6 +31,20 @@ primitives::ScenePrimitives prune(const primitives::ScenePrimitives& scene, doub
   return scene.index_select((scene.opacities().detach() >= min_opacity).nonzero().squeeze(1));
 }
 
+render::RenderOutput rasterize_scene(const primitives::ScenePrimitives& scene, const camera::Cameras& cams,
+                                     int64_t height, int64_t width, const render::RasterSettings& settings) {
+  if (scene.is_triangles()) {
+    const auto& t = scene.triangles;
+    return render::rasterize(t.vertices, t.colors, t.opacities, t.sigmas, cams, height, width, settings);
+  }
+  const auto& g = scene.gaussians;
+  if (scene.representation == primitives::kGaussians3d)
+    return gaussians::rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
+                                          settings);
+  return surfels::rasterize_surfels(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
+                                    settings);
+}
+
 primitives::HeadChannels PipelineConfig::channels() const {
   if (representation == primitives::kGaussians3d) return primitives::gaussian_channels(3);
   if (representation == primitives::kSurfels2d) return primitives::gaussian_channels(2);
@@ -109,19 +123,7 @@ RenderedViews ScenePipeline::render(const primitives::ScenePrimitives& scene, co
   FLAT_CHECK(scene.representation == config_.representation,
              "pipeline: a " + scene.representation + " scene given to a " + config_.representation + " pipeline");
   const auto kept = prune(scene, config_.prune_opacity);
-  render::RenderOutput out;
-  if (kept.is_triangles()) {
-    const auto& t = kept.triangles;
-    out = render::rasterize(t.vertices, t.colors, t.opacities, t.sigmas, cams, height, width, config_.raster);
-  } else if (kept.representation == primitives::kGaussians3d) {
-    const auto& g = kept.gaussians;
-    out = gaussians::rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
-                                         config_.raster);
-  } else {
-    const auto& g = kept.gaussians;
-    out = surfels::rasterize_surfels(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, height, width,
-                                     config_.raster);
-  }
+  render::RenderOutput out = rasterize_scene(kept, cams, height, width, config_.raster);
   // 3DGS has no surface normal: the paper takes its normals from the rendered
   // depth by finite differences (zero outside the covered pixels).
   if (!out.normal.defined()) {

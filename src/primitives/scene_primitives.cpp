@@ -11,7 +11,7 @@ ScenePrimitives ScenePrimitives::of(GaussianSoup g) {
 }
 
 int64_t ScenePrimitives::batch() const { return is_triangles() ? triangles.batch() : gaussians.batch(); }
-int64_t ScenePrimitives::size() const { return is_triangles() ? triangles.size() : gaussians.size(); }
+int64_t ScenePrimitives::size() const { return opacities().size(-1); }  // batched (B,N) or one scene (N)
 at::Tensor ScenePrimitives::opacities() const { return is_triangles() ? triangles.opacities : gaussians.opacities; }
 
 at::Tensor ScenePrimitives::centres() const {

@@ -191,10 +191,38 @@ FLAT_HD bool surfel_rect(const T M[9], T cx, T cy, T r2, int width, int height, 
   return rect.x0 < rect.x1 && rect.y0 < rect.y1;
 }
 
+// The centre's camera z for the depth sort key, every product and sum
+// rounded on its own: nvcc fuses a * b + c into one FMA (one rounding), the
+// host compiler (x86-64, no -mfma) does not, and a key one step apart
+// reorders two surfels at near-equal depth, which changes whole regions of
+// pixels between the CUDA kernels and the float CPU reference. Rounded alike,
+// both sort the same keys. (Culling and the screen data keep f.c[2].)
+FLAT_HD float mul_rn(float a, float b) {
+#if defined(__CUDA_ARCH__)
+  return __fmul_rn(a, b);
+#else
+  return a * b;
+#endif
+}
+FLAT_HD float add_rn(float a, float b) {
+#if defined(__CUDA_ARCH__)
+  return __fadd_rn(a, b);
+#else
+  return a + b;
+#endif
+}
+FLAT_HD double mul_rn(double a, double b) { return a * b; }
+FLAT_HD double add_rn(double a, double b) { return a + b; }
+template <class T>
+FLAT_HD T centre_depth(const T* mean, const CameraView<T>& cam) {
+  return add_rn(add_rn(add_rn(mul_rn(cam.R[6], mean[0]), mul_rn(cam.R[7], mean[1])), mul_rn(cam.R[8], mean[2])),
+                cam.t[2]);
+}
+
 // Forward of the per-(view, surfel) preprocessing. Returns false when the
 // surfel is culled (centre nearer than near_plane, or no pixel can reach
 // alpha_min); fills the geometry of `out` (not colour, opacity, index), the
-// support box and the depth sort key (camera z of the centre).
+// support box and the depth sort key (camera z of the centre, centre_depth()).
 template <class T>
 FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T opacity, const CameraView<T>& cam,
                                 const RasterConstants& k, int width, int height, PixelSurfel<T>& out,
@@ -207,7 +235,7 @@ FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T 
   out.cx = out.M[2] / out.M[8];
   out.cy = out.M[5] / out.M[8];
   for (int r = 0; r < 3; ++r) out.normal[r] = f.flip * f.tw[r];
-  key = f.c[2];
+  key = tmax(centre_depth(mean, cam), T(0));  // >= 0: depth_sort_key() keeps no sign bit
   return surfel_rect(out.M, out.cx, out.cy, r2, width, height, rect);
 }
 

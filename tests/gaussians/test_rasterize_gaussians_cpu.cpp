@@ -1,9 +1,9 @@
 // CPU reference Gaussian rasterizer: analytic gradients against central
 // finite differences in double precision, outputs against closed forms, edge
 // cases and input checks.
-#include <cmath>
-
 #include <torch/torch.h>
+
+#include <cmath>
 
 #include "flat/core/error.h"
 #include "flat/gaussians/rasterize_gaussians.h"
@@ -34,8 +34,8 @@ struct Probe {
   }
 };
 
-RenderOutput render(const std::vector<torch::Tensor>& in, const flat::camera::Cameras& cams,
-                    const RasterSettings& s, int64_t H = kH, int64_t W = kW) {
+RenderOutput render(const std::vector<torch::Tensor>& in, const flat::camera::Cameras& cams, const RasterSettings& s,
+                    int64_t H = kH, int64_t W = kW) {
   return rasterize_gaussians(in[0], in[1], in[2], in[3], in[4], cams, H, W, s);
 }
 
@@ -85,8 +85,8 @@ void check_gradients_fd(const RasterSettings& settings, uint64_t seed, bool with
 // One Gaussian (N = 1), double.
 std::vector<torch::Tensor> one(std::vector<double> mean, double scale, double opacity, std::vector<double> color) {
   return {torch::tensor(mean, torch::kDouble).view({1, 3}), torch::full({1, 3}, scale, torch::kDouble),
-          torch::tensor({1.0, 0.0, 0.0, 0.0}, torch::kDouble).view({1, 4}), torch::tensor(color, torch::kDouble).view({1, 3}),
-          torch::full({1}, opacity, torch::kDouble)};
+          torch::tensor({1.0, 0.0, 0.0, 0.0}, torch::kDouble).view({1, 4}),
+          torch::tensor(color, torch::kDouble).view({1, 3}), torch::full({1}, opacity, torch::kDouble)};
 }
 
 std::vector<torch::Tensor> cat(const std::vector<torch::Tensor>& a, const std::vector<torch::Tensor>& b) {
@@ -131,7 +131,7 @@ TEST_CASE("rasterize_gaussians cpu: an isotropic Gaussian on the optical axis ha
   const double vx = fx * fx * s * s / (z * z) + 0.3, vy = fy * fy * s * s / (z * z) + 0.3;
   REQUIRE(vx == Approx(4.0));
   auto alpha = [&](int64_t y, int64_t x) { return out.alpha[0][0][y][x].item<double>(); };
-  CHECK(alpha(yc, xc) == Approx(o).epsilon(1e-6));  // float cameras
+  CHECK(alpha(yc, xc) == Approx(o).epsilon(1e-6));                       // float cameras
   CHECK(alpha(yc, xc + 2) == Approx(o * std::exp(-0.5)).epsilon(1e-5));  // one projected sigma
   CHECK(alpha(yc, xc - 2) == Approx(o * std::exp(-0.5)).epsilon(1e-5));
   for (int64_t d : {1, 3}) {
@@ -157,8 +157,9 @@ TEST_CASE("rasterize_gaussians cpu: an isotropic Gaussian on the optical axis ha
   CHECK(sigma_px == Approx(2.0));
 }
 
-TEST_CASE("rasterize_gaussians cpu: the EWA covariance and the 1.3x clamp of J's screen position follow the closed form",
-          "[gaussians]") {
+TEST_CASE(
+    "rasterize_gaussians cpu: the EWA covariance and the 1.3x clamp of J's screen position follow the closed form",
+    "[gaussians]") {
   // An isotropic Gaussian at camera position (X, Y, z) has the 2-D covariance
   // (s/z)^2 J0 J0^T + 0.3 I, J0 = [[fx, 0, -fx u], [0, fy, -fy v]], with
   // u = X/z, v = Y/z clamped to 1.3x the half-extent about the principal
@@ -235,8 +236,8 @@ TEST_CASE("rasterize_gaussians cpu: the quaternion's norm does not matter; its g
   auto cams = flat::test::test_cameras(2);
   auto rot = g.rotations.clone().requires_grad_(true);
   auto a = rasterize_gaussians(g.means, g.scales, rot, g.colors, g.opacities, cams, kH, kW, RasterSettings{});
-  auto b = rasterize_gaussians(g.means, g.scales, g.rotations * 3.0, g.colors, g.opacities, cams, kH, kW,
-                               RasterSettings{});
+  auto b =
+      rasterize_gaussians(g.means, g.scales, g.rotations * 3.0, g.colors, g.opacities, cams, kH, kW, RasterSettings{});
   CHECK((a.rgb - b.rgb).abs().max().item<double>() < 1e-12);
   a.rgb.sum().backward();
   CHECK((rot.grad() * g.rotations).sum(1).abs().max().item<double>() < 1e-10);
@@ -301,7 +302,9 @@ TEST_CASE("rasterize_gaussians cpu: bad inputs are reported with their name and 
   auto g = flat::test::random_gaussians(4, torch::kFloat, 3);
   auto cams = flat::test::test_cameras(1);
   auto call = [&](const torch::Tensor& m, const torch::Tensor& s, const torch::Tensor& q, const torch::Tensor& c,
-                  const torch::Tensor& o) { return rasterize_gaussians(m, s, q, c, o, cams, kH, kW, RasterSettings{}); };
+                  const torch::Tensor& o) {
+    return rasterize_gaussians(m, s, q, c, o, cams, kH, kW, RasterSettings{});
+  };
   REQUIRE_THROWS_WITH(call(g.means.view({-1}), g.scales, g.rotations, g.colors, g.opacities),
                       FLAT_CONTAINS("means") && FLAT_CONTAINS("(N,3)"));
   REQUIRE_THROWS_WITH(call(g.means, g.scales.narrow(1, 0, 2), g.rotations, g.colors, g.opacities),
@@ -352,4 +355,60 @@ TEST_CASE("gaussian maths: quaternion rotation is orthonormal and its backward m
     for (int j = 0; j < 9; ++j) fd += G[j] * (Rp[j] - Rm[j]) / 2e-6;
     CHECK(gq[i] == Approx(fd).epsilon(1e-7));
   }
+}
+
+TEST_CASE(
+    "gaussian maths: min_q_over_rect is the minimum over the rectangle, and the tile test keeps every "
+    "kept fragment",
+    "[gaussians][math]") {
+  using namespace flat::gaussians;
+  auto g = flat::test::random_gaussians(60, torch::kDouble, 17, 0.05, 0.6);
+  auto cams = flat::test::test_cameras(1);
+  const int64_t H = 45, W = 70;
+  const at::Tensor w2c = flat::camera::world_to_camera(cams.c2w.to(torch::kDouble)).contiguous();
+  const at::Tensor K = flat::camera::pixel_intrinsics(cams.intrinsics, H, W).to(torch::kDouble).contiguous();
+  const CameraView<double> cam = make_camera_view(w2c.data_ptr<double>(), K.data_ptr<double>());
+  GaussianConstants k;
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(3);
+  int64_t checked = 0, kept = 0;
+  for (int64_t n = 0; n < 60; ++n) {
+    ScreenGaussian<double> sg{};
+    PixelBox box{};
+    const double op = g.opacities[n].item<double>();
+    if (!preprocess_forward(g.means[n].data_ptr<double>(), g.scales[n].data_ptr<double>(),
+                            g.rotations[n].data_ptr<double>(), op, cam, k, (int)W, (int)H, sg, box))
+      continue;
+    sg.opacity = op;
+    // Against brute force on a fine grid, for random rectangles around the mean.
+    for (int t = 0; t < 5; ++t) {
+      auto r = at::rand({4}, gen, torch::kDouble) * 16.0 - 8.0;
+      const double x0 = sg.mx + std::min(r[0].item<double>(), r[1].item<double>());
+      const double x1 = sg.mx + std::max(r[0].item<double>(), r[1].item<double>());
+      const double y0 = sg.my + std::min(r[2].item<double>(), r[3].item<double>());
+      const double y1 = sg.my + std::max(r[2].item<double>(), r[3].item<double>());
+      double brute = 1e30;
+      for (int i = 0; i <= 200; ++i)
+        for (int j = 0; j <= 200; ++j)
+          brute =
+              std::min(brute, quad_form(sg, x0 + (x1 - x0) * i / 200.0 - sg.mx, y0 + (y1 - y0) * j / 200.0 - sg.my));
+      const double exact = min_q_over_rect(sg, x0, x1, y0, y1);
+      CHECK(exact <= brute + 1e-12);
+      CHECK(exact >= brute - 1e-3 * (1.0 + brute));
+      ++checked;
+    }
+    // The CUDA binning's test (preprocess.cu, tile_mask) on 16x16 tiles: a
+    // tile holding a kept fragment is never dropped.
+    for (int y = box.y0; y < box.y1; ++y)
+      for (int x = box.x0; x < box.x1; ++x) {
+        Fragment<double> f;
+        if (!shade(sg, x + 0.5, y + 0.5, k, f)) continue;
+        ++kept;
+        const int tx = x / 16, ty = y / 16;
+        const double rx0 = std::max(box.x0, tx * 16) + 0.5, rx1 = std::min(box.x1, (tx + 1) * 16) - 1 + 0.5;
+        const double ry0 = std::max(box.y0, ty * 16) + 0.5, ry1 = std::min(box.y1, (ty + 1) * 16) - 1 + 0.5;
+        CHECK(min_q_over_rect(sg, rx0, rx1, ry0, ry1) <= sg.extent2);
+      }
+  }
+  CHECK(checked > 100);
+  CHECK(kept > 100);
 }

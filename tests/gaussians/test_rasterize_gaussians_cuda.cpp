@@ -1,9 +1,9 @@
 // CUDA Gaussian rasterizer against the CPU reference on random scenes: every
 // forward output and every gradient. Tolerances are those recorded in
 // docs/rasterizer_3dgs.md. Skipped without a GPU.
-#include <cstdio>
-
 #include <torch/torch.h>
+
+#include <cstdio>
 
 #include "flat/gaussians/rasterize_gaussians.h"
 #include "gaussian_scenes.h"
@@ -21,6 +21,12 @@ namespace {
 // hardware approximation).
 constexpr double kForwardTol = 1e-4;
 constexpr double kForwardMismatchFraction = 1e-3;
+// median_depth and max_weight are discontinuous: one such flip (T crossing 0.5
+// within rounding, or the fragment giving a Gaussian's largest weight) moves
+// one element by O(1), i.e. a relative L2 error of ~1e-3 on these sizes (a
+// CPU simulation with the GPU's rounding put single flips at 2e-4 to 2e-3).
+// They are judged by the mismatch fraction, with a loose relative L2.
+constexpr double kDiscontinuousTol = 1e-2;
 constexpr double kGradTol = 2e-3;
 // Geometry (means, scales, rotations): float32 chains through the conic's
 // inverse, and fragments at the support's edge, can move a few Gaussians by
@@ -66,9 +72,11 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
     INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
     std::printf("gaussians cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed,
                 out_names[i], e, frac);
-    CHECK(e < kForwardTol);
+    CHECK(e < (i >= 3 ? kDiscontinuousTol : kForwardTol));
     CHECK(frac < kForwardMismatchFraction);
   }
+  CHECK(!gpu.out.normal.defined());
+  CHECK(!gpu.out.distortion.defined());
   REQUIRE(cpu.out.alpha.max().item<float>() > 0.5f);
   const char* g_names[] = {"means", "scales", "rotations", "colors", "opacities"};
   for (int i = 0; i < 5; ++i) {
@@ -115,6 +123,12 @@ TEST_CASE("rasterize_gaussians cuda: many Gaussians per tile (several shared-mem
   compare(3000, 2, 32, 48, RasterSettings{}, 303, 0.1, 0.6);
 }
 
+TEST_CASE("rasterize_gaussians cuda: Gaussians whose boxes span more than 32 tiles (binned to every tile)",
+          "[gaussians][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  compare(150, 1, 200, 300, RasterSettings{}, 606, 0.3, 1.0);
+}
+
 TEST_CASE("rasterize_gaussians cuda: small Gaussians over a larger image, cap and no alpha_min", "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
   compare(5000, 2, 96, 128, RasterSettings{}, 404, 0.005, 0.03);
@@ -158,8 +172,10 @@ TEST_CASE("rasterize_gaussians cuda: bad input values are reported by name (chec
              o = g.opacities.to(dev);
   auto nan_means = m.clone();
   nan_means[7][1] = std::nanf("");
-  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("means"));
-  REQUIRE_THROWS_WITH(rasterize_gaussians(m, s, q, c, o * 3, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("opacities"));
+  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, cams, 40, 56, RasterSettings{}),
+                      FLAT_CONTAINS("means"));
+  REQUIRE_THROWS_WITH(rasterize_gaussians(m, s, q, c, o * 3, cams, 40, 56, RasterSettings{}),
+                      FLAT_CONTAINS("opacities"));
   REQUIRE_THROWS_WITH(rasterize_gaussians(m, -s, q, c, o, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("scales"));
   auto no_views = flat::test::test_cameras(1).to(dev);
   no_views.c2w = no_views.c2w.narrow(0, 0, 0);

@@ -318,9 +318,9 @@ TEST_CASE("depth display range covers every camera of a trajectory: a dolly's cl
   c2w[1][2][3] = 3.0;  // the second camera 3 m closer: depths 1..3
   const camera::Cameras both{torch::tensor({0.5f, 0.5f, 0.5f, 0.5f}).repeat({2, 1}), c2w};
   const camera::Cameras first{both.intrinsics.slice(0, 0, 1), both.c2w.slice(0, 0, 1)};
-  const auto one = infer::display_depth_range(soup, first);
+  const auto one = infer::display_depth_range(primitives::ScenePrimitives::of(soup), first);
   CHECK(one.first == Approx(4.04).margin(0.02));
-  const auto all = infer::display_depth_range(soup, both);
+  const auto all = infer::display_depth_range(primitives::ScenePrimitives::of(soup), both);
   CHECK(all.first == Approx(1.04).margin(0.02));  // the close camera's near end
   CHECK(all.second == Approx(5.96).margin(0.02));  // the far camera's far end
 }

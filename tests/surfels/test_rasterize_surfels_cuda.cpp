@@ -1,6 +1,9 @@
 // CUDA surfel kernels against the CPU reference on random scenes: every
 // forward output and every gradient. Tolerances as docs/rasterizer_2dgs.md
 // ("Tolerances"). Skipped without a GPU.
+#include <algorithm>
+#include <cstdio>
+
 #include <torch/torch.h>
 
 #include "flat/surfels/rasterize_surfels.h"
@@ -13,23 +16,32 @@ using flat::surfels::rasterize_surfels;
 
 namespace {
 
-// CUDA vs CPU, float32 both. Forward: relative L2 error, and the fraction of
-// elements that differ by more than 1e-4 (a fragment whose alpha sits within
+// CUDA vs CPU, float32 both. Forward: a fragment whose alpha sits within
 // rounding of alpha_min, or whose rho3d and rho2d are within rounding of each
-// other, may take another branch on each side).
+// other, or a pixel at the transmittance floor or at T = 0.5 (median depth),
+// may take another branch on each side: such elements (off by more than
+// 1e-4) may be at most kForwardMismatchFraction of an output, or
+// kForwardMismatchMin elements (one such pixel is 3 elements of rgb; alone in
+// the 2240 pixels of a small test image it already costs ~7e-5 of rgb's
+// relative L2 error, and __expf puts more fragments within rounding than the
+// CPU's exp). The others must agree to kForwardTol (relative L2). A wrong
+// kernel moves most elements and fails both.
 constexpr double kForwardTol = 1e-4;
 constexpr double kForwardMismatchFraction = 1e-3;
+constexpr double kForwardMismatchMin = 8;
 // The distortion sums squared differences of nearby NDC depths: float keeps
 // fewer of its digits.
 constexpr double kDistortionTol = 1e-3;
 constexpr double kGradTol = 2e-3;  // colours, opacities
 // Geometry (means, scales, rotations): fragments within rounding of a branch
 // (alpha_min, the alpha cap, the low-pass switch, whose depth jumps) can move
-// a surfel's gradient by O(itself): at most kGeomOutliers of the surfels may
-// differ by more than 1e-3 of the largest gradient, the others must agree to
-// kGeomGradTol (relative L2). A wrong kernel moves most surfels and fails both.
+// a surfel's gradient by O(itself): at most kGeomOutliers of the surfels (or
+// kGeomOutliersMin) may differ by more than 1e-3 of the largest gradient, the
+// others must agree to kGeomGradTol (relative L2). A wrong kernel moves most
+// surfels and fails both.
 constexpr double kGeomGradTol = 2e-3;
 constexpr double kGeomOutliers = 0.01;
+constexpr double kGeomOutliersMin = 3;
 
 struct Result {
   RenderOutput out;
@@ -38,9 +50,10 @@ struct Result {
 
 Result run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int64_t H, int64_t W,
            const RasterSettings& settings, const torch::Device& dev, const std::vector<torch::Tensor>& weights) {
+  // Fresh leaves (on the CPU, to() returns the scene's own tensors).
   std::vector<torch::Tensor> in = {s.means.to(dev), s.scales.to(dev), s.rotations.to(dev), s.colors.to(dev),
                                    s.opacities.to(dev)};
-  for (auto& t : in) t.requires_grad_(true);
+  for (auto& t : in) t = t.detach().requires_grad_(true);
   auto out = rasterize_surfels(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, settings);
   auto loss = (out.rgb * weights[0].to(dev)).sum() + (out.alpha * weights[1].to(dev)).sum() +
               (out.depth * weights[2].to(dev)).sum() + (out.normal * weights[3].to(dev)).sum() +
@@ -50,13 +63,16 @@ Result run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int6
   return {out, grads};
 }
 
+// only_distortion: the loss weighs the distortion map alone (its gradient
+// is otherwise a small part of the total, and colours get none).
 void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s, uint64_t seed, double scale_lo = 0.03,
-             double scale_hi = 0.4) {
+             double scale_hi = 0.4, bool only_distortion = false) {
   auto scene = flat::test::random_surfels(n, torch::kFloat, seed, scale_lo, scale_hi);
   auto cams = flat::test::test_cameras(V);
   torch::manual_seed(seed);
-  const std::vector<torch::Tensor> w = {torch::randn({V, 3, H, W}), torch::randn({V, 1, H, W}),
-                                        torch::randn({V, 1, H, W}) * 0.3, torch::randn({V, 3, H, W}),
+  const double on = only_distortion ? 0.0 : 1.0;
+  const std::vector<torch::Tensor> w = {torch::randn({V, 3, H, W}) * on, torch::randn({V, 1, H, W}) * on,
+                                        torch::randn({V, 1, H, W}) * (0.3 * on), torch::randn({V, 3, H, W}) * on,
                                         torch::randn({V, 1, H, W}) * 100.0};
   auto cpu = run(scene, cams, H, W, s, torch::kCPU, w);
   auto gpu = run(scene, cams, H, W, s, torch::Device(torch::kCUDA, 0), w);
@@ -66,21 +82,32 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   const torch::Tensor g_out[] = {gpu.out.rgb,          gpu.out.alpha,      gpu.out.depth,     gpu.out.normal,
                                  gpu.out.median_depth, gpu.out.max_weight, gpu.out.distortion};
   for (int i = 0; i < 7; ++i) {
-    const double e = flat::test::rel_error(g_out[i].cpu(), c_out[i]);
-    const double frac = (g_out[i].cpu() - c_out[i]).abs().gt(1e-4).to(torch::kDouble).mean().item<double>();
-    INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
-    std::printf("surfels cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed,
-                out_names[i], e, frac);
-    CHECK(e < (i == 6 ? kDistortionTol : kForwardTol));
-    CHECK(frac < kForwardMismatchFraction);
+    const torch::Tensor g = g_out[i].cpu(), c = c_out[i];
+    REQUIRE(g.sizes() == c.sizes());
+    const double e = flat::test::rel_error(g, c);
+    const auto off = (g - c).abs().gt(1e-4).logical_or(g.isfinite().logical_not());
+    const int64_t n_off = off.sum().item<int64_t>();
+    const auto keep = off.logical_not();
+    const double e_rest = flat::test::rel_error(g.index({keep}), c.index({keep}));
+    INFO(out_names[i] << " rel error " << e << ", " << n_off << " of " << c.numel()
+                      << " elements off by > 1e-4, rel error of the others " << e_rest);
+    std::printf("surfels cuda-vs-cpu seed %llu %s: rel %.2e, %lld of %lld elements off by > 1e-4, rel error of the "
+                "others %.2e\n",
+                (unsigned long long)seed, out_names[i], e, (long long)n_off, (long long)c.numel(), e_rest);
+    CHECK(torch::isfinite(g).all().item<bool>());
+    CHECK(e_rest < (i == 6 ? kDistortionTol : kForwardTol));
+    CHECK((double)n_off <= std::max(kForwardMismatchFraction * (double)c.numel(), kForwardMismatchMin));
   }
   REQUIRE(cpu.out.alpha.max().item<float>() > 0.5f);
   REQUIRE(cpu.out.distortion.max().item<float>() > 0.0f);
   const char* g_names[] = {"means", "scales", "rotations", "colors", "opacities"};
   for (int i = 0; i < 5; ++i) {
+    if (only_distortion && i == 3) continue;  // the distortion does not depend on colours
+    REQUIRE(gpu.grads[i].sizes() == cpu.grads[i].sizes());
     const double e = flat::test::rel_error(gpu.grads[i], cpu.grads[i]);
     INFO("grad " << g_names[i] << " rel error " << e);
-    std::printf("surfels cuda-vs-cpu seed %llu grad %s: rel %.2e\n", (unsigned long long)seed, g_names[i], e);
+    std::printf("surfels cuda-vs-cpu seed %llu%s grad %s: rel %.2e\n", (unsigned long long)seed,
+                only_distortion ? " (distortion only)" : "", g_names[i], e);
     CHECK(torch::isfinite(gpu.grads[i]).all().item<bool>());
     CHECK(cpu.grads[i].abs().max().item<double>() > 0.0);
     if (i >= 3) {
@@ -89,13 +116,14 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
     }
     const auto per_surfel = (gpu.grads[i] - cpu.grads[i]).abs().reshape({n, -1}).amax(1);
     const auto outlier = per_surfel.gt(1e-3 * cpu.grads[i].abs().max().item<double>());
-    const double frac = outlier.to(torch::kDouble).mean().item<double>();
+    const int64_t n_out = outlier.sum().item<int64_t>();
     const auto keep = outlier.logical_not();
     const double e_rest = flat::test::rel_error(gpu.grads[i].index({keep}), cpu.grads[i].index({keep}));
-    INFO(g_names[i] << " gradient outliers " << frac << ", rel error of the others " << e_rest);
-    std::printf("surfels cuda-vs-cpu seed %llu grad %s: %lld outlier surfels of %lld, rel error of the others %.2e\n",
-                (unsigned long long)seed, g_names[i], (long long)outlier.sum().item<int64_t>(), (long long)n, e_rest);
-    CHECK(frac <= kGeomOutliers);
+    INFO(g_names[i] << " gradient outliers " << n_out << " of " << n << ", rel error of the others " << e_rest);
+    std::printf("surfels cuda-vs-cpu seed %llu%s grad %s: %lld outlier surfels of %lld, rel error of the others %.2e\n",
+                (unsigned long long)seed, only_distortion ? " (distortion only)" : "", g_names[i], (long long)n_out,
+                (long long)n, e_rest);
+    CHECK((double)n_out <= std::max(kGeomOutliers * (double)n, kGeomOutliersMin));
     CHECK(e_rest < kGeomGradTol);
   }
 }
@@ -120,6 +148,11 @@ TEST_CASE("rasterize_surfels cuda: many surfels per tile (several shared-memory 
           "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
   compare(1500, 2, 32, 48, RasterSettings{}, 303, 0.1, 1.0);
+}
+
+TEST_CASE("rasterize_surfels cuda: distortion gradients alone match the CPU reference", "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  compare(500, 2, 40, 56, RasterSettings{}, 505, 0.03, 0.4, /*only_distortion=*/true);
 }
 
 TEST_CASE("rasterize_surfels cuda: pixel-sized surfels (low-pass filter) match the CPU reference", "[surfels][cuda]") {

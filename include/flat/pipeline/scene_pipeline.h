@@ -79,6 +79,12 @@ inline constexpr double kMinAlphaForGeometry = 1e-4;
 // Depth and normal divided by alpha where alpha > kMinAlphaForGeometry.
 RenderedViews normalise_by_alpha(const render::RenderOutput& out);
 
+// One scene (no batch dimension) through the rasterizer of its representation
+// (render::rasterize, gaussians::rasterize_gaussians or
+// surfels::rasterize_surfels); the raw outputs (3DGS: normal undefined).
+render::RenderOutput rasterize_scene(const primitives::ScenePrimitives& scene, const camera::Cameras& cams,
+                                     int64_t height, int64_t width, const render::RasterSettings& settings);
+
 // The scene's primitives whose opacity is >= min_opacity (a copy through
 // index_select, differentiable for the kept ones). scene: one scene (no batch
 // dimension). min_opacity <= 0 returns the scene as is.

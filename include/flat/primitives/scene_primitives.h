@@ -32,7 +32,7 @@ struct ScenePrimitives {
 
   bool is_triangles() const { return representation == kTriangles; }
   int64_t batch() const;
-  int64_t size() const;              // primitives per scene
+  int64_t size() const;              // primitives per scene (batched or one scene)
   at::Tensor opacities() const;      // (B,N) or (N)
   at::Tensor centres() const;        // (B,N,3) or (N,3): triangle centroids, Gaussian means
   ScenePrimitives scene(int64_t b) const;

@@ -26,7 +26,7 @@ struct ViewSetup {
   CameraView<T> cam;
   std::vector<ScreenGaussian<T>> gaussians;  // visible, in compositing order
   std::vector<PixelBox> boxes;
-  std::vector<int64_t> ids;                  // Gaussian index of each entry
+  std::vector<int64_t> ids;  // Gaussian index of each entry
 };
 
 template <class T>

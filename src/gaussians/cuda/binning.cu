@@ -1,4 +1,5 @@
 // Tile binning of one view, as the triangle rasterizer's (render/cuda/binning.cu):
+// each Gaussian's pairs are the tiles of its mask (preprocess.cu, tile_mask());
 // two stable radix sorts (cub): all Gaussians by depth key
 // (render::depth_sort_key: 24 bits of the positive camera depth of the mean;
 // culled ones last), then the (tile, Gaussian) pairs, written in that depth
@@ -23,17 +24,23 @@ __global__ void ordered_counts_kernel(const int32_t* __restrict__ order, int64_t
 }
 
 __global__ void duplicate_kernel(const int32_t* __restrict__ order, const int32_t* __restrict__ counts,
-                                 const int32_t* __restrict__ ends, const PixelBox* __restrict__ boxes, int64_t n,
-                                 int tiles_x, uint32_t* __restrict__ pair_tiles, int32_t* __restrict__ pair_ids) {
+                                 const int32_t* __restrict__ ends, const PixelBox* __restrict__ boxes,
+                                 const uint32_t* __restrict__ tile_masks, int64_t n, int tiles_x,
+                                 uint32_t* __restrict__ pair_tiles, int32_t* __restrict__ pair_ids) {
   const int64_t r = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (r >= n) return;
   const int32_t count = counts[r];
   if (count == 0) return;
   const int32_t i = order[r];
   const PixelBox b = boxes[i];
+  const uint32_t mask = tile_masks[i];  // the preprocessing's: exactly `count` tiles
+  const int tx0 = tile_lo(b.x0), tx1 = tile_hi(b.x1), ty0 = tile_lo(b.y0), ty1 = tile_hi(b.y1);
+  const bool every = mask == ~0u && (tx1 - tx0) * (ty1 - ty0) > kMaskTiles;
   int32_t off = ends[r] - count;
-  for (int ty = tile_lo(b.y0); ty < tile_hi(b.y1); ++ty)
-    for (int tx = tile_lo(b.x0); tx < tile_hi(b.x1); ++tx) {
+  int bit = 0;
+  for (int ty = ty0; ty < ty1; ++ty)
+    for (int tx = tx0; tx < tx1; ++tx, ++bit) {
+      if (!every && !((mask >> bit) & 1u)) continue;
       pair_tiles[off] = (uint32_t)(ty * tiles_x + tx);
       pair_ids[off] = i;
       ++off;
@@ -70,20 +77,20 @@ void launch_ordered_counts(const int32_t* order, int64_t n, const int32_t* tile_
   ordered_counts_kernel<<<blocks_of(n), kThreads, 0, stream>>>(order, n, tile_counts, counts);
 }
 
-void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n,
-                 cudaStream_t stream) {
+void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n, cudaStream_t stream) {
   cub::DeviceScan::InclusiveSum(temp, temp_bytes, counts, ends, (int)n, stream);
 }
 
 void launch_duplicate(const int32_t* order, const int32_t* counts, const int32_t* ends, const PixelBox* boxes,
-                      int64_t n, const ViewParams& vp, uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream) {
+                      const uint32_t* tile_masks, int64_t n, const ViewParams& vp, uint32_t* pair_tiles,
+                      int32_t* pair_ids, cudaStream_t stream) {
   if (n == 0) return;
-  duplicate_kernel<<<blocks_of(n), kThreads, 0, stream>>>(order, counts, ends, boxes, n, vp.tiles_x, pair_tiles,
-                                                          pair_ids);
+  duplicate_kernel<<<blocks_of(n), kThreads, 0, stream>>>(order, counts, ends, boxes, tile_masks, n, vp.tiles_x,
+                                                          pair_tiles, pair_ids);
 }
 
-void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
-                  const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream) {
+void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out, const int32_t* ids_in,
+                  int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream) {
   cub::DeviceRadixSort::SortPairs(temp, temp_bytes, tiles_in, tiles_out, ids_in, ids_out, (int)count, 0,
                                   bits_for(num_tiles), stream);
 }

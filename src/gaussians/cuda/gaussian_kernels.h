@@ -3,10 +3,10 @@
 // calls them with buffers it allocates through libtorch. One view a call;
 // everything is enqueued on `stream`, nothing synchronises.
 #pragma once
+#include <cuda_runtime.h>
+
 #include <cstddef>
 #include <cstdint>
-
-#include <cuda_runtime.h>
 
 #include "gaussians/gaussian_math.h"
 
@@ -29,15 +29,18 @@ FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
 // Pass 1 over all n Gaussians (gaussians/cuda/preprocess.cu): screen data,
-// pixel box, depth sort key (render::depth_sort_key; kCulledKey when culled)
-// and tiles touched (0 when culled; screen data and box are then left
-// unwritten), order[i] = i (the depth sort's values); the sum of the tile
-// counts (the view's pair count) into *total, zeroed first.
+// pixel box, depth sort key (render::depth_sort_key; kCulledKey when culled),
+// the mask of the box's tiles the support reaches (bit (ty - ty0) * tw +
+// (tx - tx0); ~0u: every tile, for boxes of more than kMaskTiles tiles) and
+// their count (0 when culled or no tile is reached: screen data, box and mask
+// are then left unwritten), order[i] = i (the depth sort's values); the sum
+// of the tile counts (the view's pair count) into *total, zeroed first.
 constexpr uint32_t kCulledKey = (1u << render::kDepthKeyBits) - 1u;  // sorts last
+constexpr int kMaskTiles = 32;
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
-                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, int32_t* tile_counts,
-                       unsigned long long* total, cudaStream_t stream);
+                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, uint32_t* tile_masks,
+                       int32_t* tile_counts, unsigned long long* total, cudaStream_t stream);
 
 // Binning (gaussians/cuda/binning.cu), as the triangle rasterizer's: one
 // sort of the Gaussians by depth, then the pairs, written in that order, by
@@ -49,14 +52,14 @@ void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uin
 // tiles touched by each Gaussian in depth order, and their inclusive prefix sum;
 void launch_ordered_counts(const int32_t* order, int64_t n, const int32_t* tile_counts, int32_t* counts,
                            cudaStream_t stream);
-void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n,
-                 cudaStream_t stream);
-// one (tile id, Gaussian index) pair per touched tile, in depth order;
+void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n, cudaStream_t stream);
+// one (tile id, Gaussian index) pair per tile of its mask, in depth order;
 void launch_duplicate(const int32_t* order, const int32_t* counts, const int32_t* ends, const PixelBox* boxes,
-                      int64_t n, const ViewParams& vp, uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream);
+                      const uint32_t* tile_masks, int64_t n, const ViewParams& vp, uint32_t* pair_tiles,
+                      int32_t* pair_ids, cudaStream_t stream);
 // stable radix sort of the pairs by tile id (num_tiles: the bits it needs);
-void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
-                  const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
+void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out, const int32_t* ids_in,
+                  int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
 // ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
 void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
 
@@ -96,8 +99,8 @@ void launch_raster_backward(const int2* ranges, const int32_t* ids, const Screen
 // Gaussian with tile_counts > 0, its screen_grads row -> gradients of the
 // inputs (added into the g_ arrays); the row is zeroed for the next view.
 void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n, const ViewParams& vp,
-                  const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales,
-                  float* g_rotations, float* g_colors, float* g_opacities, cudaStream_t stream);
+                  const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales, float* g_rotations,
+                  float* g_colors, float* g_opacities, cudaStream_t stream);
 
 // Throws flat::Error naming `what` if the last launch failed (defined in the glue).
 void check_launch(const char* what);

@@ -1,7 +1,8 @@
 // Per-(view, Gaussian) kernels, one thread a Gaussian (the maths is
 // gaussians/gaussian_math.h, shared with the CPU reference):
-//   preprocess  screen data (ScreenGaussian), pixel box, depth key and tiles
-//               touched, with the view's pair count (one atomic a block);
+//   preprocess  screen data (ScreenGaussian), pixel box, depth key and the
+//               tiles the support reaches (tile_mask()), with the view's pair
+//               count (one atomic a block);
 //   chain       the backward's chain rule: a Gaussian's summed screen
 //               gradient of the view -> its mean, scales, quaternion, colour
 //               and opacity (one thread a Gaussian: no atomics, views in turn).
@@ -12,12 +13,33 @@ namespace {
 
 constexpr int kThreads = 128;
 
+// Which tiles of the box b the support reaches: bit (ty - ty0) * tw + (tx - tx0)
+// set when some pixel centre of the tile inside the box has q <= extent2
+// (min_q_over_rect); every tile (all bits) when the box spans more than
+// kMaskTiles tiles. Small Gaussians' boxes often straddle tile corners their
+// ellipse misses: those pairs are never binned.
+__device__ uint32_t tile_mask(const ScreenGaussian<float>& g, const PixelBox& b) {
+  const int tx0 = tile_lo(b.x0), tx1 = tile_hi(b.x1), ty0 = tile_lo(b.y0), ty1 = tile_hi(b.y1);
+  const int tw = tx1 - tx0;
+  if (tw * (ty1 - ty0) > kMaskTiles) return ~0u;
+  uint32_t mask = 0u;
+  for (int ty = ty0; ty < ty1; ++ty)
+    for (int tx = tx0; tx < tx1; ++tx) {
+      const float x0 = (float)max(b.x0, tx * kTileSize) + 0.5f,
+                  x1 = (float)(min(b.x1, (tx + 1) * kTileSize) - 1) + 0.5f;
+      const float y0 = (float)max(b.y0, ty * kTileSize) + 0.5f,
+                  y1 = (float)(min(b.y1, (ty + 1) * kTileSize) - 1) + 0.5f;
+      if (min_q_over_rect(g, x0, x1, y0, y1) <= g.extent2) mask |= 1u << ((ty - ty0) * tw + (tx - tx0));
+    }
+  return mask;
+}
+
 __global__ void __launch_bounds__(kThreads)
     preprocess_kernel(const float* __restrict__ means, const float* __restrict__ scales,
                       const float* __restrict__ rotations, const float* __restrict__ colors,
                       const float* __restrict__ opacities, int64_t n, ViewParams vp,
                       ScreenGaussian<float>* __restrict__ screen, PixelBox* __restrict__ boxes,
-                      uint32_t* __restrict__ depth_keys, int32_t* __restrict__ order,
+                      uint32_t* __restrict__ depth_keys, int32_t* __restrict__ order, uint32_t* __restrict__ tile_masks,
                       int32_t* __restrict__ tile_counts, unsigned long long* __restrict__ total) {
   __shared__ long long warp_sums[kThreads / 32];
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
@@ -27,15 +49,19 @@ __global__ void __launch_bounds__(kThreads)
     ScreenGaussian<float> g;
     PixelBox b;
     const float opacity = opacities[i];
-    if (preprocess_forward(means + 3 * i, scales + 3 * i, rotations + 4 * i, opacity, vp.cam, vp.k, vp.width,
-                           vp.height, g, b)) {
-      count = (tile_hi(b.x1) - tile_lo(b.x0)) * (tile_hi(b.y1) - tile_lo(b.y0));
+    if (preprocess_forward(means + 3 * i, scales + 3 * i, rotations + 4 * i, opacity, vp.cam, vp.k, vp.width, vp.height,
+                           g, b)) {
       g.opacity = opacity;
       for (int c = 0; c < 3; ++c) g.color[c] = colors[3 * i + c];
-      g.pad[0] = g.pad[1] = 0.f;
-      screen[i] = g;
-      boxes[i] = b;
-      key = render::depth_sort_key(g.z);
+      g.pad = 0.f;
+      const uint32_t mask = tile_mask(g, b);
+      count = mask == ~0u ? (tile_hi(b.x1) - tile_lo(b.x0)) * (tile_hi(b.y1) - tile_lo(b.y0)) : __popc(mask);
+      if (count > 0) {
+        screen[i] = g;
+        boxes[i] = b;
+        tile_masks[i] = mask;
+        key = render::depth_sort_key(g.z);
+      }
     }
     depth_keys[i] = key;
     order[i] = (int32_t)i;
@@ -54,9 +80,8 @@ __global__ void __launch_bounds__(kThreads)
 }
 
 __global__ void __launch_bounds__(kThreads)
-    chain_kernel(const float* __restrict__ means, const float* __restrict__ scales,
-                 const float* __restrict__ rotations, int64_t n, ViewParams vp,
-                 const int32_t* __restrict__ tile_counts, float* __restrict__ screen_grads,
+    chain_kernel(const float* __restrict__ means, const float* __restrict__ scales, const float* __restrict__ rotations,
+                 int64_t n, ViewParams vp, const int32_t* __restrict__ tile_counts, float* __restrict__ screen_grads,
                  float* __restrict__ g_means, float* __restrict__ g_scales, float* __restrict__ g_rotations,
                  float* __restrict__ g_colors, float* __restrict__ g_opacities) {
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
@@ -89,17 +114,17 @@ int blocks_of(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
-                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, int32_t* tile_counts,
-                       unsigned long long* total, cudaStream_t stream) {
+                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, uint32_t* tile_masks,
+                       int32_t* tile_counts, unsigned long long* total, cudaStream_t stream) {
   cudaMemsetAsync(total, 0, sizeof(unsigned long long), stream);
   if (n == 0) return;
   preprocess_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, colors, opacities, n, vp, screen,
-                                                           boxes, depth_keys, order, tile_counts, total);
+                                                           boxes, depth_keys, order, tile_masks, tile_counts, total);
 }
 
 void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n, const ViewParams& vp,
-                  const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales,
-                  float* g_rotations, float* g_colors, float* g_opacities, cudaStream_t stream) {
+                  const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales, float* g_rotations,
+                  float* g_colors, float* g_opacities, cudaStream_t stream) {
   if (n == 0) return;
   chain_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, n, vp, tile_counts, screen_grads,
                                                       g_means, g_scales, g_rotations, g_colors, g_opacities);

@@ -48,7 +48,7 @@ __global__ void __launch_bounds__(kBlockSize)
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f}, last_alpha = 0.f;
   for (int end = range.x + block_last; end > range.x; end -= kBlockSize) {
     const int begin = max(range.x, end - kBlockSize);
-    __syncthreads();  // the previous batch is read
+    __syncthreads();              // the previous batch is read
     const int e = end - 1 - tid;  // staged back to front
     if (e >= begin) {
       const int32_t id = ids[e];
@@ -85,7 +85,7 @@ __global__ void __launch_bounds__(kBlockSize)
       }
       if (!__any_sync(kFullWarp, valid)) continue;
       float r[kGradStride] = {gr.mean2d[0], gr.mean2d[1], gr.conic[0], gr.conic[1], gr.conic[2], gr.opacity,
-                              gr.color[0], gr.color[1], gr.color[2], gr.z, 0.f, 0.f};
+                              gr.color[0],  gr.color[1],  gr.color[2], gr.z,        0.f,         0.f};
 #pragma unroll
       for (int c = 0; c < kScreenGradSize; ++c)
         for (int d = 16; d > 0; d >>= 1) r[c] += __shfl_down_sync(kFullWarp, r[c], d);

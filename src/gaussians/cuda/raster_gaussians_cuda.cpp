@@ -6,12 +6,12 @@
 // (one cheap kernel) instead of keeping it.
 #include "gaussians/cuda/raster_gaussians_cuda.h"
 
+#include <ATen/cuda/CUDAContext.h>
+#include <c10/cuda/CUDAGuard.h>
+
 #include <algorithm>
 #include <limits>
 #include <vector>
-
-#include <ATen/cuda/CUDAContext.h>
-#include <c10/cuda/CUDAGuard.h>
 
 #include "flat/core/error.h"
 #include "gaussians/cuda/gaussian_kernels.h"
@@ -51,20 +51,23 @@ void check_dtype(const GaussianInputs& in) {
              "rasterize_gaussians (cuda): at most 2^31-1 Gaussians, got " + std::to_string(in.means.size(0)));
 }
 
+uint32_t* u32(const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); }
+
 // One view's preprocessing state over all N Gaussians (reused across views).
 struct Preprocessed {
-  at::Tensor screen, boxes, depth_keys, order, counts, total;
+  at::Tensor screen, boxes, depth_keys, order, masks, counts, total;
   explicit Preprocessed(int64_t n, const at::TensorOptions& f)
       : screen(at::empty({n * kScreenFloats}, f)),
         boxes(at::empty({n * 4}, f.dtype(at::kInt))),
         depth_keys(at::empty({n}, f.dtype(at::kInt))),
         order(at::empty({n}, f.dtype(at::kInt))),
+        masks(at::empty({n}, f.dtype(at::kInt))),
         counts(at::empty({n}, f.dtype(at::kInt))),
         total(at::empty({1}, f.dtype(at::kLong))) {}
   void run(const GaussianInputs& in, const ViewParams& vp, cudaStream_t stream) {
     launch_preprocess(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(),
                       in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), in.means.size(0), vp, screen_ptr(),
-                      box_ptr(), key_ptr(), order.data_ptr<int>(), counts.data_ptr<int>(),
+                      box_ptr(), key_ptr(), order.data_ptr<int>(), u32(masks), counts.data_ptr<int>(),
                       reinterpret_cast<unsigned long long*>(total.data_ptr<int64_t>()), stream);
     check_launch("preprocessing");
   }
@@ -72,8 +75,6 @@ struct Preprocessed {
   PixelBox* box_ptr() { return reinterpret_cast<PixelBox*>(boxes.data_ptr<int>()); }
   uint32_t* key_ptr() { return reinterpret_cast<uint32_t*>(depth_keys.data_ptr<int>()); }
 };
-
-uint32_t* u32(const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); }
 
 // Bins one view's pairs (binning.cu): returns the sorted Gaussian ids and the
 // tile ranges ((tiles, 2) int).
@@ -87,8 +88,7 @@ void bin_view(Preprocessed& pre, int64_t n, int64_t pairs, const ViewParams& vp,
   sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, n, stream);
   scan_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
   sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, pairs, tiles, stream);
-  const at::Tensor temp =
-      at::empty({(int64_t)std::max({depth_bytes, scan_bytes, tile_bytes}) + 1}, f.dtype(at::kByte));
+  const at::Tensor temp = at::empty({(int64_t)std::max({depth_bytes, scan_bytes, tile_bytes}) + 1}, f.dtype(at::kByte));
   const auto i32 = f.dtype(at::kInt);
   const at::Tensor depth_sorted = at::empty({n}, i32), order_sorted = at::empty({n}, i32);
   const at::Tensor counts = at::empty({n}, i32), ends = at::empty({n}, i32);
@@ -101,8 +101,8 @@ void bin_view(Preprocessed& pre, int64_t n, int64_t pairs, const ViewParams& vp,
   check_launch("ordered tile counts");
   scan_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), ends.data_ptr<int>(), n, stream);
   check_launch("tile count scan");
-  launch_duplicate(order_sorted.data_ptr<int>(), counts.data_ptr<int>(), ends.data_ptr<int>(), pre.box_ptr(), n, vp,
-                   u32(pair_tiles), pair_ids.data_ptr<int>(), stream);
+  launch_duplicate(order_sorted.data_ptr<int>(), counts.data_ptr<int>(), ends.data_ptr<int>(), pre.box_ptr(),
+                   u32(pre.masks), n, vp, u32(pair_tiles), pair_ids.data_ptr<int>(), stream);
   check_launch("pair duplication");
   sort_by_tile(temp.data_ptr(), tile_bytes, u32(pair_tiles), u32(tiles_sorted), pair_ids.data_ptr<int>(),
                ids_sorted.data_ptr<int>(), pairs, tiles, stream);
@@ -133,9 +133,9 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
     FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): preprocessing failed");
     if (v == 0) check_input_values(in);  // the statistics' copy was enqueued before: now on the host
     const int64_t pairs = host_total.data_ptr<int64_t>()[0];
-    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(),
-               "rasterize_gaussians (cuda): " + std::to_string(pairs) + " (Gaussian, tile) pairs in view " +
-                   std::to_string(v) + ", more than 2^31-1");
+    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(), "rasterize_gaussians (cuda): " + std::to_string(pairs) +
+                                                                " (Gaussian, tile) pairs in view " + std::to_string(v) +
+                                                                ", more than 2^31-1");
     at::Tensor ids, ranges;
     bin_view(pre, N, pairs, vp, f, stream, ids, ranges);
     at::Tensor t_final, last;
@@ -149,9 +149,8 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
                       out.median_depth.data_ptr<float>() + v * HW,
                       for_backward ? t_final.data_ptr<float>() : nullptr,
                       for_backward ? last.data_ptr<int>() : nullptr};
-    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(),
-                          pre.screen_ptr(), vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()),
-                          stream);
+    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), pre.screen_ptr(),
+                          vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
     check_launch("forward compositing");
     if (for_backward) views.insert(views.end(), {ids, ranges, t_final, last});
   }
@@ -169,7 +168,8 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
   const c10::cuda::CUDAGuard guard(in.means.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
   const int64_t V = in.w2c.size(0), HW = in.height * in.width, N = in.means.size(0);
-  FLAT_CHECK((int64_t)views.size() == V * kViewState, "rasterize_gaussians (cuda): backward state does not match the views");
+  FLAT_CHECK((int64_t)views.size() == V * kViewState,
+             "rasterize_gaussians (cuda): backward state does not match the views");
   const auto f = in.means.options();
   GaussianGrads g;
   g.means = at::zeros_like(in.means);
@@ -187,8 +187,8 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
     BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
                        grad_depth.data_ptr<float>() + v * HW, views[kViewState * v + 2].data_ptr<float>(),
                        views[kViewState * v + 3].data_ptr<int>()};
-    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(),
-                           pre.screen_ptr(), vp, img, screen_grads.data_ptr<float>(), stream);
+    launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), pre.screen_ptr(),
+                           vp, img, screen_grads.data_ptr<float>(), stream);
     check_launch("backward compositing");
     launch_chain(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(), N, vp,
                  pre.counts.data_ptr<int>(), screen_grads.data_ptr<float>(), g.means.data_ptr<float>(),

@@ -74,11 +74,12 @@ void bin(const ScreenData& sd, const ViewParams& vp, int64_t N, at::Tensor& sort
   const auto f = sd.tile_counts.options();
   const int num_tiles = vp.tiles_x * vp.tiles_y;
   ranges = at::zeros({num_tiles, 2}, f);
-  // The pair count in 64 bits (one host wait a view).
+  // The pair count in 64 bits (one host wait a view). The kernels index the
+  // pairs in int32 and step through a tile's list in rounds of kBlockSize.
   const int64_t pairs = N > 0 ? sd.tile_counts.sum(at::kLong).item<int64_t>() : 0;
-  FLAT_CHECK(pairs <= std::numeric_limits<int32_t>::max(),
+  FLAT_CHECK(pairs <= std::numeric_limits<int32_t>::max() - kBlockSize,
              "rasterize_surfels (cuda): view " + std::to_string(view) + " needs " + std::to_string(pairs) +
-                 " (surfel, tile) pairs, more than the 2^31-1 the sort supports; render fewer or smaller surfels");
+                 " (surfel, tile) pairs, more than the ~2^31 the sort supports; render fewer or smaller surfels");
   sorted_values = at::empty({pairs}, f);
   if (pairs == 0) return;
   const at::Tensor offsets = at::empty({N}, f);

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# One device call for the 3DGS / 2DGS rasterizers (issue #34): build, their
+# CUDA-vs-CPU tests, flat_bench raster on the anchor workloads with the three
+# primitives (triangles, 3dgs, 2dgs: the same scene, primitives/triangle_gaussians.h),
+# and the anchor gsplat on the same Gaussians (scripts/bench_gsplat.py), built
+# from its PyPI wheel in the background while ours compiles.
+# Usage on the GPU machine (repo root; .deps carried, .deps/wheels holding the
+# gsplat wheel and its pure-Python dependencies): bash scripts/gpu_gaussians.sh
+# Logs and tables go to $OUT; GPU_BUILD_DIR is shared with scripts/gpu_recipe.sh.
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+T0=$(date +%s)
+say() { echo "[gaussians $(( $(date +%s) - T0 )) s] $*"; }
+cd "$ROOT"
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+
+GS_PID=""
+if [ -d "$ROOT/.deps/wheels" ] && [ "${SKIP_GSPLAT:-0}" != 1 ]; then
+  (
+    pip install --no-index --find-links "$ROOT/.deps/wheels" --target /tmp/gsplat_py gsplat jaxtyping rich ninja \
+      >"$OUT/gsplat_install.log" 2>&1 || exit 1
+    export PATH=/tmp/gsplat_py/bin:$PATH PYTHONPATH=/tmp/gsplat_py MAX_JOBS=${GSPLAT_JOBS:-6} TORCH_CUDA_ARCH_LIST=9.0
+    python3 -c "import gsplat; from gsplat.cuda._backend import _C; print('gsplat', gsplat.__version__, 'built:', _C is not None)"
+  ) >"$OUT/gsplat_build.log" 2>&1 &
+  GS_PID=$!
+fi
+
+cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF \
+  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
+  || { tail -30 "$OUT/configure.log"; exit 1; }
+ninja -C "$BUILD" -j "${BUILD_JOBS:-12}" flat_test_gaussians flat_test_surfels flat_bench >"$OUT/build.log" 2>&1 \
+  || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+say "built"
+T="$(find "$BUILD" -name flat_test_gaussians -type f | head -1)"; S="$(find "$BUILD" -name flat_test_surfels -type f | head -1)"
+for t in "$T" "$S"; do
+  n=$(basename "$t")
+  timeout 240 "$t" "[cuda]" >"$OUT/$n.log" 2>&1; echo "$n [cuda]: rc=$? $(grep -E 'passed|failed' "$OUT/$n.log" | tail -1)"
+  grep -E "FAILED|cuda-vs-cpu" "$OUT/$n.log" | head -40
+done
+say "tests done"
+timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workload ${WORKLOADS:-anchor-large anchor-small} \
+  --primitives triangles 3dgs 2dgs --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_raster.log" 2>&1
+echo "flat_bench raster rc=$?"; grep -E "^\|" "$OUT/bench_raster.log"; grep -E "error" "$OUT/bench_raster.log" | head -5
+say "ours timed"
+if [ -n "$GS_PID" ]; then
+  wait "$GS_PID"; tail -3 "$OUT/gsplat_build.log"
+  say "gsplat built"
+  PATH=/tmp/gsplat_py/bin:$PATH PYTHONPATH=/tmp/gsplat_py FLAT_SHARED_BENCH="$ROOT/shared_bench" \
+    timeout "${GSPLAT_SECONDS:-150}" python3 scripts/bench_gsplat.py --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_gsplat.log" 2>&1
+  echo "bench_gsplat rc=$?"; grep -E "^\||gsplat|Error|error" "$OUT/bench_gsplat.log" | head -12
+fi
+say "done"
