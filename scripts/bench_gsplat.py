@@ -97,8 +97,9 @@ def main():
                     img, alpha, _ = gsplat.rasterization(m, q, s, o, c, viewmats, K, Wd, H, near_plane=0.01,
                                                          render_mode="RGB+D")
                     return (img[..., :3] * wrgb).sum() + alpha.sum() + 0.1 * img[..., 3].sum()
-                out = gsplat.rasterization_2dgs(m, q, s, o, c, viewmats, K, Wd, H, near_plane=0.01,
-                                                render_mode="RGB+D")
+                # Its "RGB+D" mode appends per-camera depths: colours per camera too.
+                out = gsplat.rasterization_2dgs(m, q, s, o, c.expand(V, -1, -1), viewmats, K, Wd, H,
+                                                near_plane=0.01, render_mode="RGB+D")
                 img, alpha, normals, _, distort = out[0], out[1], out[2], out[3], out[4]
                 return ((img[..., :3] * wrgb).sum() + alpha.sum() + 0.1 * img[..., 3].sum() + normals.sum()
                         + distort.sum())
