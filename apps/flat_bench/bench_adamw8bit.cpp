@@ -23,7 +23,7 @@
 #include "flat/core/error.h"
 #include "flat/model/scene_decoder.h"
 #include "flat/primitives/head_channels.h"
-#include "flat/train/adamw.h"
+#include "flat/optim/adamw.h"
 
 namespace flat::bench {
 namespace {
@@ -45,10 +45,10 @@ struct StepTiming {
 
 StepTiming time_steps(std::vector<std::pair<std::string, at::Tensor>> params, bool fused,
                       const AdamW8bitBenchOptions& o) {
-  train::AdamWOptions ao;
+  optim::AdamWOptions ao;
   ao.state_bits = 8;
   ao.fused = fused;
-  train::AdamW opt(params, ao);
+  optim::AdamW opt(params, ao);
   const auto device = params.front().second.device();
   for (int i = 0; i < o.warmup; ++i) opt.step(1e-4);
   torch::cuda::synchronize();
@@ -67,7 +67,7 @@ StepTiming time_steps(std::vector<std::pair<std::string, at::Tensor>> params, bo
 
 void run(const AdamW8bitBenchOptions& o) {
   FLAT_CHECK(torch::cuda::is_available(), "flat_bench adamw8bit: needs a CUDA device");
-  FLAT_CHECK(train::AdamW::fused_8bit_available(), "flat_bench adamw8bit: this build has no CUDA kernels");
+  FLAT_CHECK(optim::AdamW::fused_8bit_available(), "flat_bench adamw8bit: this build has no CUDA kernels");
   FLAT_CHECK(o.steps > 0 && o.warmup >= 0, "flat_bench adamw8bit: --steps must be positive");
   const auto dtype = o.dtype == "bf16" ? at::kBFloat16 : at::kFloat;
   model::SceneDecoderConfig cfg;
@@ -79,7 +79,7 @@ void run(const AdamW8bitBenchOptions& o) {
   torch::manual_seed(0);
   for (auto& [name, p] : decoder->named_parameters().pairs()) {
     all += p.numel();
-    if (p.numel() < train::AdamWOptions{}.min_8bit_numel) continue;
+    if (p.numel() < optim::AdamWOptions{}.min_8bit_numel) continue;
     p.mutable_grad() = torch::randn_like(p) * 1e-3;
     params.emplace_back(name, p);
     numel += p.numel();

@@ -126,7 +126,7 @@ std::string latest_checkpoint(const std::string& checkpoints_dir) {
 }
 
 std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
-                            const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
+                            const torch::nn::Module& model, const ModelSignature& signature, const optim::AdamW& optimiser,
                             int64_t keep) {
   const std::string name = step_name(state.step);
   const std::string final_dir = checkpoints_dir + "/" + name;

@@ -23,7 +23,7 @@
 #include "flat/core/progress.h"
 #include "flat/core/run_dir.h"
 #include "flat/model/weights.h"
-#include "flat/train/adamw.h"
+#include "flat/optim/adamw.h"
 #include "flat/train/checkpoint.h"
 #include "flat/train/data_parallel.h"
 #include "flat/train/lr_schedule.h"

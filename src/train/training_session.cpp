@@ -58,9 +58,19 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
     fail("device: " + device.str() + " requested but only " + std::to_string(torch::cuda::device_count()) +
          " CUDA device(s) are visible");
   bf16 = cfg.precision == "bf16" && device.is_cuda();
-  schedule = {cfg.optim.lr, cfg.optim.warmup_steps, cfg.steps, cfg.optim.schedule, cfg.optim.min_lr_ratio};
-  const AdamWOptions adamw{cfg.optim.beta1, cfg.optim.beta2, cfg.optim.eps, cfg.optim.weight_decay, cfg.optim.fused,
-                           cfg.optim.name == "adamw8bit" ? 8 : 32};
+  // Field by field: a positional list would swap values silently when a field moves.
+  schedule.peak = cfg.optim.lr;
+  schedule.warmup_steps = cfg.optim.warmup_steps;
+  schedule.total_steps = cfg.steps;
+  schedule.shape = cfg.optim.schedule;
+  schedule.min_ratio = cfg.optim.min_lr_ratio;
+  optim::AdamWOptions adamw;
+  adamw.beta1 = cfg.optim.beta1;
+  adamw.beta2 = cfg.optim.beta2;
+  adamw.eps = cfg.optim.eps;
+  adamw.weight_decay = cfg.optim.weight_decay;
+  adamw.fused = cfg.optim.fused;
+  adamw.state_bits = cfg.optim.name == "adamw8bit" ? 8 : 32;
   if (cfg.task == "vae") {
     vae = model::WanVAE(cfg.pipeline.model.vae);
     vae_loss = cfg.vae;
@@ -80,7 +90,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
       vae_lpips->eval();
       for (auto& p : vae_lpips->parameters()) p.requires_grad_(false);
     }
-    optimiser = std::make_unique<AdamW>(vae->named_parameters().pairs(), adamw);
+    optimiser = std::make_unique<optim::AdamW>(vae->named_parameters().pairs(), adamw);
     return;
   }
   decoder = model::SceneDecoder(cfg.pipeline.model, cfg.pipeline.channels());
@@ -94,7 +104,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   decoder->to(device);
   pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
   objective = std::make_unique<loss::Objective>(cfg.loss, device);
-  optimiser = std::make_unique<AdamW>(decoder->named_parameters().pairs(), adamw);
+  optimiser = std::make_unique<optim::AdamW>(decoder->named_parameters().pairs(), adamw);
 }
 
 void TrainingSession::use_data_parallel(DataParallel* dp) {

@@ -27,7 +27,7 @@ TEST_CASE("checkpoints: round trip, newest K kept, leftovers of a crash removed"
   const std::string dir = flat::test::fresh_dir("ckpt_roundtrip").string() + "/checkpoints";
   torch::manual_seed(1);
   Tiny model(3);
-  AdamW opt(model.named_parameters().pairs(), {});
+  flat::optim::AdamW opt(model.named_parameters().pairs(), {});
   model.w.mutable_grad() = torch::ones_like(model.w);
   opt.step(0.1);
   const ModelSignature sig{"pipeline.model.vae.dim: 3\n"};
@@ -63,7 +63,7 @@ TEST_CASE("checkpoints: round trip, newest K kept, leftovers of a crash removed"
 TEST_CASE("checkpoints: truncated files and other models are refused by name", "[train]") {
   const std::string dir = flat::test::fresh_dir("ckpt_bad").string() + "/checkpoints";
   Tiny model(3);
-  AdamW opt(model.named_parameters().pairs(), {});
+  flat::optim::AdamW opt(model.named_parameters().pairs(), {});
   const ModelSignature sig{"pipeline.model.vae.dim: 3\nheads: independent\n"};
   const std::string written = save_checkpoint(dir, {4, "tiny", 0, 0, ""}, model, sig, opt, 3);
   const std::string file = written + "/model.safetensors";
@@ -86,7 +86,7 @@ TEST_CASE("checkpoints: NaN weights are never written; the last good one is neve
   const std::string dir = flat::test::fresh_dir("ckpt_nan").string() + "/checkpoints";
   torch::manual_seed(2);
   Tiny model(3);
-  AdamW opt(model.named_parameters().pairs(), {});
+  flat::optim::AdamW opt(model.named_parameters().pairs(), {});
   const ModelSignature sig{"pipeline.model.vae.dim: 3\n"};
   // step 2 good; steps 4 and 6 written while steps were being skipped (consecutive_skips > 0).
   save_checkpoint(dir, {2, "tiny", 0, 0, ""}, model, sig, opt, 1);
@@ -117,7 +117,7 @@ TEST_CASE("checkpoints: NaN weights are never written; the last good one is neve
 TEST_CASE("checkpoints: resume takes the newest intact one, naming and setting aside the others", "[train]") {
   const std::string dir = flat::test::fresh_dir("ckpt_intact").string() + "/checkpoints";
   Tiny model(3);
-  AdamW opt(model.named_parameters().pairs(), {});
+  flat::optim::AdamW opt(model.named_parameters().pairs(), {});
   const ModelSignature sig{"pipeline.model.vae.dim: 3\n"};
   CHECK_FALSE(load_newest_intact_checkpoint(dir).has_value());  // no folder: a fresh start
   for (int64_t step : {2, 4, 6}) save_checkpoint(dir, {step, "tiny", 0, 0, ""}, model, sig, opt, 3);

@@ -26,7 +26,7 @@
 
 #include "flat/core/tensor_io.h"
 #include "flat/pipeline/trained_model.h"
-#include "flat/train/adamw.h"
+#include "flat/optim/adamw.h"
 
 namespace flat::train {
 
@@ -47,7 +47,7 @@ using pipeline::ModelSignature;
 // Throws flat::Error naming the folder, and writes nothing, when the model's
 // weights hold NaN or Inf.
 std::string save_checkpoint(const std::string& checkpoints_dir, const TrainerState& state,
-                            const torch::nn::Module& model, const ModelSignature& signature, const AdamW& optimiser,
+                            const torch::nn::Module& model, const ModelSignature& signature, const optim::AdamW& optimiser,
                             int64_t keep);
 
 // The newest complete checkpoint folder under checkpoints_dir, "" if none.

@@ -10,7 +10,7 @@
 
 #include "flat/loss/objective.h"
 #include "flat/pipeline/scene_pipeline.h"
-#include "flat/train/adamw.h"
+#include "flat/optim/adamw.h"
 #include "flat/train/checkpoint.h"
 #include "flat/train/lr_schedule.h"
 #include "flat/train/train_config.h"
@@ -63,7 +63,7 @@ class TrainingSession {
   loss::Lpips vae_lpips{nullptr};  // loaded when vae.lpips > 0
   VaeStageConfig vae_loss;
 
-  std::unique_ptr<AdamW> optimiser;
+  std::unique_ptr<optim::AdamW> optimiser;
   LrSchedule schedule;
   ModelSignature signature;
   at::Device device = at::kCPU;

@@ -4,11 +4,10 @@
 #include <cmath>
 
 #include "flat/core/error.h"
-#include "flat/train/adamw.h"
-#include "flat/train/lr_schedule.h"
+#include "flat/optim/adamw.h"
 #include "test_support.h"
 
-using namespace flat::train;
+using namespace flat::optim;
 
 namespace {
 
@@ -31,8 +30,10 @@ std::vector<double> values(const at::Tensor& t) {
 
 }  // namespace
 
-TEST_CASE("AdamW equals the reference update rule over several steps", "[train]") {
-  const AdamWOptions o{0.9, 0.99, 1e-8, 0.05};
+TEST_CASE("AdamW equals the reference update rule over several steps", "[optim]") {
+  AdamWOptions o;
+  o.beta2 = 0.99;
+  o.weight_decay = 0.05;
   auto gen = at::make_generator<at::CPUGeneratorImpl>(5);
   auto w = at::randn({4, 3}, gen, at::kDouble).requires_grad_(true);
   AdamW opt({{"w", w}}, o);
@@ -49,7 +50,7 @@ TEST_CASE("AdamW equals the reference update rule over several steps", "[train]"
   CHECK(opt.state().at("step.w").item<double>() == 4.0);
 }
 
-TEST_CASE("AdamW leaves parameters without a gradient alone", "[train]") {
+TEST_CASE("AdamW leaves parameters without a gradient alone", "[optim]") {
   auto a = at::ones({3}, at::kDouble).requires_grad_(true), b = at::ones({2}, at::kDouble).requires_grad_(true);
   AdamW opt({{"a", a}, {"b", b}}, {});
   a.mutable_grad() = at::ones({3}, at::kDouble);
@@ -59,7 +60,7 @@ TEST_CASE("AdamW leaves parameters without a gradient alone", "[train]") {
   CHECK(opt.state().count("exp_avg.b") == 0);
 }
 
-TEST_CASE("AdamW state round trip continues exactly; bad state is refused by name", "[train]") {
+TEST_CASE("AdamW state round trip continues exactly; bad state is refused by name", "[optim]") {
   auto gen = at::make_generator<at::CPUGeneratorImpl>(9);
   auto w1 = at::randn({5}, gen).requires_grad_(true);
   auto w2 = w1.detach().clone().requires_grad_(true);
@@ -92,27 +93,7 @@ TEST_CASE("AdamW state round trip continues exactly; bad state is refused by nam
   CHECK(a.state_bytes() == 2 * 5 * 4 + 4);
 }
 
-TEST_CASE("learning-rate schedule: warm-up, then constant, cosine or linear decay", "[train]") {
-  LrSchedule s{1.0, 4, 14, "cosine", 0.1};
-  CHECK(s.at(0) == Approx(0.25));
-  CHECK(s.at(3) == Approx(1.0));
-  CHECK(s.at(4) == Approx(1.0));    // first step after warm-up: the peak
-  CHECK(s.at(13) == Approx(0.1));   // last step: min_ratio * peak
-  CHECK(s.at(8) < s.at(5));
-  CHECK(s.at(8) > 0.1);
-  const double mid = 4 + 4.5;  // halfway through decay steps 4..13
-  (void)mid;
-  LrSchedule lin{2.0, 0, 11, "linear", 0.0};
-  CHECK(lin.at(0) == Approx(2.0));
-  CHECK(lin.at(5) == Approx(1.0));
-  CHECK(lin.at(10) == Approx(0.0).margin(1e-12));
-  LrSchedule c{3.0, 2, 10, "constant", 0.1};
-  CHECK(c.at(0) == Approx(1.5));
-  CHECK(c.at(9) == Approx(3.0));
-  REQUIRE_THROWS(c.at(-1));
-}
-
-TEST_CASE("AdamW on CUDA (fused and op by op) equals the CPU update", "[train][cuda]") {
+TEST_CASE("AdamW on CUDA (fused and op by op) equals the CPU update", "[optim][cuda]") {
   FLAT_REQUIRE_CUDA();
   auto gen = at::make_generator<at::CPUGeneratorImpl>(21);
   // A conv weight (5-D), the same laid out channels-last, a bias, a scalar.
@@ -126,7 +107,8 @@ TEST_CASE("AdamW on CUDA (fused and op by op) equals the CPU update", "[train][c
       if (i == 1) g = g.contiguous(at::MemoryFormat::ChannelsLast3d);
       gpu.push_back({"p" + std::to_string(i), g.detach().requires_grad_(true)});
     }
-    const AdamWOptions o{0.9, 0.999, 1e-8, 0.01, fused};
+    AdamWOptions o;
+    o.fused = fused;
     AdamW a(cpu, o), b(gpu, o);
     for (int t = 0; t < 3; ++t) {
       for (size_t i = 0; i < init.size(); ++i) {

@@ -30,9 +30,9 @@
 #include <ATen/ATen.h>
 
 #include "flat/core/tensor_io.h"
-#include "flat/train/blockwise_quantisation.h"
+#include "flat/optim/blockwise_quantisation.h"
 
-namespace flat::train {
+namespace flat::optim {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
@@ -88,4 +88,4 @@ class AdamW {
   void ensure_state(Slot& s);
 };
 
-}  // namespace flat::train
+}  // namespace flat::optim

@@ -41,7 +41,7 @@
 
 #include "adamw8bit_step.h"
 
-namespace flat::train::cuda {
+namespace flat::optim::cuda {
 namespace {
 
 constexpr int kQuant = 256;  // values per quantisation block (kQuantBlock)
@@ -259,4 +259,4 @@ cudaError_t launch_adamw8bit_step(const AdamW8bitArgs& a, cudaStream_t stream) {
   return a.grad_bf16 ? dispatch_aligned<float, __nv_bfloat16>(a, stream) : dispatch_aligned<float, float>(a, stream);
 }
 
-}  // namespace flat::train::cuda
+}  // namespace flat::optim::cuda

@@ -4,14 +4,14 @@
 
 #include "flat/model/scene_decoder.h"
 #include "flat/primitives/head_channels.h"
-#include "flat/train/adamw.h"
-#include "flat/train/blockwise_quantisation.h"
+#include "flat/optim/adamw.h"
+#include "flat/optim/blockwise_quantisation.h"
 #include "test_support.h"
 
 using namespace flat;
-using namespace flat::train;
+using namespace flat::optim;
 
-TEST_CASE("dynamic map: 256 sorted values, 0 and 1, exponent-scaled fractions", "[train][adamw8bit]") {
+TEST_CASE("dynamic map: 256 sorted values, 0 and 1, exponent-scaled fractions", "[optim][adamw8bit]") {
   auto s = dynamic_map(true), u = dynamic_map(false);
   REQUIRE(s.numel() == 256);
   REQUIRE(u.numel() == 256);
@@ -29,7 +29,7 @@ TEST_CASE("dynamic map: 256 sorted values, 0 and 1, exponent-scaled fractions", 
   CHECK((u >= 0).all().item<bool>());
 }
 
-TEST_CASE("block-wise quantisation picks the nearest map value of each block-scaled entry", "[train][adamw8bit]") {
+TEST_CASE("block-wise quantisation picks the nearest map value of each block-scaled entry", "[optim][adamw8bit]") {
   torch::manual_seed(3);
   auto x = torch::randn({1000}) * torch::exp(torch::randn({1000}) * 2);  // magnitudes over decades
   auto q = quantise_blockwise(x, true);
@@ -97,7 +97,7 @@ std::vector<double> fit(int state_bits, int steps, torch::Tensor* final_w = null
 
 }  // namespace
 
-TEST_CASE("8-bit AdamW tracks fp32 AdamW on a least-squares fit", "[train][adamw8bit]") {
+TEST_CASE("8-bit AdamW tracks fp32 AdamW on a least-squares fit", "[optim][adamw8bit]") {
   auto l32 = fit(32, 150), l8 = fit(8, 150);
   CHECK(l32.back() < 0.05 * l32.front());
   CHECK(l8.back() < 0.05 * l8.front());
@@ -116,7 +116,7 @@ TEST_CASE("8-bit AdamW tracks fp32 AdamW on a least-squares fit", "[train][adamw
             << " (curves within 10% for the first " << compared << " steps)\n";
 }
 
-TEST_CASE("8-bit AdamW state: a quarter of fp32 on the scene decoder, saved and restored exactly", "[train][adamw8bit]") {
+TEST_CASE("8-bit AdamW state: a quarter of fp32 on the scene decoder, saved and restored exactly", "[optim][adamw8bit]") {
   // The paper's decoder (dim 96, 73.3 M parameters): state bytes of both.
   const model::SceneDecoderConfig paper_size;  // named: GCC 12 warns about a temporary's vector (false positive)
   model::SceneDecoder decoder(paper_size, primitives::triangle_channels("ray_centred"));

@@ -1,4 +1,4 @@
-#include "flat/train/blockwise_quantisation.h"
+#include "flat/optim/blockwise_quantisation.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 
 #include "flat/core/error.h"
 
-namespace flat::train {
+namespace flat::optim {
 
 at::Tensor dynamic_map(bool is_signed) {
   // 8 bits: one sign bit (signed maps), 7 exponent steps e = 0..6 of scale
@@ -68,4 +68,4 @@ at::Tensor dequantise_blockwise(const QuantisedTensor& q, at::IntArrayRef shape)
   return values.reshape({-1}).slice(0, 0, q.numel).view(shape);
 }
 
-}  // namespace flat::train
+}  // namespace flat::optim

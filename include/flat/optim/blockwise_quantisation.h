@@ -15,7 +15,7 @@
 
 #include <ATen/ATen.h>
 
-namespace flat::train {
+namespace flat::optim {
 
 inline constexpr int64_t kQuantBlock = 256;
 
@@ -46,4 +46,4 @@ QuantisedTensor quantise_blockwise(const at::Tensor& x, bool is_signed);
 // Back to float32 with the given shape (numel must match).
 at::Tensor dequantise_blockwise(const QuantisedTensor& q, at::IntArrayRef shape);
 
-}  // namespace flat::train
+}  // namespace flat::optim

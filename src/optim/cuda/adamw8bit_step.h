@@ -13,7 +13,7 @@
 
 #include <cuda_runtime.h>
 
-namespace flat::train::cuda {
+namespace flat::optim::cuda {
 
 struct AdamW8bitArgs {
   void* param = nullptr;        // numel values, float or bfloat16, contiguous
@@ -43,4 +43,4 @@ struct AdamW8bitArgs {
 // Enqueues the update on `stream`; returns the launch's error (cudaSuccess).
 cudaError_t launch_adamw8bit_step(const AdamW8bitArgs& args, cudaStream_t stream);
 
-}  // namespace flat::train::cuda
+}  // namespace flat::optim::cuda

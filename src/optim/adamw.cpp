@@ -1,4 +1,4 @@
-#include "flat/train/adamw.h"
+#include "flat/optim/adamw.h"
 
 #include <cmath>
 #include <set>
@@ -10,10 +10,10 @@
 #include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDAGuard.h>
 
-#include "train/cuda/adamw8bit_step.h"
+#include "optim/cuda/adamw8bit_step.h"
 #endif
 
-namespace flat::train {
+namespace flat::optim {
 
 AdamW::AdamW(std::vector<std::pair<std::string, at::Tensor>> params, AdamWOptions options) : options_(options) {
   FLAT_CHECK(options_.state_bits == 32 || options_.state_bits == 8,
@@ -284,4 +284,4 @@ int64_t AdamW::state_bytes() const {
   return n;
 }
 
-}  // namespace flat::train
+}  // namespace flat::optim

@@ -27,12 +27,12 @@
 #include <string>
 #include <vector>
 
-#include "flat/train/adamw.h"
-#include "flat/train/blockwise_quantisation.h"
+#include "flat/optim/adamw.h"
+#include "flat/optim/blockwise_quantisation.h"
 #include "test_support.h"
 
 using namespace flat;
-using namespace flat::train;
+using namespace flat::optim;
 
 // A macro, not a function: Catch2 v2's FLAT_SKIP returns from the test case.
 #define REQUIRE_FUSED_KERNEL()                                                                         \
@@ -126,7 +126,7 @@ void compare(const at::Tensor& p, const at::Tensor& p_ref, const at::Tensor& p_b
 
 }  // namespace
 
-TEST_CASE("fused 8-bit AdamW CUDA step matches the ATen reference step by step", "[train][adamw8bit][cuda]") {
+TEST_CASE("fused 8-bit AdamW CUDA step matches the ATen reference step by step", "[optim][adamw8bit][cuda]") {
   REQUIRE_FUSED_KERNEL();
   // Tails: 1 and 300 values (one partial block), 5000 (20 blocks minus 120),
   // 65553, a 2-D weight, and 3M + 123 (several grid-stride passes).
@@ -167,7 +167,7 @@ TEST_CASE("fused 8-bit AdamW CUDA step matches the ATen reference step by step",
   CHECK(double(tally.code_diffs) <= 1e-4 * double(tally.codes));
 }
 
-TEST_CASE("fused 8-bit AdamW CUDA step runs free alongside the reference", "[train][adamw8bit][cuda]") {
+TEST_CASE("fused 8-bit AdamW CUDA step runs free alongside the reference", "[optim][adamw8bit][cuda]") {
   REQUIRE_FUSED_KERNEL();
   for (const auto dtype : {at::kFloat, at::kBFloat16}) {
     INFO((dtype == at::kFloat ? "fp32" : "bf16"));
@@ -205,7 +205,7 @@ TEST_CASE("fused 8-bit AdamW CUDA step runs free alongside the reference", "[tra
   }
 }
 
-TEST_CASE("fused 8-bit AdamW leaves non-contiguous parameters to the reference path", "[train][adamw8bit][cuda]") {
+TEST_CASE("fused 8-bit AdamW leaves non-contiguous parameters to the reference path", "[optim][adamw8bit][cuda]") {
   REQUIRE_FUSED_KERNEL();
   torch::manual_seed(9);
   auto base = torch::randn({64, 96}, at::TensorOptions().device(at::kCUDA));
