@@ -42,7 +42,7 @@ MetricsLog::MetricsLog(const std::string& run_dir, bool tensorboard, int64_t res
     for (const auto& e : fs::directory_iterator(dir_, ec))
       if (e.path().extension() == ".jsonl") drop_rows_from(e.path().string(), resume_step);
   if (tensorboard) {
-    tb_ = std::make_unique<TensorBoardWriter>(run_dir + "/tensorboard");
+    tb_ = std::make_unique<tensorboard::TensorBoardWriter>(run_dir + "/tensorboard");
     if (resume_step >= 0) {
       tb_->add_session_start(resume_step);  // TensorBoard drops the lost steps of the earlier session
       tb_->flush();

@@ -12,7 +12,7 @@
 #include <utility>
 #include <vector>
 
-#include "flat/train/tensorboard_writer.h"
+#include "flat/core/tensorboard_writer.h"
 
 namespace flat::train {
 
@@ -30,7 +30,7 @@ class MetricsLog {
  private:
   std::string dir_;
   std::map<std::string, std::unique_ptr<std::ofstream>> files_;
-  std::unique_ptr<TensorBoardWriter> tb_;
+  std::unique_ptr<tensorboard::TensorBoardWriter> tb_;
 };
 
 }  // namespace flat::train

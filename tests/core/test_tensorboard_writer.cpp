@@ -13,14 +13,14 @@
 #include <vector>
 
 #include "flat/core/error.h"
-#include "flat/train/tensorboard_writer.h"
+#include "flat/core/tensorboard_writer.h"
 #include "test_support.h"
 
 namespace {
 
 namespace fs = std::filesystem;
-using flat::train::crc32c;
-using flat::train::masked_crc32c;
+using flat::tensorboard::crc32c;
+using flat::tensorboard::masked_crc32c;
 
 struct DecodedEvent {
   double wall_time = 0;
@@ -156,7 +156,7 @@ TEST_CASE("a scalar Event decodes back to its inputs", "[train][tensorboard]") {
       {"loss/total", 0.125}, {"lr", 3e-4}, {"psnr", 31.4159}, {"neg", -2.5}};
   const double wall_time = 1700000000.123456;
   for (int64_t step : {int64_t(0), int64_t(1), int64_t(300), int64_t(1) << 40, int64_t(-7)}) {
-    const DecodedEvent e = decode_event(flat::train::encode_scalar_event(wall_time, step, values));
+    const DecodedEvent e = decode_event(flat::tensorboard::encode_scalar_event(wall_time, step, values));
     CHECK(e.wall_time == wall_time);
     CHECK(e.step == step);
     CHECK(e.file_version.empty());
@@ -167,7 +167,7 @@ TEST_CASE("a scalar Event decodes back to its inputs", "[train][tensorboard]") {
     }
   }
   // Non-finite values are written as is.
-  const DecodedEvent e = decode_event(flat::train::encode_scalar_event(
+  const DecodedEvent e = decode_event(flat::tensorboard::encode_scalar_event(
       1.0, 5, {{"nan", std::numeric_limits<double>::quiet_NaN()}, {"inf", -HUGE_VAL}}));
   REQUIRE(e.values.size() == 2);
   CHECK(std::isnan(e.values[0].second));
@@ -178,7 +178,7 @@ TEST_CASE("a written event file is file_version then the scalars, in order", "[t
   const auto dir = flat::test::scratch_dir("tensorboard_file") / "run" / "tb";  // parents are created
   std::string path;
   {
-    flat::train::TensorBoardWriter tb(dir.string());
+    flat::tensorboard::TensorBoardWriter tb(dir.string());
     path = tb.path();
     CHECK(fs::path(path).parent_path() == dir);
     CHECK(fs::path(path).filename().string().rfind("events.out.tfevents.", 0) == 0);
@@ -217,6 +217,6 @@ TEST_CASE("an unwritable folder throws flat::Error naming the path", "[train][te
   const fs::path blocker = dir / "not_a_folder";
   std::ofstream(blocker) << "a regular file";
   const std::string folder = (blocker / "tb").string();
-  REQUIRE_THROWS_AS(flat::train::TensorBoardWriter(folder), flat::Error);
-  REQUIRE_THROWS_WITH(flat::train::TensorBoardWriter(folder), FLAT_CONTAINS(folder));
+  REQUIRE_THROWS_AS(flat::tensorboard::TensorBoardWriter(folder), flat::Error);
+  REQUIRE_THROWS_WITH(flat::tensorboard::TensorBoardWriter(folder), FLAT_CONTAINS(folder));
 }

@@ -1,6 +1,6 @@
 // TFRecord framing + the few protobuf fields of a scalar Event, encoded by
 // hand (see the header for why and for the layout).
-#include "flat/train/tensorboard_writer.h"
+#include "flat/core/tensorboard_writer.h"
 
 #include <unistd.h>
 
@@ -14,7 +14,7 @@
 
 #include "flat/core/error.h"
 
-namespace flat::train {
+namespace flat::tensorboard {
 namespace {
 
 namespace fs = std::filesystem;
@@ -179,4 +179,4 @@ void TensorBoardWriter::write_record(const std::string& data) {
   if (!out_) fail("tensorboard: cannot write " + path_);
 }
 
-}  // namespace flat::train
+}  // namespace flat::tensorboard

@@ -1,9 +1,12 @@
 // TensorBoard scalar logging: writes an event file that `tensorboard --logdir`
 // reads (loss terms, learning rate, PSNR... against the step).
 //
-// Hand-encoded on purpose: the GPU machine has no protobuf or crc32c
-// development packages and cannot install any, and a scalar event is only a
-// few protobuf fields in a TFRecord frame:
+// A file format, not training logic, so it lives in core (the trainer's
+// metrics_log writes through it). Hand-encoded on purpose: the GPU machine has
+// no protobuf or crc32c development packages and cannot install any; Debian's
+// libprotobuf would still need TensorFlow's event.proto / summary.proto, which
+// no Debian package ships, compiled into the build; and a scalar event is only
+// a few protobuf fields in a TFRecord frame:
 //   record = uint64 length (LE) | uint32 masked_crc32c(length bytes) | data | uint32 masked_crc32c(data)
 //   Event   { 1: double wall_time; 2: int64 step; 3: string file_version; 5: Summary summary; }
 //   Summary { 1: repeated Value value; }
@@ -19,7 +22,7 @@
 #include <utility>
 #include <vector>
 
-namespace flat::train {
+namespace flat::tensorboard {
 
 class TensorBoardWriter {
  public:
@@ -60,4 +63,4 @@ std::string encode_session_start_event(double wall_time, int64_t step);
 std::string encode_scalar_event(double wall_time, int64_t step,
                                 const std::vector<std::pair<std::string, double>>& values);
 
-}  // namespace flat::train
+}  // namespace flat::tensorboard
