@@ -19,6 +19,7 @@
 #include <torch/torch.h>
 
 #include "bench_registry.h"
+#include "flat/bench/timing.h"
 #include "flat/core/device_memory.h"
 #include "flat/core/error.h"
 #include "flat/model/scene_decoder.h"
@@ -33,11 +34,6 @@ struct AdamW8bitBenchOptions {
   int64_t dim = 96;
   int steps = 20, warmup = 3;
 };
-
-double now_ms() {
-  using namespace std::chrono;
-  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
-}
 
 struct StepTiming {
   double median_ms = 0, peak_gib = 0;

@@ -16,6 +16,7 @@
 #include <torch/torch.h>
 
 #include "bench_registry.h"
+#include "flat/bench/timing.h"
 #include "flat/camera/cameras.h"
 #include "flat/core/cli.h"
 #include "flat/core/device_memory.h"
@@ -47,18 +48,7 @@ struct DecoderBenchOptions {
   std::string conv = "auto";  // auto | cudnn | a CUTLASS configuration name
 };
 
-void sync(const torch::Device& d) {
-#if FLAT_WITH_CUDA
-  if (d.is_cuda()) torch::cuda::synchronize();
-#else
-  (void)d;
-#endif
-}
-
-double now_ms() {
-  using namespace std::chrono;
-  return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
-}
+void sync(const torch::Device& d) { sync_device(d); }
 
 void reset_peak(const torch::Device& d) { reset_peak_memory(d); }
 

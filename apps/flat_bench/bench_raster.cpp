@@ -21,6 +21,7 @@
 
 #include "bench_registry.h"
 #include "flat/bench/raster_workload.h"
+#include "flat/bench/timing.h"
 #include "flat/camera/camera_json.h"
 #include "flat/core/cli.h"
 #include "flat/core/device_memory.h"
@@ -34,15 +35,6 @@
 
 namespace flat::bench {
 namespace {
-
-double now_ms() {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
 
 // One GPU activity (kernel, copy or memset) of a profiled step.
 struct GpuSpan {
@@ -191,9 +183,7 @@ void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings
   const auto scene = workload_primitives(sc, representation);
   const bool triangles = scene.is_triangles();
   const std::string what = triangles ? "triangles" : representation + " Gaussians";
-  auto sync = [&] {
-    if (dev.is_cuda()) torch::cuda::synchronize();
-  };
+  auto sync = [&] { sync_device(dev); };
   const int64_t V = sc.targets.size();
   // Random upstream weights so every output carries gradient.
   auto w_rgb = torch::rand({V, 3, sc.height, sc.width}, sc.vertices.options());

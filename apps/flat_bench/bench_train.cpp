@@ -1,5 +1,5 @@
 // flat_bench train: time one training step of a stage config, by part
-// (src/train/step_benchmark.h), with peak memory.
+// (include/flat/bench/step_benchmark.h), with peak memory.
 //
 //   flat_bench train --config configs/stage1.yaml --set data.datasets=[{root: /data/synth}] --random-lpips
 #include <CLI/CLI.hpp>
@@ -7,7 +7,7 @@
 
 #include "bench_registry.h"
 #include "flat/core/config.h"
-#include "flat/train/step_benchmark.h"
+#include "flat/bench/step_benchmark.h"
 
 namespace flat::bench {
 
@@ -30,7 +30,7 @@ void add_train(CLI::App& app) {
     auto overrides = o->overrides;
     if (o->random_lpips) {
       const std::string path = "/tmp/flat_bench_random_lpips.safetensors";
-      train::write_random_lpips_weights(path, 0);
+      bench::write_random_lpips_weights(path, 0);
       overrides.push_back("loss.lpips_weights=" + path);
     }
     overrides.push_back("init.from=scratch");
@@ -39,7 +39,7 @@ void add_train(CLI::App& app) {
     spdlog::info("flat_bench train: {} at {}x{}, {} input frames, {} target views, batch {}, {}", o->config,
                  cfg.data.height, cfg.data.width, cfg.data.input_frames, cfg.data.target_views, cfg.data.batch_size,
                  cfg.precision);
-    auto r = train::benchmark_training(cfg, o->warmup, o->steps);
+    auto r = bench::benchmark_training(cfg, o->warmup, o->steps);
     std::printf("flat_bench train: %s, %.2f M parameters, %lld triangles rendered per step, %lld timed steps\n%s"
                 "peak memory: %.2f GiB\n",
                 o->config.c_str(), r.parameters_m, static_cast<long long>(r.triangles),

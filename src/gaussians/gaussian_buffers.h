@@ -45,6 +45,12 @@ struct GaussianOutputs {
 
 struct GaussianGrads {
   at::Tensor means, scales, rotations, colors, opacities;  // shapes of the inputs
+
+  // Zeros: both back ends add each view's share into them.
+  static GaussianGrads zeros_for(const GaussianInputs& in) {
+    return {at::zeros_like(in.means), at::zeros_like(in.scales), at::zeros_like(in.rotations),
+            at::zeros_like(in.colors), at::zeros_like(in.opacities)};
+  }
 };
 
 }  // namespace flat::gaussians

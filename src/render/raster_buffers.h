@@ -47,6 +47,12 @@ struct RasterOutputs {
 
 struct RasterGrads {
   at::Tensor vertices, colors, opacities, sigmas;  // shapes of the inputs
+
+  // Zeros: both back ends add each view's share into them.
+  static RasterGrads zeros_for(const RasterInputs& in) {
+    return {at::zeros_like(in.vertices), at::zeros_like(in.colors), at::zeros_like(in.opacities),
+            at::zeros_like(in.sigmas)};
+  }
 };
 
 }  // namespace flat::render

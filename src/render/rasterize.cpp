@@ -8,6 +8,7 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "render/cpu/raster_cpu.h"
+#include "render/raster_dispatch.h"
 #if FLAT_WITH_CUDA
 #include "render/cuda/raster_cuda.h"
 #endif
@@ -36,37 +37,27 @@ using torch::autograd::variable_list;
 
 RasterConstants to_constants(const RasterSettings& s) {
   RasterConstants k;
+  set_compositing_constants(s, k);
   k.eps = (float)s.eps;
-  k.near_plane = (float)s.near_plane;
-  k.alpha_max = (float)s.alpha_max;
-  k.alpha_min = (float)s.alpha_min;
-  k.t_min = (float)s.transmittance_min;
   k.min_inradius = (float)s.min_inradius;
   k.min_cos = (float)s.min_cos;
   k.window = s.window == "ts" ? kWindowTS : kWindowFlat;
   return k;
 }
 
+// The compositing constants (raster_dispatch.h) and the window's.
 void save_constants(AutogradContext* ctx, const RasterConstants& k, int64_t H, int64_t W) {
+  save_compositing_constants(ctx, k, H, W);
   ctx->saved_data["eps"] = (double)k.eps;
-  ctx->saved_data["near"] = (double)k.near_plane;
-  ctx->saved_data["alpha_max"] = (double)k.alpha_max;
-  ctx->saved_data["alpha_min"] = (double)k.alpha_min;
-  ctx->saved_data["t_min"] = (double)k.t_min;
   ctx->saved_data["min_inradius"] = (double)k.min_inradius;
   ctx->saved_data["min_cos"] = (double)k.min_cos;
   ctx->saved_data["window"] = (int64_t)k.window;
-  ctx->saved_data["H"] = H;
-  ctx->saved_data["W"] = W;
 }
 
 RasterConstants load_constants(AutogradContext* ctx) {
   RasterConstants k;
+  load_compositing_constants(ctx, k);
   k.eps = (float)ctx->saved_data["eps"].toDouble();
-  k.near_plane = (float)ctx->saved_data["near"].toDouble();
-  k.alpha_max = (float)ctx->saved_data["alpha_max"].toDouble();
-  k.alpha_min = (float)ctx->saved_data["alpha_min"].toDouble();
-  k.t_min = (float)ctx->saved_data["t_min"].toDouble();
   k.min_inradius = (float)ctx->saved_data["min_inradius"].toDouble();
   k.min_cos = (float)ctx->saved_data["min_cos"].toDouble();
   k.window = (int)ctx->saved_data["window"].toInt();
@@ -108,11 +99,9 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
                     ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), k};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.vertices.options();
-    auto grad_or_zero = [&](const at::Tensor& g, int64_t C) {
-      return g.defined() ? g.to(opts).contiguous() : at::zeros({V, C, H, W}, opts);
-    };
-    const at::Tensor g_rgb = grad_or_zero(grads[0], 3), g_alpha = grad_or_zero(grads[1], 1);
-    const at::Tensor g_depth = grad_or_zero(grads[2], 1), g_normal = grad_or_zero(grads[3], 3);
+    const at::Tensor g_rgb = grad_or_zero(grads[0], opts, V, 3, H, W), g_alpha = grad_or_zero(grads[1], opts, V, 1, H, W);
+    const at::Tensor g_depth = grad_or_zero(grads[2], opts, V, 1, H, W);
+    const at::Tensor g_normal = grad_or_zero(grads[3], opts, V, 3, H, W);
     RasterGrads g;
     if (in.vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -137,49 +126,16 @@ void check_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at
   check_shape(colors, {N, 3}, "rasterize: colors", "(N,3) with N = " + std::to_string(N));
   check_shape(opacities, {N}, "rasterize: opacities", "(N) with N = " + std::to_string(N));
   check_shape(sigmas, {N}, "rasterize: sigmas", "(N) with N = " + std::to_string(N));
-  cams.check("rasterize: cameras");
-  FLAT_CHECK(height > 0 && width > 0, "rasterize: image size must be positive, got " + std::to_string(height) + "x" +
-                                          std::to_string(width));
-  FLAT_CHECK(height * width <= (int64_t(1) << 30), "rasterize: image too large (" + std::to_string(height) + "x" +
-                                                       std::to_string(width) + ")");
-  for (const auto* t : {&vertices, &colors, &opacities, &sigmas})
-    FLAT_CHECK(t->is_floating_point(), "rasterize: inputs must be floating point, got " +
-                                           std::string(c10::toString(t->scalar_type())));
-  const auto dev = vertices.device();
-  for (const auto* t : {&colors, &opacities, &sigmas})
-    FLAT_CHECK(t->device() == dev, "rasterize: vertices, colors, opacities and sigmas must be on one device");
-  FLAT_CHECK(dev.is_cpu() || dev.is_cuda(), "rasterize: unsupported device " + dev.str());
-}
-
-// The value checks' statistics: [sum of every input value, min and max
-// opacity, min sigma]. On the GPU they are copied to pinned host memory
-// without a sync; the CUDA back end checks them at its first wait for the
-// device (cuda::forward), so the GPU does not idle through the call's setup.
-at::Tensor value_stats(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
-                       const at::Tensor& sigmas) {
-  const at::Tensor stats = at::stack({(vertices.sum() + colors.sum() + opacities.sum() + sigmas.sum()).to(at::kDouble),
-                                      opacities.min().to(at::kDouble), opacities.max().to(at::kDouble),
-                                      sigmas.min().to(at::kDouble)});
-  if (!stats.is_cuda()) return stats;
-  at::Tensor host = at::empty({4}, at::TensorOptions().dtype(at::kDouble).pinned_memory(true));
-  host.copy_(stats, /*non_blocking=*/true);
-  return host;
+  check_common_inputs("rasterize", {vertices, colors, opacities, sigmas}, "vertices, colors, opacities and sigmas", cams,
+                      height, width);
 }
 
 }  // namespace
 
 void check_input_values(const RasterInputs& in) {
   if (in.value_stats.numel() == 0) return;  // no triangles: nothing to check
-  const double* s = in.value_stats.data_ptr<double>();
-  if (!std::isfinite(s[0])) {
-    check_finite(in.vertices, "rasterize: vertices");
-    check_finite(in.colors, "rasterize: colors");
-    check_finite(in.opacities, "rasterize: opacities");
-    check_finite(in.sigmas, "rasterize: sigmas");
-  }
-  FLAT_CHECK(s[1] >= 0.0 && s[2] <= 1.0, "rasterize: opacities must lie in [0, 1], got range [" + std::to_string(s[1]) +
-                                             ", " + std::to_string(s[2]) + "]");
-  FLAT_CHECK(s[3] > 0.0, "rasterize: sigmas must be > 0, got min " + std::to_string(s[3]));
+  check_input_stats(in.value_stats.data_ptr<double>(), "rasterize", {in.vertices, in.colors, in.opacities, in.sigmas},
+                    {"vertices", "colors", "opacities", "sigmas"}, "sigmas", false);
 }
 
 namespace {
@@ -189,31 +145,31 @@ RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors
                             const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
                             const RasterSettings& settings) {
   settings.check();
-  // The cameras on the host (a few hundred bytes): both back ends read them
-  // there, and each check or small op on the GPU would cost a sync or a launch.
-  const camera::Cameras host_cams = cams.to(at::kCPU);
+  const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(vertices, colors, opacities, sigmas, host_cams, height, width);
   const auto dev = vertices.device();
-  // fp32 maths, except the double CPU reference used for finite differences.
-  const bool use_double = dev.is_cpu() && vertices.scalar_type() == at::kDouble;
-  const auto opts = at::TensorOptions().device(dev).dtype(use_double ? at::kDouble : at::kFloat);
+  const auto opts = compute_options(vertices);
   auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
   RasterInputs in;
   in.vertices = prep(vertices);
   in.colors = prep(colors);
   in.opacities = prep(opacities);
   in.sigmas = prep(sigmas);
-  // Cameras and background stay on the host (the CUDA back end reads them there).
-  const auto host = opts.device(at::kCPU);
-  in.w2c = camera::world_to_camera(host_cams.c2w.to(host).to(at::kDouble)).to(host).contiguous();
-  in.K = camera::pixel_intrinsics(host_cams.intrinsics.to(host), height, width).contiguous();
-  in.background = at::tensor(settings.background, at::TensorOptions().dtype(at::kDouble)).to(host);
+  const HostViews views = host_views(host_cams, height, width, settings, opts);
+  in.w2c = views.w2c;
+  in.K = views.K;
+  in.background = views.background;
   in.height = height;
   in.width = width;
   in.k = to_constants(settings);
   in.views_per_bin = settings.views_per_bin;
-  in.value_stats = in.vertices.size(0) > 0 ? value_stats(in.vertices, in.colors, in.opacities, in.sigmas)
-                                           : at::empty({0}, at::kDouble);
+  // The value checks' statistics: on the GPU copied to the host without a
+  // sync, checked at the CUDA back end's first wait for the device
+  // (cuda::forward), so the GPU does not idle through the call's setup.
+  in.value_stats = in.vertices.size(0) > 0
+                       ? to_host_async(input_stats({in.vertices, in.colors, in.opacities, in.sigmas}, in.opacities,
+                                                   in.sigmas))
+                       : at::empty({0}, at::kDouble);
   if (!dev.is_cuda()) check_input_values(in);  // else at the CUDA back end's first sync
   return in;
 }

@@ -6,6 +6,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "render/raster_dispatch.h"
 #include "surfels/cpu/raster_surfels_cpu.h"
 #if FLAT_WITH_CUDA
 #include "surfels/cuda/raster_surfels_cuda.h"
@@ -21,26 +22,12 @@ namespace {
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
-RasterConstants to_constants(const render::RasterSettings& s) {
-  RasterConstants k;
-  k.near_plane = (float)s.near_plane;
-  k.alpha_max = (float)s.alpha_max;
-  k.alpha_min = (float)s.alpha_min;
-  k.t_min = (float)s.transmittance_min;
-  return k;
-}
-
 struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurfelsFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& means, const at::Tensor& scales,
                                const at::Tensor& rotations, const at::Tensor& colors, const at::Tensor& opacities,
                                const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& background,
-                               int64_t height, int64_t width, double near_plane, double alpha_max, double alpha_min,
-                               double t_min) {
-    SurfelInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, {}};
-    in.k.near_plane = (float)near_plane;
-    in.k.alpha_max = (float)alpha_max;
-    in.k.alpha_min = (float)alpha_min;
-    in.k.t_min = (float)t_min;
+                               int64_t height, int64_t width, RasterConstants k) {
+    SurfelInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, k};
     SurfelOutputs out;
     if (means.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -56,12 +43,7 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
       out = cpu::forward(in);
     }
     ctx->save_for_backward({means, scales, rotations, colors, opacities, w2c, K, background});
-    ctx->saved_data["H"] = height;
-    ctx->saved_data["W"] = width;
-    ctx->saved_data["near"] = near_plane;
-    ctx->saved_data["alpha_max"] = alpha_max;
-    ctx->saved_data["alpha_min"] = alpha_min;
-    ctx->saved_data["t_min"] = t_min;
+    render::save_compositing_constants(ctx, k, height, width);
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.normal, out.median_depth, out.max_weight, out.distortion};
   }
@@ -70,15 +52,10 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
     const auto saved = ctx->get_saved_variables();
     SurfelInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
                     ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), {}};
-    in.k.near_plane = (float)ctx->saved_data["near"].toDouble();
-    in.k.alpha_max = (float)ctx->saved_data["alpha_max"].toDouble();
-    in.k.alpha_min = (float)ctx->saved_data["alpha_min"].toDouble();
-    in.k.t_min = (float)ctx->saved_data["t_min"].toDouble();
+    render::load_compositing_constants(ctx, in.k);
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
-    auto grad_or_zero = [&](const at::Tensor& g, int64_t C) {
-      return g.defined() ? g.to(opts).contiguous() : at::zeros({V, C, H, W}, opts);
-    };
+    auto grad_or_zero = [&](const at::Tensor& g, int64_t C) { return render::grad_or_zero(g, opts, V, C, H, W); };
     const SurfelOutputGrads up{grad_or_zero(grads[0], 3), grad_or_zero(grads[1], 1), grad_or_zero(grads[2], 1),
                                grad_or_zero(grads[3], 3), grad_or_zero(grads[6], 1)};
     SurfelGrads g;
@@ -86,13 +63,13 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
 #if FLAT_WITH_CUDA
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad: nothing to compute.
-      if (views.empty()) return variable_list(14);
+      if (views.empty()) return variable_list(11);
       g = cuda::backward(in, views, up);
 #endif
     } else {
       g = cpu::backward(in, up);
     }
-    variable_list out(14);
+    variable_list out(11);  // one per forward input
     out[0] = g.means;
     out[1] = g.scales;
     out[2] = g.rotations;
@@ -119,42 +96,18 @@ void check_inputs(const at::Tensor& means, const at::Tensor& scales, const at::T
   check(rotations, {N, 4}, "rotations", "(N,4) quaternions (w,x,y,z)" + n);
   check(colors, {N, 3}, "colors", "(N,3)" + n);
   check(opacities, {N}, "opacities", "(N)" + n);
-  cams.check("rasterize_surfels: cameras");
-  FLAT_CHECK(height > 0 && width > 0, "rasterize_surfels: image size must be positive, got " +
-                                          std::to_string(height) + "x" + std::to_string(width));
-  FLAT_CHECK(height * width <= (int64_t(1) << 30), "rasterize_surfels: image too large (" + std::to_string(height) +
-                                                       "x" + std::to_string(width) + ")");
-  for (const auto* t : {&means, &scales, &rotations, &colors, &opacities})
-    FLAT_CHECK(t->is_floating_point(), "rasterize_surfels: inputs must be floating point, got " +
-                                           std::string(c10::toString(t->scalar_type())));
-  const auto dev = means.device();
-  for (const auto* t : {&scales, &rotations, &colors, &opacities})
-    FLAT_CHECK(t->device() == dev, "rasterize_surfels: means, scales, rotations, colors and opacities must be on one device");
-  FLAT_CHECK(dev.is_cpu() || dev.is_cuda(), "rasterize_surfels: unsupported device " + dev.str());
+  render::check_common_inputs("rasterize_surfels", {means, scales, rotations, colors, opacities},
+                              "means, scales, rotations, colors and opacities", cams, height, width);
 }
 
 // Finite values, opacities in [0, 1], scales > 0, non-zero quaternions: one
 // reduction each, read with one host copy (a sync on the GPU).
 void check_values(const SurfelInputs& in) {
   if (in.means.size(0) == 0) return;
-  const at::Tensor stats =
-      at::stack({(in.means.sum() + in.scales.sum() + in.rotations.sum() + in.colors.sum() + in.opacities.sum())
-                     .to(at::kDouble),
-                 in.opacities.min().to(at::kDouble), in.opacities.max().to(at::kDouble),
-                 in.scales.min().to(at::kDouble), in.rotations.square().sum(1).min().to(at::kDouble)})
-          .cpu();
-  const double* s = stats.data_ptr<double>();
-  if (!std::isfinite(s[0])) {
-    check_finite(in.means, "rasterize_surfels: means");
-    check_finite(in.scales, "rasterize_surfels: scales");
-    check_finite(in.rotations, "rasterize_surfels: rotations");
-    check_finite(in.colors, "rasterize_surfels: colors");
-    check_finite(in.opacities, "rasterize_surfels: opacities");
-  }
-  FLAT_CHECK(s[1] >= 0.0 && s[2] <= 1.0, "rasterize_surfels: opacities must lie in [0, 1], got range [" +
-                                             std::to_string(s[1]) + ", " + std::to_string(s[2]) + "]");
-  FLAT_CHECK(s[3] > 0.0, "rasterize_surfels: scales must be > 0, got min " + std::to_string(s[3]));
-  FLAT_CHECK(s[4] > 0.0, "rasterize_surfels: rotations must be non-zero quaternions (w,x,y,z), got one of norm 0");
+  const std::vector<at::Tensor> inputs = {in.means, in.scales, in.rotations, in.colors, in.opacities};
+  const at::Tensor stats = render::input_stats(inputs, in.opacities, in.scales, in.rotations).cpu();
+  render::check_input_stats(stats.data_ptr<double>(), "rasterize_surfels", inputs,
+                            {"means", "scales", "rotations", "colors", "opacities"}, "scales", true);
 }
 
 }  // namespace
@@ -164,13 +117,9 @@ render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor
                                        const camera::Cameras& cams, int64_t height, int64_t width,
                                        const render::RasterSettings& settings) {
   settings.check();
-  // The cameras on the host (a few hundred bytes): both back ends read them there.
-  const camera::Cameras host_cams = cams.to(at::kCPU);
+  const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(means, scales, rotations, colors, opacities, host_cams, height, width);
-  const auto dev = means.device();
-  // fp32 maths, except the double CPU reference used for finite differences.
-  const bool use_double = dev.is_cpu() && means.scalar_type() == at::kDouble;
-  const auto opts = at::TensorOptions().device(dev).dtype(use_double ? at::kDouble : at::kFloat);
+  const auto opts = render::compute_options(means);
   auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
   SurfelInputs in;
   in.means = prep(means);
@@ -178,17 +127,16 @@ render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor
   in.rotations = prep(rotations);
   in.colors = prep(colors);
   in.opacities = prep(opacities);
-  const auto host = opts.device(at::kCPU);
-  in.w2c = camera::world_to_camera(host_cams.c2w.to(host).to(at::kDouble)).to(host).contiguous();
-  in.K = camera::pixel_intrinsics(host_cams.intrinsics.to(host), height, width).contiguous();
-  in.background = at::tensor(settings.background, at::TensorOptions().dtype(at::kDouble)).to(host);
+  const render::HostViews views = render::host_views(host_cams, height, width, settings, opts);
+  in.w2c = views.w2c;
+  in.K = views.K;
+  in.background = views.background;
   in.height = height;
   in.width = width;
-  in.k = to_constants(settings);
+  render::set_compositing_constants(settings, in.k);
   check_values(in);
   auto outs = RasterizeSurfelsFunction::apply(in.means, in.scales, in.rotations, in.colors, in.opacities, in.w2c,
-                                              in.K, in.background, height, width, (double)in.k.near_plane,
-                                              (double)in.k.alpha_max, (double)in.k.alpha_min, (double)in.k.t_min);
+                                              in.K, in.background, height, width, in.k);
   render::RenderOutput r;
   r.rgb = outs[0];
   r.alpha = outs[1];

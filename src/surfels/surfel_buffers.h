@@ -44,6 +44,12 @@ struct SurfelOutputGrads {
 
 struct SurfelGrads {
   at::Tensor means, scales, rotations, colors, opacities;  // shapes of the inputs
+
+  // Zeros: both back ends add each view's share into them.
+  static SurfelGrads zeros_for(const SurfelInputs& in) {
+    return {at::zeros_like(in.means), at::zeros_like(in.scales), at::zeros_like(in.rotations),
+            at::zeros_like(in.colors), at::zeros_like(in.opacities)};
+  }
 };
 
 }  // namespace flat::surfels

@@ -9,6 +9,7 @@
 #include "flat/gaussians/rasterize_gaussians.h"
 #include "gaussian_scenes.h"
 #include "gaussians/gaussian_math.h"
+#include "support/raster_checks.h"
 #include "test_support.h"
 
 using flat::gaussians::rasterize_gaussians;
@@ -18,21 +19,6 @@ using flat::render::RenderOutput;
 namespace {
 
 constexpr int64_t kH = 18, kW = 24;
-
-// A random linear functional of the differentiable outputs.
-struct Probe {
-  torch::Tensor w_rgb, w_alpha, w_depth;
-  Probe(int64_t V, int64_t H, int64_t W, uint64_t seed) {
-    auto gen = at::make_generator<at::CPUGeneratorImpl>(seed);
-    auto o = torch::TensorOptions().dtype(torch::kDouble);
-    w_rgb = at::randn({V, 3, H, W}, gen, o);
-    w_alpha = at::randn({V, 1, H, W}, gen, o);
-    w_depth = at::randn({V, 1, H, W}, gen, o) * 0.3;
-  }
-  torch::Tensor operator()(const RenderOutput& r) const {
-    return (r.rgb * w_rgb).sum() + (r.alpha * w_alpha).sum() + (r.depth * w_depth).sum();
-  }
-};
 
 RenderOutput render(const std::vector<torch::Tensor>& in, const flat::camera::Cameras& cams, const RasterSettings& s,
                     int64_t H = kH, int64_t W = kW) {
@@ -50,35 +36,15 @@ void check_gradients_fd(const RasterSettings& settings, uint64_t seed, bool with
     g.opacities[0] = 0.8;
   }
   auto cams = flat::test::test_cameras(V);
-  Probe probe(V, kH, kW, seed + 1);
+  const flat::test::Probe probe(V, kH, kW, {}, at::make_generator<at::CPUGeneratorImpl>(seed + 1), torch::kDouble);
   std::vector<torch::Tensor> inputs = {g.means, g.scales, g.rotations, g.colors, g.opacities};
   for (auto& t : inputs) t.requires_grad_(true);
-  auto out = render(inputs, cams, settings);
+  auto render_inputs = [&](const std::vector<torch::Tensor>& in) { return render(in, cams, settings); };
+  auto out = render_inputs(inputs);
   REQUIRE(out.alpha.max().item<double>() > 0.3);  // the scene is visible
   auto grads = torch::autograd::grad({probe(out)}, inputs);
-  const char* names[] = {"means", "scales", "rotations", "colors", "opacities"};
-  const double h = 1e-6;
-  torch::NoGradGuard ng;
-  for (size_t which = 0; which < inputs.size(); ++which) {
-    auto base = inputs[which].detach().clone();
-    auto fd = torch::zeros_like(base);
-    auto flat_fd = fd.view({-1});
-    for (int64_t i = 0; i < base.numel(); ++i) {
-      auto eval = [&](double delta) {
-        auto x = base.clone();
-        x.view({-1})[i] += delta;
-        std::vector<torch::Tensor> in = {g.means, g.scales, g.rotations, g.colors, g.opacities};
-        in[which] = x;
-        return probe(render(in, cams, settings)).item<double>();
-      };
-      flat_fd[i] = (eval(h) - eval(-h)) / (2 * h);
-    }
-    INFO(names[which] << ": analytic " << grads[which].view({-1}).slice(0, 0, 8) << " fd "
-                      << fd.view({-1}).slice(0, 0, 8));
-    CHECK(grads[which].abs().sum().item<double>() > 0.0);
-    CHECK(flat::test::rel_error(grads[which], fd) < 1e-5);
-    CHECK((grads[which] - fd).abs().max().item<double>() < 1e-4 * (1.0 + fd.abs().max().item<double>()));
-  }
+  flat::test::check_against_fd(inputs, grads, {"means", "scales", "rotations", "colors", "opacities"}, render_inputs,
+                               probe);
   if (with_offscreen) CHECK(grads[0][0].abs().sum().item<double>() > 0.0);  // the clamped one gets gradient
 }
 

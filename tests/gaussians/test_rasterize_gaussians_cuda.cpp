@@ -7,6 +7,7 @@
 
 #include "flat/gaussians/rasterize_gaussians.h"
 #include "gaussian_scenes.h"
+#include "support/raster_checks.h"
 #include "test_support.h"
 
 using flat::gaussians::rasterize_gaussians;
@@ -36,22 +37,12 @@ constexpr double kGradTol = 2e-3;
 constexpr double kGeomGradTol = 2e-3;
 constexpr double kGeomOutliers = 0.01;
 
-struct Result {
-  flat::render::RenderOutput out;
-  std::vector<torch::Tensor> grads;
-};
-
-Result run(const flat::test::Gaussians& g, const flat::camera::Cameras& cams, int64_t H, int64_t W,
-           const RasterSettings& s, const torch::Device& dev, const std::vector<torch::Tensor>& weights) {
-  std::vector<torch::Tensor> in = {g.means.to(dev), g.scales.to(dev), g.rotations.to(dev), g.colors.to(dev),
-                                   g.opacities.to(dev)};
-  for (auto& t : in) t.requires_grad_(true);
-  auto out = rasterize_gaussians(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, s);
-  auto loss = (out.rgb * weights[0].to(dev)).sum() + (out.alpha * weights[1].to(dev)).sum() +
-              (out.depth * weights[2].to(dev)).sum();
-  auto grads = torch::autograd::grad({loss}, in);
-  for (auto& gr : grads) gr = gr.cpu();
-  return {out, grads};
+flat::test::Rendered run(const flat::test::Gaussians& g, const flat::camera::Cameras& cams, int64_t H, int64_t W,
+                         const RasterSettings& s, const torch::Device& dev, const flat::test::Probe& probe) {
+  auto render = [&](const std::vector<torch::Tensor>& in) {
+    return rasterize_gaussians(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, s);
+  };
+  return flat::test::render_with_grads({g.means, g.scales, g.rotations, g.colors, g.opacities}, dev, render, probe);
 }
 
 void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s, uint64_t seed, double lo = 0.08,
@@ -59,16 +50,15 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   auto g = flat::test::random_gaussians(n, torch::kFloat, seed, lo, hi);
   auto cams = flat::test::test_cameras(V);
   torch::manual_seed(seed);
-  const std::vector<torch::Tensor> w = {torch::randn({V, 3, H, W}), torch::randn({V, 1, H, W}),
-                                        torch::randn({V, 1, H, W}) * 0.3};
+  const flat::test::Probe w(V, H, W, {}, std::nullopt, torch::kFloat);
   auto cpu = run(g, cams, H, W, s, torch::kCPU, w);
   auto gpu = run(g, cams, H, W, s, torch::Device(torch::kCUDA, 0), w);
   const char* out_names[] = {"rgb", "alpha", "depth", "median_depth", "max_weight"};
   const torch::Tensor c_out[] = {cpu.out.rgb, cpu.out.alpha, cpu.out.depth, cpu.out.median_depth, cpu.out.max_weight};
   const torch::Tensor g_out[] = {gpu.out.rgb, gpu.out.alpha, gpu.out.depth, gpu.out.median_depth, gpu.out.max_weight};
   for (int i = 0; i < 5; ++i) {
-    const double e = flat::test::rel_error(g_out[i].cpu(), c_out[i]);
-    const double frac = (g_out[i].cpu() - c_out[i]).abs().gt(1e-4).to(torch::kDouble).mean().item<double>();
+    const flat::test::OutputDiff d = flat::test::output_diff(g_out[i], c_out[i]);
+    const double e = d.rel, frac = (double)d.n_off / (double)c_out[i].numel();
     INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
     std::printf("gaussians cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed,
                 out_names[i], e, frac);
@@ -89,14 +79,11 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
       CHECK(e < kGradTol);
       continue;
     }
-    const auto per_gaussian = (gpu.grads[i] - cpu.grads[i]).abs().reshape({n, -1}).amax(1);
-    const auto outlier = per_gaussian.gt(1e-3 * cpu.grads[i].abs().max().item<double>());
-    const double frac = outlier.to(torch::kDouble).mean().item<double>();
-    const auto keep = outlier.logical_not();
-    const double e_rest = flat::test::rel_error(gpu.grads[i].index({keep}), cpu.grads[i].index({keep}));
+    const flat::test::GradOutliers o = flat::test::gradient_outliers(gpu.grads[i], cpu.grads[i], n);
+    const double frac = (double)o.count / (double)n, e_rest = o.rel_rest;
     INFO(g_names[i] << " outliers " << frac << ", rel error of the others " << e_rest);
     std::printf("gaussians cuda-vs-cpu seed %llu grad %s: %lld outliers of %lld, rel error of the others %.2e\n",
-                (unsigned long long)seed, g_names[i], (long long)outlier.sum().item<int64_t>(), (long long)n, e_rest);
+                (unsigned long long)seed, g_names[i], (long long)o.count, (long long)n, e_rest);
     CHECK(frac <= kGeomOutliers);
     CHECK(e_rest < kGeomGradTol);
   }

@@ -5,6 +5,7 @@
 #include "flat/core/error.h"
 #include "flat/render/rasterize.h"
 #include "render_scenes.h"
+#include "support/raster_checks.h"
 #include "test_support.h"
 
 using flat::render::rasterize;
@@ -15,56 +16,21 @@ namespace {
 
 constexpr int64_t kH = 18, kW = 24;
 
-// A random linear functional of all differentiable outputs.
-struct Probe {
-  torch::Tensor w_rgb, w_alpha, w_depth, w_normal;
-  Probe(int64_t V, int64_t H, int64_t W, uint64_t seed) {
-    auto gen = at::make_generator<at::CPUGeneratorImpl>(seed);
-    auto o = torch::TensorOptions().dtype(torch::kDouble);
-    w_rgb = at::randn({V, 3, H, W}, gen, o);
-    w_alpha = at::randn({V, 1, H, W}, gen, o);
-    w_depth = at::randn({V, 1, H, W}, gen, o) * 0.3;
-    w_normal = at::randn({V, 3, H, W}, gen, o);
-  }
-  torch::Tensor operator()(const RenderOutput& r) const {
-    return (r.rgb * w_rgb).sum() + (r.alpha * w_alpha).sum() + (r.depth * w_depth).sum() +
-           (r.normal * w_normal).sum();
-  }
-};
-
 void check_gradients_fd(const RasterSettings& settings, uint64_t seed) {
   const int64_t N = 7, V = 2;
   auto soup = flat::test::random_soup(N, torch::kDouble, seed);
   auto cams = flat::test::test_cameras(V);
-  Probe probe(V, kH, kW, seed + 1);
+  const flat::test::Probe probe(V, kH, kW, {/*normal=*/true}, at::make_generator<at::CPUGeneratorImpl>(seed + 1),
+                                torch::kDouble);
+  auto render = [&](const std::vector<torch::Tensor>& in) {
+    return rasterize(in[0], in[1], in[2], in[3], cams, kH, kW, settings);
+  };
   std::vector<torch::Tensor> inputs = {soup.vertices, soup.colors, soup.opacities, soup.sigmas};
   for (auto& t : inputs) t.requires_grad_(true);
-  auto out = rasterize(inputs[0], inputs[1], inputs[2], inputs[3], cams, kH, kW, settings);
+  auto out = render(inputs);
   REQUIRE(out.alpha.max().item<double>() > 0.3);  // the scene is visible
   auto grads = torch::autograd::grad({probe(out)}, inputs);
-  const char* names[] = {"vertices", "colors", "opacities", "sigmas"};
-  const double h = 1e-6;
-  torch::NoGradGuard ng;
-  for (size_t which = 0; which < inputs.size(); ++which) {
-    auto base = inputs[which].detach().clone();
-    auto fd = torch::zeros_like(base);
-    auto flat_base = base.view({-1});
-    auto flat_fd = fd.view({-1});
-    for (int64_t i = 0; i < flat_base.numel(); ++i) {
-      auto eval = [&](double delta) {
-        auto x = base.clone();
-        x.view({-1})[i] += delta;
-        std::vector<torch::Tensor> in = {soup.vertices, soup.colors, soup.opacities, soup.sigmas};
-        in[which] = x;
-        return probe(rasterize(in[0], in[1], in[2], in[3], cams, kH, kW, settings)).item<double>();
-      };
-      flat_fd[i] = (eval(h) - eval(-h)) / (2 * h);
-    }
-    INFO(names[which] << ": analytic " << grads[which].view({-1}).slice(0, 0, 6) << " fd " << fd.view({-1}).slice(0, 0, 6));
-    CHECK(grads[which].abs().sum().item<double>() > 0.0);
-    CHECK(flat::test::rel_error(grads[which], fd) < 1e-5);
-    CHECK((grads[which] - fd).abs().max().item<double>() < 1e-4 * (1.0 + fd.abs().max().item<double>()));
-  }
+  flat::test::check_against_fd(inputs, grads, {"vertices", "colors", "opacities", "sigmas"}, render, probe);
 }
 
 RasterSettings defaults() { return RasterSettings{}; }

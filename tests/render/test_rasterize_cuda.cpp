@@ -5,6 +5,7 @@
 
 #include "flat/render/rasterize.h"
 #include "render_scenes.h"
+#include "support/raster_checks.h"
 #include "test_support.h"
 
 using flat::render::rasterize;
@@ -28,28 +29,18 @@ constexpr double kGradTol = 2e-3;
 constexpr double kVertexGradTol = 1e-3;
 constexpr double kVertexOutliers = 0.01;
 
-struct Result {
-  flat::render::RenderOutput out;
-  std::vector<torch::Tensor> grads;
-};
-
-Result run(const flat::test::Soup& soup, const flat::camera::Cameras& cams, int64_t H, int64_t W,
-           const RasterSettings& s, const torch::Device& dev, const std::vector<torch::Tensor>& weights) {
-  std::vector<torch::Tensor> in = {soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev),
-                                   soup.sigmas.to(dev)};
-  for (auto& t : in) t.requires_grad_(true);
-  auto out = rasterize(in[0], in[1], in[2], in[3], cams.to(dev), H, W, s);
-  auto loss = (out.rgb * weights[0].to(dev)).sum() + (out.alpha * weights[1].to(dev)).sum() +
-              (out.depth * weights[2].to(dev)).sum() + (out.normal * weights[3].to(dev)).sum();
-  auto grads = torch::autograd::grad({loss}, in);
-  for (auto& g : grads) g = g.cpu();
-  return {out, grads};
+flat::test::Rendered run(const flat::test::Soup& soup, const flat::camera::Cameras& cams, int64_t H, int64_t W,
+                         const RasterSettings& s, const torch::Device& dev, const flat::test::Probe& probe) {
+  auto render = [&](const std::vector<torch::Tensor>& in) {
+    return rasterize(in[0], in[1], in[2], in[3], cams.to(dev), H, W, s);
+  };
+  return flat::test::render_with_grads({soup.vertices, soup.colors, soup.opacities, soup.sigmas}, dev, render, probe);
 }
 
-// Loss weights of V views of H x W pixels (rgb, alpha, depth, normal).
-std::vector<torch::Tensor> loss_weights(int64_t V, int64_t H, int64_t W) {
-  return {torch::randn({V, 3, H, W}), torch::randn({V, 1, H, W}), torch::randn({V, 1, H, W}) * 0.3,
-          torch::randn({V, 3, H, W})};
+// Loss weights of V views of H x W pixels (rgb, alpha, depth, normal), from
+// the global generator.
+flat::test::Probe loss_weights(int64_t V, int64_t H, int64_t W) {
+  return flat::test::Probe(V, H, W, {/*normal=*/true}, std::nullopt, torch::kFloat);
 }
 
 // cams_in: the cameras (default: flat::test::test_cameras(V)).
@@ -57,7 +48,7 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
              const flat::camera::Cameras* cams_in = nullptr) {
   auto soup = flat::test::random_soup(n, torch::kFloat, seed, size);
   auto cams = cams_in ? *cams_in : flat::test::test_cameras(V);
-  const std::vector<torch::Tensor> w = loss_weights(V, H, W);
+  const flat::test::Probe w = loss_weights(V, H, W);
   auto cpu = run(soup, cams, H, W, s, torch::kCPU, w);
   auto gpu = run(soup, cams, H, W, s, torch::Device(torch::kCUDA, 0), w);
   const char* out_names[] = {"rgb", "alpha", "depth", "normal", "median_depth", "max_weight"};
@@ -66,8 +57,8 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   const torch::Tensor g_out[] = {gpu.out.rgb, gpu.out.alpha, gpu.out.depth, gpu.out.normal, gpu.out.median_depth,
                                  gpu.out.max_weight};
   for (int i = 0; i < 6; ++i) {
-    const double e = flat::test::rel_error(g_out[i].cpu(), c_out[i]);
-    const double frac = (g_out[i].cpu() - c_out[i]).abs().gt(1e-4).to(torch::kDouble).mean().item<double>();
+    const flat::test::OutputDiff d = flat::test::output_diff(g_out[i], c_out[i]);
+    const double e = d.rel, frac = (double)d.n_off / (double)c_out[i].numel();
     INFO(out_names[i] << " rel error " << e << ", fraction differing by > 1e-4: " << frac);
     std::printf("cuda-vs-cpu seed %llu %s: rel %.2e, fraction > 1e-4: %.2e\n", (unsigned long long)seed, out_names[i], e,
                 frac);
@@ -85,14 +76,11 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
       CHECK(e < kGradTol);
       continue;
     }
-    const auto per_tri = (gpu.grads[0] - cpu.grads[0]).abs().reshape({n, -1}).amax(1);
-    const auto outlier = per_tri.gt(1e-3 * cpu.grads[0].abs().max().item<double>());
-    const double frac = outlier.to(torch::kDouble).mean().item<double>();
-    const auto keep = outlier.logical_not();
-    const double e_rest = flat::test::rel_error(gpu.grads[0].index({keep}), cpu.grads[0].index({keep}));
+    const flat::test::GradOutliers o = flat::test::gradient_outliers(gpu.grads[0], cpu.grads[0], n);
+    const double frac = (double)o.count / (double)n, e_rest = o.rel_rest;
     INFO("vertex gradient outliers " << frac << ", rel error of the others " << e_rest);
     std::printf("cuda-vs-cpu seed %llu grad vertices: %lld outlier triangles of %lld, rel error of the others %.2e\n",
-                (unsigned long long)seed, (long long)outlier.sum().item<int64_t>(), (long long)n, e_rest);
+                (unsigned long long)seed, (long long)o.count, (long long)n, e_rest);
     CHECK(frac <= kVertexOutliers);
     CHECK(e_rest < kVertexGradTol);
   }
@@ -152,12 +140,12 @@ TEST_CASE("rasterize cuda: views binned two at a time or one at a time give the 
   // images are equal bit for bit; the gradients differ only by the order of
   // their atomic additions.
   auto soup = flat::test::random_soup(n, torch::kFloat, 708, 0.5);
-  const std::vector<torch::Tensor> w = loss_weights(V, H, W);
+  const flat::test::Probe w = loss_weights(V, H, W);
   const torch::Device dev(torch::kCUDA, 0);
   RasterSettings one, two;
   one.views_per_bin = 1;
   two.views_per_bin = 2;
-  const Result a = run(soup, cams, H, W, one, dev, w), b = run(soup, cams, H, W, two, dev, w);
+  const flat::test::Rendered a = run(soup, cams, H, W, one, dev, w), b = run(soup, cams, H, W, two, dev, w);
   REQUIRE(a.out.alpha[1].abs().max().item<float>() == 0.0f);  // the turned view sees nothing
   REQUIRE(a.out.alpha[0].max().item<float>() > 0.5f);
   CHECK(torch::equal(a.out.rgb, b.out.rgb));

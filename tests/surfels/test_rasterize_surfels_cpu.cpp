@@ -6,6 +6,7 @@
 #include "flat/core/error.h"
 #include "flat/loss/regularisers_2dgs.h"
 #include "flat/surfels/rasterize_surfels.h"
+#include "support/raster_checks.h"
 #include "surfel_scenes.h"
 #include "test_support.h"
 
@@ -22,65 +23,27 @@ RenderOutput render(const flat::test::Surfels& s, const flat::camera::Cameras& c
   return rasterize_surfels(s.means, s.scales, s.rotations, s.colors, s.opacities, cams, H, W, settings);
 }
 
-// A random linear functional of the differentiable outputs; `only_distortion`
-// weighs the distortion map alone (its values are small: its weight is large).
-struct Probe {
-  torch::Tensor w_rgb, w_alpha, w_depth, w_normal, w_dist;
-  Probe(int64_t V, int64_t H, int64_t W, uint64_t seed, bool only_distortion) {
-    auto gen = at::make_generator<at::CPUGeneratorImpl>(seed);
-    auto o = torch::TensorOptions().dtype(torch::kDouble);
-    const double on = only_distortion ? 0.0 : 1.0;
-    w_rgb = at::randn({V, 3, H, W}, gen, o) * on;
-    w_alpha = at::randn({V, 1, H, W}, gen, o) * on;
-    w_depth = at::randn({V, 1, H, W}, gen, o) * 0.3 * on;
-    w_normal = at::randn({V, 3, H, W}, gen, o) * on;
-    w_dist = at::randn({V, 1, H, W}, gen, o) * 100.0;
-  }
-  torch::Tensor operator()(const RenderOutput& r) const {
-    return (r.rgb * w_rgb).sum() + (r.alpha * w_alpha).sum() + (r.depth * w_depth).sum() +
-           (r.normal * w_normal).sum() + (r.distortion * w_dist).sum();
-  }
-};
-
 void check_gradients_fd(const RasterSettings& settings, uint64_t seed, bool only_distortion, double scale_lo = 0.03,
                         double scale_hi = 0.4) {
   const int64_t N = 8, V = 2;
   auto scene = flat::test::random_surfels(N, torch::kDouble, seed, scale_lo, scale_hi);
   auto cams = flat::test::test_cameras(V);
-  Probe probe(V, kH, kW, seed + 1, only_distortion);
+  flat::test::ProbeOutputs which;
+  which.normal = which.distortion = true;
+  which.only_distortion = only_distortion;
+  const flat::test::Probe probe(V, kH, kW, which, at::make_generator<at::CPUGeneratorImpl>(seed + 1), torch::kDouble);
   std::vector<torch::Tensor> inputs = {scene.means, scene.scales, scene.rotations, scene.colors, scene.opacities};
   for (auto& t : inputs) t.requires_grad_(true);
-  auto as_scene = [](const std::vector<torch::Tensor>& in) {
-    return flat::test::Surfels{in[0], in[1], in[2], in[3], in[4]};
+  auto render_inputs = [&](const std::vector<torch::Tensor>& in) {
+    return render(flat::test::Surfels{in[0], in[1], in[2], in[3], in[4]}, cams, settings);
   };
-  auto out = render(as_scene(inputs), cams, settings);
+  auto out = render_inputs(inputs);
   REQUIRE(out.alpha.max().item<double>() > 0.3);  // the scene is visible
   REQUIRE(out.distortion.max().item<double>() > 1e-6);  // surfels overlap
   auto grads = torch::autograd::grad({probe(out)}, inputs);
-  const char* names[] = {"means", "scales", "rotations", "colors", "opacities"};
-  const double h = 1e-6;
-  torch::NoGradGuard ng;
-  for (size_t which = 0; which < inputs.size(); ++which) {
-    if (only_distortion && which == 3) continue;  // the distortion does not depend on colours
-    auto base = inputs[which].detach().clone();
-    auto fd = torch::zeros_like(base);
-    auto flat_fd = fd.view({-1});
-    for (int64_t i = 0; i < base.numel(); ++i) {
-      auto eval = [&](double delta) {
-        auto x = base.clone();
-        x.view({-1})[i] += delta;
-        std::vector<torch::Tensor> in = {scene.means, scene.scales, scene.rotations, scene.colors, scene.opacities};
-        in[which] = x;
-        return probe(render(as_scene(in), cams, settings)).item<double>();
-      };
-      flat_fd[i] = (eval(h) - eval(-h)) / (2 * h);
-    }
-    INFO(names[which] << ": analytic " << grads[which].view({-1}).slice(0, 0, 8) << " fd "
-                      << fd.view({-1}).slice(0, 0, 8));
-    CHECK(grads[which].abs().sum().item<double>() > 0.0);
-    CHECK(flat::test::rel_error(grads[which], fd) < 1e-5);
-    CHECK((grads[which] - fd).abs().max().item<double>() < 1e-4 * (1.0 + fd.abs().max().item<double>()));
-  }
+  // The distortion does not depend on colours (input 3).
+  flat::test::check_against_fd(inputs, grads, {"means", "scales", "rotations", "colors", "opacities"}, render_inputs,
+                               probe, only_distortion ? 3 : -1);
 }
 
 // Pixel intrinsics (fx, fy, cx, cy) of view 0 of the test cameras, in double.

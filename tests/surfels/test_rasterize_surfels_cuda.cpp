@@ -7,6 +7,7 @@
 #include <torch/torch.h>
 
 #include "flat/surfels/rasterize_surfels.h"
+#include "support/raster_checks.h"
 #include "surfel_scenes.h"
 #include "test_support.h"
 
@@ -43,24 +44,12 @@ constexpr double kGeomGradTol = 2e-3;
 constexpr double kGeomOutliers = 0.01;
 constexpr double kGeomOutliersMin = 3;
 
-struct Result {
-  RenderOutput out;
-  std::vector<torch::Tensor> grads;
-};
-
-Result run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int64_t H, int64_t W,
-           const RasterSettings& settings, const torch::Device& dev, const std::vector<torch::Tensor>& weights) {
-  // Fresh leaves (on the CPU, to() returns the scene's own tensors).
-  std::vector<torch::Tensor> in = {s.means.to(dev), s.scales.to(dev), s.rotations.to(dev), s.colors.to(dev),
-                                   s.opacities.to(dev)};
-  for (auto& t : in) t = t.detach().requires_grad_(true);
-  auto out = rasterize_surfels(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, settings);
-  auto loss = (out.rgb * weights[0].to(dev)).sum() + (out.alpha * weights[1].to(dev)).sum() +
-              (out.depth * weights[2].to(dev)).sum() + (out.normal * weights[3].to(dev)).sum() +
-              (out.distortion * weights[4].to(dev)).sum();
-  auto grads = torch::autograd::grad({loss}, in);
-  for (auto& g : grads) g = g.cpu();
-  return {out, grads};
+flat::test::Rendered run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int64_t H, int64_t W,
+                         const RasterSettings& settings, const torch::Device& dev, const flat::test::Probe& probe) {
+  auto render = [&](const std::vector<torch::Tensor>& in) {
+    return rasterize_surfels(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, settings);
+  };
+  return flat::test::render_with_grads({s.means, s.scales, s.rotations, s.colors, s.opacities}, dev, render, probe);
 }
 
 // only_distortion: the loss weighs the distortion map alone (its gradient
@@ -70,10 +59,10 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   auto scene = flat::test::random_surfels(n, torch::kFloat, seed, scale_lo, scale_hi);
   auto cams = flat::test::test_cameras(V);
   torch::manual_seed(seed);
-  const double on = only_distortion ? 0.0 : 1.0;
-  const std::vector<torch::Tensor> w = {torch::randn({V, 3, H, W}) * on, torch::randn({V, 1, H, W}) * on,
-                                        torch::randn({V, 1, H, W}) * (0.3 * on), torch::randn({V, 3, H, W}) * on,
-                                        torch::randn({V, 1, H, W}) * 100.0};
+  flat::test::ProbeOutputs which;
+  which.normal = which.distortion = true;
+  which.only_distortion = only_distortion;
+  const flat::test::Probe w(V, H, W, which, std::nullopt, torch::kFloat);
   auto cpu = run(scene, cams, H, W, s, torch::kCPU, w);
   auto gpu = run(scene, cams, H, W, s, torch::Device(torch::kCUDA, 0), w);
   const char* out_names[] = {"rgb", "alpha", "depth", "normal", "median_depth", "max_weight", "distortion"};
@@ -84,11 +73,9 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
   for (int i = 0; i < 7; ++i) {
     const torch::Tensor g = g_out[i].cpu(), c = c_out[i];
     REQUIRE(g.sizes() == c.sizes());
-    const double e = flat::test::rel_error(g, c);
-    const auto off = (g - c).abs().gt(1e-4).logical_or(g.isfinite().logical_not());
-    const int64_t n_off = off.sum().item<int64_t>();
-    const auto keep = off.logical_not();
-    const double e_rest = flat::test::rel_error(g.index({keep}), c.index({keep}));
+    const flat::test::OutputDiff d = flat::test::output_diff(g, c);
+    const double e = d.rel, e_rest = d.rel_rest;
+    const int64_t n_off = d.n_off;
     INFO(out_names[i] << " rel error " << e << ", " << n_off << " of " << c.numel()
                       << " elements off by > 1e-4, rel error of the others " << e_rest);
     std::printf("surfels cuda-vs-cpu seed %llu %s: rel %.2e, %lld of %lld elements off by > 1e-4, rel error of the "
@@ -114,11 +101,9 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
       CHECK(e < kGradTol);
       continue;
     }
-    const auto per_surfel = (gpu.grads[i] - cpu.grads[i]).abs().reshape({n, -1}).amax(1);
-    const auto outlier = per_surfel.gt(1e-3 * cpu.grads[i].abs().max().item<double>());
-    const int64_t n_out = outlier.sum().item<int64_t>();
-    const auto keep = outlier.logical_not();
-    const double e_rest = flat::test::rel_error(gpu.grads[i].index({keep}), cpu.grads[i].index({keep}));
+    const flat::test::GradOutliers o = flat::test::gradient_outliers(gpu.grads[i], cpu.grads[i], n);
+    const int64_t n_out = o.count;
+    const double e_rest = o.rel_rest;
     INFO(g_names[i] << " gradient outliers " << n_out << " of " << n << ", rel error of the others " << e_rest);
     std::printf("surfels cuda-vs-cpu seed %llu%s grad %s: %lld outlier surfels of %lld, rel error of the others %.2e\n",
                 (unsigned long long)seed, only_distortion ? " (distortion only)" : "", g_names[i], (long long)n_out,

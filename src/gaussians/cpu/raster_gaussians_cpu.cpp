@@ -11,10 +11,10 @@
 #include "gaussians/cpu/raster_gaussians_cpu.h"
 
 #include <algorithm>
-#include <numeric>
 #include <vector>
 
 #include "flat/core/error.h"
+#include "render/cpu/per_view.h"
 
 namespace flat::gaussians::cpu {
 namespace {
@@ -55,10 +55,7 @@ ViewSetup<T> setup_view(const GaussianInputs& in, int64_t view) {
     ids.push_back(n);
     keys.push_back(render::depth_sort_key((float)g.z));
   }
-  std::vector<size_t> order(gs.size());
-  std::iota(order.begin(), order.end(), size_t(0));
-  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keys[a] < keys[b]; });
-  for (size_t i : order) {
+  for (size_t i : render::cpu::depth_order(keys)) {
     vs.gaussians.push_back(gs[i]);
     vs.boxes.push_back(boxes[i]);
     vs.ids.push_back(ids[i]);
@@ -110,20 +107,9 @@ PixelState<T> forward_view(const GaussianInputs& in, const ViewSetup<T>& vs, int
         ps.last[p] = (int64_t)r + 1;
       }
   }
-  if (out) {
-    const T* bg = in.background.data_ptr<T>();
-    T* rgb = out->rgb.data_ptr<T>() + view * 3 * HW;
-    T* alpha = out->alpha.data_ptr<T>() + view * HW;
-    T* depth = out->depth.data_ptr<T>() + view * HW;
-    T* med = out->median_depth.data_ptr<T>() + view * HW;
-    for (int64_t p = 0; p < HW; ++p) {
-      const T* a = &acc[p * 4];
-      for (int c = 0; c < 3; ++c) rgb[c * HW + p] = a[c] + ps.t_final[p] * bg[c];
-      alpha[p] = T(1) - ps.t_final[p];
-      depth[p] = a[3];
-      med[p] = median[p];
-    }
-  }
+  if (out)
+    render::cpu::write_view_images(view, HW, acc.data(), 4, ps.t_final, median, in.background.data_ptr<T>(), out->rgb,
+                                   out->alpha, out->depth, at::Tensor(), out->median_depth);
   return ps;
 }
 
@@ -145,12 +131,7 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
   const int64_t V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
   const int64_t N = in.means.size(0);
   const GaussianConstants& k = in.k;
-  GaussianGrads g;
-  g.means = at::zeros_like(in.means);
-  g.scales = at::zeros_like(in.scales);
-  g.rotations = at::zeros_like(in.rotations);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
+  GaussianGrads g = GaussianGrads::zeros_for(in);
   T* gm = g.means.data_ptr<T>();
   T* gs = g.scales.data_ptr<T>();
   T* gq = g.rotations.data_ptr<T>();
@@ -166,20 +147,10 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
     const PixelState<T> ps = forward_view<T>(in, vs, view, nullptr, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, alpha).
     std::vector<T> G(HW * kChannels);
-    {
-      const T* a = g_rgb.data_ptr<T>() + view * 3 * HW;
-      const T* b = g_alpha.data_ptr<T>() + view * HW;
-      const T* d = g_depth.data_ptr<T>() + view * HW;
-      for (int64_t p = 0; p < HW; ++p) {
-        T* Gp = &G[p * kChannels];
-        for (int c = 0; c < 3; ++c) Gp[c] = a[c * HW + p];
-        Gp[3] = d[p];
-        Gp[4] = b[p];
-      }
-    }
-    // Back-to-front replay state per pixel.
-    std::vector<T> Tcur(ps.t_final);
-    std::vector<T> acc(HW * kChannels, T(0)), last_f(HW * kChannels, T(0)), last_alpha(HW, T(0));
+    render::cpu::interleave_grad(g_rgb, view, 3, HW, kChannels, 0, G);
+    render::cpu::interleave_grad(g_depth, view, 1, HW, kChannels, 3, G);
+    render::cpu::interleave_grad(g_alpha, view, 1, HW, kChannels, 4, G);
+    render::cpu::BackToFront<T> replay(ps.t_final, kChannels);
     for (int64_t r = (int64_t)vs.gaussians.size() - 1; r >= 0; --r) {
       const ScreenGaussian<T>& sg = vs.gaussians[r];
       const PixelBox& b = vs.boxes[r];
@@ -190,23 +161,11 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
           if (r >= ps.last[p]) continue;
           Fragment<T> f;
           if (!shade(sg, T(x) + T(0.5), T(y) + T(0.5), k, f)) continue;
-          T& Tp = Tcur[p];
-          Tp = Tp / (T(1) - f.alpha);  // transmittance in front of this Gaussian
+          const T Tp = replay.step(p, f.alpha);  // transmittance in front of this Gaussian
           const T w = f.alpha * Tp;
           const T fv[kChannels] = {sg.color[0], sg.color[1], sg.color[2], sg.z, T(1)};
           const T* Gp = &G[p * kChannels];
-          T* ap = &acc[p * kChannels];
-          T* lf = &last_f[p * kChannels];
-          T g_a = T(0);
-          for (int c = 0; c < kChannels; ++c) {
-            ap[c] = last_alpha[p] * lf[c] + (T(1) - last_alpha[p]) * ap[c];  // what lies behind, composited
-            g_a += (fv[c] - ap[c]) * Gp[c];
-            lf[c] = fv[c];
-          }
-          g_a *= Tp;
-          const T bgdot = bg[0] * Gp[0] + bg[1] * Gp[1] + bg[2] * Gp[2];
-          g_a += -ps.t_final[p] / (T(1) - f.alpha) * bgdot;
-          last_alpha[p] = f.alpha;
+          const T g_a = replay.alpha_grad(p, fv, Gp, f.alpha, Tp, bg);
           for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c];
           gr.z += w * Gp[3];
           shade_backward(sg, f, k, g_a, gr);

@@ -171,12 +171,7 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
   FLAT_CHECK((int64_t)views.size() == V * kViewState,
              "rasterize_gaussians (cuda): backward state does not match the views");
   const auto f = in.means.options();
-  GaussianGrads g;
-  g.means = at::zeros_like(in.means);
-  g.scales = at::zeros_like(in.scales);
-  g.rotations = at::zeros_like(in.rotations);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
+  GaussianGrads g = GaussianGrads::zeros_for(in);
   at::Tensor screen_grads = at::zeros({N * kGradStride}, f);  // zeroed again row by row by the chain
   Preprocessed pre(N, f);
   for (int64_t v = 0; v < V; ++v) {

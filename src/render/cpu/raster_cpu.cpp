@@ -10,10 +10,10 @@
 #include "render/cpu/raster_cpu.h"
 
 #include <algorithm>
-#include <numeric>
 #include <vector>
 
 #include "flat/core/error.h"
+#include "render/cpu/per_view.h"
 
 namespace flat::render::cpu {
 namespace {
@@ -57,10 +57,7 @@ ViewSetup<T> setup_view(const RasterInputs& in, int64_t view) {
     ids.push_back(n);
     keys.push_back(depth_sort_key((float)key));
   }
-  std::vector<size_t> order(tris.size());
-  std::iota(order.begin(), order.end(), size_t(0));
-  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keys[a] < keys[b]; });
-  for (size_t i : order) {
+  for (size_t i : depth_order(keys)) {
     vs.tris.push_back(tris[i]);
     vs.rects.push_back(rects[i]);
     vs.ids.push_back(ids[i]);
@@ -117,22 +114,9 @@ PixelState<T> forward_view(const RasterInputs& in, const ViewSetup<T>& vs, int64
         ps.last[p] = (int64_t)r + 1;
       }
   }
-  if (out) {
-    const T* bg = in.background.data_ptr<T>();
-    T* rgb = out->rgb.data_ptr<T>() + view * 3 * HW;
-    T* alpha = out->alpha.data_ptr<T>() + view * HW;
-    T* depth = out->depth.data_ptr<T>() + view * HW;
-    T* normal = out->normal.data_ptr<T>() + view * 3 * HW;
-    T* med = out->median_depth.data_ptr<T>() + view * HW;
-    for (int64_t p = 0; p < HW; ++p) {
-      const T* a = &acc[p * kChannels];
-      for (int c = 0; c < 3; ++c) rgb[c * HW + p] = a[c] + ps.t_final[p] * bg[c];
-      alpha[p] = T(1) - ps.t_final[p];
-      depth[p] = a[3];
-      for (int c = 0; c < 3; ++c) normal[c * HW + p] = a[4 + c];
-      med[p] = median[p];
-    }
-  }
+  if (out)
+    write_view_images(view, HW, acc.data(), kChannels, ps.t_final, median, in.background.data_ptr<T>(), out->rgb,
+                      out->alpha, out->depth, out->normal, out->median_depth);
   return ps;
 }
 
@@ -154,11 +138,7 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
   const int64_t V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
   const int64_t N = in.vertices.size(0);
   const RasterConstants& k = in.k;
-  RasterGrads g;
-  g.vertices = at::zeros_like(in.vertices);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
-  g.sigmas = at::zeros_like(in.sigmas);
+  RasterGrads g = RasterGrads::zeros_for(in);
   T* gv = g.vertices.data_ptr<T>();
   T* gc = g.colors.data_ptr<T>();
   T* go = g.opacities.data_ptr<T>();
@@ -171,21 +151,11 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
     const PixelState<T> ps = forward_view<T>(in, vs, view, nullptr, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha).
     std::vector<T> G(HW * kChannels);
-    {
-      const T* a = g_rgb.data_ptr<T>() + view * 3 * HW;
-      const T* b = g_alpha.data_ptr<T>() + view * HW;
-      const T* d = g_depth.data_ptr<T>() + view * HW;
-      const T* n = g_normal.data_ptr<T>() + view * 3 * HW;
-      for (int64_t p = 0; p < HW; ++p) {
-        T* Gp = &G[p * kChannels];
-        for (int c = 0; c < 3; ++c) Gp[c] = a[c * HW + p], Gp[4 + c] = n[c * HW + p];
-        Gp[3] = d[p];
-        Gp[7] = b[p];
-      }
-    }
-    // Back-to-front replay state per pixel.
-    std::vector<T> Tcur(ps.t_final);
-    std::vector<T> acc(HW * kChannels, T(0)), last_f(HW * kChannels, T(0)), last_alpha(HW, T(0));
+    interleave_grad(g_rgb, view, 3, HW, kChannels, 0, G);
+    interleave_grad(g_depth, view, 1, HW, kChannels, 3, G);
+    interleave_grad(g_normal, view, 3, HW, kChannels, 4, G);
+    interleave_grad(g_alpha, view, 1, HW, kChannels, 7, G);
+    BackToFront<T> replay(ps.t_final, kChannels);
     std::vector<TriGrad<T>> tg(vs.tris.size());
     for (int64_t r = (int64_t)vs.tris.size() - 1; r >= 0; --r) {
       const PixelTri<T>& t = vs.tris[r];
@@ -203,24 +173,12 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
           shade(t, px, py, rx, ry, k, f);
           if (f.alpha < T(k.alpha_min) || !(f.alpha > T(0))) continue;
           fragment_depth(t, rx, ry, f);
-          T& Tp = Tcur[p];
-          Tp = Tp / (T(1) - f.alpha);  // transmittance in front of this triangle
+          const T Tp = replay.step(p, f.alpha);  // transmittance in front of this triangle
           const T w = f.alpha * Tp;
           const T fv[kChannels] = {t.color[0], t.color[1], t.color[2], f.z,
                                    t.normal[0], t.normal[1], t.normal[2], T(1)};
           const T* Gp = &G[p * kChannels];
-          T* ap = &acc[p * kChannels];
-          T* lf = &last_f[p * kChannels];
-          T g_alpha = T(0);
-          for (int c = 0; c < kChannels; ++c) {
-            ap[c] = last_alpha[p] * lf[c] + (T(1) - last_alpha[p]) * ap[c];
-            g_alpha += (fv[c] - ap[c]) * Gp[c];
-            lf[c] = fv[c];
-          }
-          g_alpha *= Tp;
-          const T bgdot = bg[0] * Gp[0] + bg[1] * Gp[1] + bg[2] * Gp[2];
-          g_alpha += -ps.t_final[p] / (T(1) - f.alpha) * bgdot;
-          last_alpha[p] = f.alpha;
+          const T g_alpha = replay.alpha_grad(p, fv, Gp, f.alpha, Tp, bg);
           for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], g_normal[c] += w * Gp[4 + c];
           const T g_z = w * Gp[3];
           if (f.zclamp == 0) {

@@ -463,11 +463,7 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
   FLAT_CHECK((int64_t)views.size() == kViewState * V, "rasterize (cuda): backward state does not match the views");
   const auto f = in.vertices.options();
-  RasterGrads g;
-  g.vertices = at::zeros_like(in.vertices);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
-  g.sigmas = at::zeros_like(in.sigmas);
+  RasterGrads g = RasterGrads::zeros_for(in);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   // The chain rule runs once per pass of up to kChainViews views with

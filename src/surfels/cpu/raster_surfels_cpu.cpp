@@ -17,10 +17,10 @@
 #include "surfels/cpu/raster_surfels_cpu.h"
 
 #include <algorithm>
-#include <numeric>
 #include <vector>
 
 #include "flat/core/error.h"
+#include "render/cpu/per_view.h"
 
 namespace flat::surfels::cpu {
 namespace {
@@ -62,10 +62,7 @@ ViewSetup<T> setup_view(const SurfelInputs& in, int64_t view) {
     rects.push_back(r);
     keys.push_back(render::depth_sort_key((float)key));
   }
-  std::vector<size_t> order(surfels.size());
-  std::iota(order.begin(), order.end(), size_t(0));
-  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keys[a] < keys[b]; });
-  for (size_t i : order) {
+  for (size_t i : render::cpu::depth_order(keys)) {
     vs.surfels.push_back(surfels[i]);
     vs.rects.push_back(rects[i]);
   }
@@ -125,24 +122,9 @@ PixelState<T> forward_view(const SurfelInputs& in, const ViewSetup<T>& vs, int64
       }
   }
   if (out) {
-    const T* bg = in.background.data_ptr<T>();
-    T* rgb = out->rgb.data_ptr<T>() + view * 3 * HW;
-    T* alpha = out->alpha.data_ptr<T>() + view * HW;
-    T* depth = out->depth.data_ptr<T>() + view * HW;
-    T* normal = out->normal.data_ptr<T>() + view * 3 * HW;
-    T* med = out->median_depth.data_ptr<T>() + view * HW;
-    T* distortion = out->distortion.data_ptr<T>() + view * HW;
-    for (int64_t p = 0; p < HW; ++p) {
-      const T* a = &acc[p * 7];
-      for (int c = 0; c < 3; ++c) {
-        rgb[c * HW + p] = a[c] + ps.t_final[p] * bg[c];
-        normal[c * HW + p] = a[4 + c];
-      }
-      alpha[p] = T(1) - ps.t_final[p];
-      depth[p] = a[3];
-      med[p] = median[p];
-      distortion[p] = dist[p];
-    }
+    render::cpu::write_view_images(view, HW, acc.data(), 7, ps.t_final, median, in.background.data_ptr<T>(), out->rgb,
+                                   out->alpha, out->depth, out->normal, out->median_depth);
+    std::copy(dist.begin(), dist.end(), out->distortion.data_ptr<T>() + view * HW);
   }
   return ps;
 }
@@ -162,12 +144,7 @@ template <class T>
 SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads) {
   const int64_t V = in.w2c.size(0), W = in.width, HW = in.height * in.width;
   const RasterConstants& k = in.k;
-  SurfelGrads g;
-  g.means = at::zeros_like(in.means);
-  g.scales = at::zeros_like(in.scales);
-  g.rotations = at::zeros_like(in.rotations);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
+  SurfelGrads g = SurfelGrads::zeros_for(in);
   T* g_mean = g.means.data_ptr<T>();
   T* g_scale = g.scales.data_ptr<T>();
   T* g_quat = g.rotations.data_ptr<T>();
@@ -183,23 +160,12 @@ SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads
     const PixelState<T> ps = forward_view<T>(in, vs, view, nullptr, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
     std::vector<T> G(HW * kChannels);
-    {
-      const T* a = grads.rgb.data_ptr<T>() + view * 3 * HW;
-      const T* b = grads.alpha.data_ptr<T>() + view * HW;
-      const T* d = grads.depth.data_ptr<T>() + view * HW;
-      const T* n = grads.normal.data_ptr<T>() + view * 3 * HW;
-      const T* e = grads.distortion.data_ptr<T>() + view * HW;
-      for (int64_t p = 0; p < HW; ++p) {
-        T* Gp = &G[p * kChannels];
-        for (int c = 0; c < 3; ++c) Gp[c] = a[c * HW + p], Gp[4 + c] = n[c * HW + p];
-        Gp[3] = d[p];
-        Gp[7] = b[p];
-        Gp[8] = e[p];
-      }
-    }
-    // Back-to-front replay state per pixel.
-    std::vector<T> Tcur(ps.t_final);
-    std::vector<T> acc(HW * kChannels, T(0)), last_f(HW * kChannels, T(0)), last_alpha(HW, T(0));
+    render::cpu::interleave_grad(grads.rgb, view, 3, HW, kChannels, 0, G);
+    render::cpu::interleave_grad(grads.depth, view, 1, HW, kChannels, 3, G);
+    render::cpu::interleave_grad(grads.normal, view, 3, HW, kChannels, 4, G);
+    render::cpu::interleave_grad(grads.alpha, view, 1, HW, kChannels, 7, G);
+    render::cpu::interleave_grad(grads.distortion, view, 1, HW, kChannels, 8, G);
+    render::cpu::BackToFront<T> replay(ps.t_final, kChannels);
     for (int64_t r = (int64_t)vs.surfels.size() - 1; r >= 0; --r) {
       const PixelSurfel<T>& s = vs.surfels[r];
       const SurfelRect& rc = vs.rects[r];
@@ -212,25 +178,14 @@ SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads
           const T px = T(x) + T(0.5), py = T(y) + T(0.5);
           SurfelFragment<T> f;
           if (!shade(s, px, py, k, f)) continue;
-          T& Tp = Tcur[p];
-          Tp = Tp / (T(1) - f.alpha);  // transmittance in front of this surfel
+          const T Tp = replay.step(p, f.alpha);  // transmittance in front of this surfel
           const T w = f.alpha * Tp;
           const T w_total = T(1) - ps.t_final[p];
           const T m = ndc_depth(f.z) - ps.m_ref[p];
           const T fv[kChannels] = {s.color[0],  s.color[1],  s.color[2], f.z, s.normal[0], s.normal[1],
                                    s.normal[2], T(1),        m * m * w_total - T(2) * m * ps.m1[p] + ps.m2[p]};
           const T* Gp = &G[p * kChannels];
-          T* ap = &acc[p * kChannels];
-          T* lf = &last_f[p * kChannels];
-          T g_alpha = T(0);
-          for (int c = 0; c < kChannels; ++c) {
-            ap[c] = last_alpha[p] * lf[c] + (T(1) - last_alpha[p]) * ap[c];
-            g_alpha += (fv[c] - ap[c]) * Gp[c];
-            lf[c] = fv[c];
-          }
-          g_alpha *= Tp;
-          g_alpha += -ps.t_final[p] / (T(1) - f.alpha) * (bg[0] * Gp[0] + bg[1] * Gp[1] + bg[2] * Gp[2]);
-          last_alpha[p] = f.alpha;
+          const T g_alpha = replay.alpha_grad(p, fv, Gp, f.alpha, Tp, bg);
           for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], gr.normal[c] += w * Gp[4 + c];
           const T g_z = w * Gp[3] + Gp[8] * T(2) * w * (m * w_total - ps.m1[p]) * ndc_depth_grad(f.z);
           fragment_backward(s, px, py, f, g_alpha, g_z, k, gr);

@@ -154,12 +154,7 @@ SurfelGrads backward(const SurfelInputs& in, const std::vector<at::Tensor>& view
   const int64_t N = in.means.size(0), V = in.w2c.size(0), HW = in.height * in.width;
   FLAT_CHECK((int64_t)views.size() == kViewState * V,
              "rasterize_surfels (cuda): backward state does not match the views");
-  SurfelGrads g;
-  g.means = at::zeros_like(in.means);
-  g.scales = at::zeros_like(in.scales);
-  g.rotations = at::zeros_like(in.rotations);
-  g.colors = at::zeros_like(in.colors);
-  g.opacities = at::zeros_like(in.opacities);
+  SurfelGrads g = SurfelGrads::zeros_for(in);
   if (N == 0) return g;
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   const at::Tensor surfel_grads = at::empty({N, kSurfelGradStride}, in.means.options());

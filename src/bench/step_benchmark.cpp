@@ -1,4 +1,5 @@
-#include "flat/train/step_benchmark.h"
+#include "flat/bench/step_benchmark.h"
+#include "flat/bench/timing.h"
 
 #include <algorithm>
 #include <chrono>
@@ -13,7 +14,9 @@
 #include "flat/model/weights.h"
 #include "flat/train/training_session.h"
 
-namespace flat::train {
+namespace flat::bench {
+
+using namespace flat::train;
 
 namespace {
 
@@ -23,15 +26,7 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
-
-void sync(const at::Device& d) {
-  if (d.is_cuda()) torch::cuda::synchronize();
-}
+void sync(const at::Device& d) { sync_device(d); }
 
 std::string row(const char* name, double ms, double step_ms) {
   char buf[160];
@@ -145,4 +140,4 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
   return r;
 }
 
-}  // namespace flat::train
+}  // namespace flat::bench

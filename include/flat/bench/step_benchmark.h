@@ -1,6 +1,6 @@
 // Times the training step of a config (flat_bench train): warm-up steps, then
 // timed steps, each phase ended by a device synchronisation so the time can be
-// attributed (train_step.h), plus the loader's wait and the optimiser; and the
+// attributed (train/train_step.h), plus the loader's wait and the optimiser; and the
 // peak device memory. The numbers of docs/benchmarks.md come from here.
 #pragma once
 #include <cstdint>
@@ -9,7 +9,7 @@
 #include "flat/train/train_config.h"
 #include "flat/train/train_step.h"
 
-namespace flat::train {
+namespace flat::bench {
 
 struct StepBenchmark {
   int64_t steps = 0;
@@ -25,10 +25,10 @@ struct StepBenchmark {
 };
 
 // cfg.data must point at scenes with latents of cfg's window and size.
-StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps);
+StepBenchmark benchmark_training(const train::TrainConfig& cfg, int64_t warmup, int64_t steps);
 
 // Writes an LPIPS weights file of the right shapes with random values (for
 // timing only: the cost does not depend on the values). Returns its path.
 std::string write_random_lpips_weights(const std::string& path, uint64_t seed);
 
-}  // namespace flat::train
+}  // namespace flat::bench

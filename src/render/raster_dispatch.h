@@ -1,0 +1,100 @@
+// Host-side glue shared by the three rasterizers' autograd dispatch
+// (render/rasterize.cpp, gaussians/rasterize_gaussians.cpp,
+// surfels/rasterize_surfels.cpp): the compositing constants from the settings
+// and through the autograd context, the input checks every primitive has, the
+// back ends' dtype, the cameras on the host and the value checks' statistics.
+// Internal to src/; the primitive-specific parts stay in each module.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <ATen/ATen.h>
+#include <torch/csrc/autograd/custom_function.h>
+
+#include "flat/camera/cameras.h"
+#include "flat/render/rasterize.h"
+
+namespace flat::render {
+
+// ---------------------------------------------------------------- constants
+// The constants every rasterizer composites with. K is the module's constants
+// struct (render::RasterConstants, gaussians::GaussianConstants): both have
+// these four fields, and the primitive-specific ones are set by the caller.
+template <class K>
+void set_compositing_constants(const RasterSettings& s, K& k) {
+  k.near_plane = (float)s.near_plane;
+  k.alpha_max = (float)s.alpha_max;
+  k.alpha_min = (float)s.alpha_min;
+  k.t_min = (float)s.transmittance_min;
+}
+
+// Kept in the autograd context for the backward, with the image size ("H", "W").
+template <class K>
+void save_compositing_constants(torch::autograd::AutogradContext* ctx, const K& k, int64_t height, int64_t width) {
+  ctx->saved_data["near"] = (double)k.near_plane;
+  ctx->saved_data["alpha_max"] = (double)k.alpha_max;
+  ctx->saved_data["alpha_min"] = (double)k.alpha_min;
+  ctx->saved_data["t_min"] = (double)k.t_min;
+  ctx->saved_data["H"] = height;
+  ctx->saved_data["W"] = width;
+}
+
+template <class K>
+void load_compositing_constants(torch::autograd::AutogradContext* ctx, K& k) {
+  k.near_plane = (float)ctx->saved_data["near"].toDouble();
+  k.alpha_max = (float)ctx->saved_data["alpha_max"].toDouble();
+  k.alpha_min = (float)ctx->saved_data["alpha_min"].toDouble();
+  k.t_min = (float)ctx->saved_data["t_min"].toDouble();
+}
+
+// The upstream gradient of a (V,C,H,W) output in `opts`; zeros where autograd
+// gave none (the output was unused), so the back ends always read one.
+at::Tensor grad_or_zero(const at::Tensor& grad, const at::TensorOptions& opts, int64_t V, int64_t C, int64_t H,
+                        int64_t W);
+
+// ---------------------------------------------------------------- inputs
+// The checks every rasterizer's inputs share, after its own shape checks;
+// `fn` names the rasterizer in the messages, `names` the inputs in the device
+// message ("vertices, colors, opacities and sigmas"): valid cameras, a
+// positive image size of at most 2^30 pixels, floating-point inputs on one
+// CPU or CUDA device.
+void check_common_inputs(const std::string& fn, const std::vector<at::Tensor>& inputs, const std::string& names,
+                         const camera::Cameras& cams, int64_t height, int64_t width);
+
+// The back ends' options for inputs on lead's device: float32, except that
+// all-double CPU inputs run the reference in double (finite differences).
+at::TensorOptions compute_options(const at::Tensor& lead);
+
+// The cameras and background as both back ends read them: on the host (a few
+// hundred bytes; each check or small op on the GPU would cost a sync or a
+// launch) in the dtype of `opts`: w2c (V,4,4), K (V,4) pixel intrinsics fx,
+// fy, cx, cy, background (3). host_cams: the cameras already on the host.
+struct HostViews {
+  at::Tensor w2c, K, background;
+};
+HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width, const RasterSettings& settings,
+                     const at::TensorOptions& opts);
+
+// ---------------------------------------------------------------- value checks
+// The value checks' statistics on the inputs' device, one reduction each:
+// [sum of every input value (finite or not), min and max opacity, min of the
+// input that must be positive (sigmas, scales), and when `quaternions` is
+// defined the min of their squared norms].
+at::Tensor input_stats(const std::vector<at::Tensor>& inputs, const at::Tensor& opacities, const at::Tensor& positive,
+                       const at::Tensor& quaternions = at::Tensor());
+
+// A CUDA tensor copied to pinned host memory without a sync (read it only
+// once the stream that computed it has been waited for, so the GPU does not
+// idle through the call's setup); a host tensor as it is.
+at::Tensor to_host_async(const at::Tensor& t);
+
+// Fails unless the statistics `s` (input_stats, read on the host) say the
+// inputs are finite (else check_finite names the first bad one), opacities
+// lie in [0, 1], the positive input is > 0 and quaternions (when there were
+// any) are non-zero. inputs / names as given to input_stats; `positive` names
+// the positive input.
+void check_input_stats(const double* s, const std::string& fn, const std::vector<at::Tensor>& inputs,
+                       const std::vector<std::string>& names, const std::string& positive, bool quaternions);
+
+}  // namespace flat::render
