@@ -30,14 +30,15 @@ fi
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF \
   -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
   || { tail -30 "$OUT/configure.log"; exit 1; }
-ninja -C "$BUILD" -j "${BUILD_JOBS:-12}" flat_test_gaussians flat_test_surfels flat_bench >"$OUT/build.log" 2>&1 \
+# GPU_TESTS: the suites whose [cuda] cases run (default: the two Gaussian rasterizers).
+read -r -a SUITES <<< "${GPU_TESTS:-flat_test_gaussians flat_test_surfels}"
+ninja -C "$BUILD" -j "${BUILD_JOBS:-12}" "${SUITES[@]}" flat_bench >"$OUT/build.log" 2>&1 \
   || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
 say "built"
-T="$(find "$BUILD" -name flat_test_gaussians -type f | head -1)"; S="$(find "$BUILD" -name flat_test_surfels -type f | head -1)"
-for t in "$T" "$S"; do
-  n=$(basename "$t")
+for n in "${SUITES[@]}"; do
+  t="$(find "$BUILD" -name "$n" -type f | head -1)"
   timeout 240 "$t" "[cuda]" >"$OUT/$n.log" 2>&1; echo "$n [cuda]: rc=$? $(grep -E 'passed|failed' "$OUT/$n.log" | tail -1)"
-  grep -E "FAILED|cuda-vs-cpu" "$OUT/$n.log" | head -40
+  grep -E -A6 "FAILED" "$OUT/$n.log" | head -40
 done
 say "tests done"
 timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workload ${WORKLOADS:-anchor-large anchor-small} \
