@@ -48,6 +48,7 @@ HeadChannels gaussian_channels(int64_t scale_count) {
 }
 
 void TriangleParamConfig::check() const {
+  config::validate_fields(*this, "triangle config");  // the ranges and names declared in visit()
   FLAT_CHECK(depth_far > depth_near, "triangle config: depth_far (" + std::to_string(depth_far) +
                                          ") must exceed depth_near (" + std::to_string(depth_near) + ")");
   FLAT_CHECK(depth_init > depth_near || depth_activation == "sigmoid",

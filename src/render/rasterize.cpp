@@ -16,18 +16,12 @@
 namespace flat::render {
 
 void RasterSettings::check() const {
-  FLAT_CHECK(window == "flat" || window == "ts", "raster settings: 'window' must be 'flat' or 'ts', got '" + window + "'");
-  FLAT_CHECK(eps >= 0.0 && eps <= 1.0, "raster settings: 'eps' must be in [0, 1], got " + std::to_string(eps));
+  // The ranges live in visit(); here only what relates fields to each other.
+  config::validate_fields(*this, "raster settings");
   FLAT_CHECK(background.size() == 3, "raster settings: 'background' must have 3 values (r,g,b), got " +
                                          std::to_string(background.size()));
-  FLAT_CHECK(near_plane > 0.0, "raster settings: 'near_plane' must be > 0");
-  FLAT_CHECK(alpha_max > 0.0 && alpha_max < 1.0, "raster settings: 'alpha_max' must be in (0, 1)");
-  FLAT_CHECK(alpha_min >= 0.0 && alpha_min < alpha_max, "raster settings: 'alpha_min' must be in [0, alpha_max)");
-  FLAT_CHECK(transmittance_min >= 0.0 && transmittance_min < 1.0, "raster settings: 'transmittance_min' must be in [0, 1)");
-  FLAT_CHECK(min_inradius >= 0.0, "raster settings: 'min_inradius' must be >= 0");
-  FLAT_CHECK(min_cos >= 0.0 && min_cos < 1.0, "raster settings: 'min_cos' must be in [0, 1)");
-  FLAT_CHECK(views_per_bin == 1 || views_per_bin == 2,
-             "raster settings: 'views_per_bin' must be 1 or 2, got " + std::to_string(views_per_bin));
+  FLAT_CHECK(alpha_min < alpha_max, "raster settings: 'alpha_min' (" + std::to_string(alpha_min) +
+                                        ") must be below 'alpha_max' (" + std::to_string(alpha_max) + ")");
 }
 
 namespace {

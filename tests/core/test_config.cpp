@@ -426,3 +426,18 @@ TEST_CASE("config: the describer lists every key with its default", "[config]") 
   CHECK(md.find("| `depth.far` | `10` | far |") != std::string::npos);
   CHECK(md.find("| `views` | `[1, 2]` | views |") != std::string::npos);
 }
+
+TEST_CASE("config: validate_fields applies visit()'s checks to a struct built in code", "[config]") {
+  TestCfg c;
+  c.name = "run";
+  config::validate_fields(c, "in code");  // the defaults pass
+  c.optim.betas = {0.9, 1.5};
+  REQUIRE_THROWS_WITH(config::validate_fields(c, "in code"),
+                      FLAT_CONTAINS("in code: 'optim.betas': expected") && FLAT_CONTAINS("1.5"));
+  c = TestCfg{};
+  c.views[0].weight = -1;
+  REQUIRE_THROWS_WITH(config::validate_fields(c, "in code"), FLAT_CONTAINS("'views[0].weight'"));
+  c = TestCfg{};
+  c.raster.window = "box";
+  REQUIRE_THROWS_WITH(config::validate_fields(c, "in code"), FLAT_CONTAINS("'raster.window'"));
+}

@@ -220,4 +220,15 @@ TEST_CASE("raster settings: read from YAML through the config visitor, bad value
   bad = RasterSettings{};
   bad.views_per_bin = 0;
   REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("views_per_bin"));
+  // Built in code, checked against the ranges visit() declares (written once).
+  bad = RasterSettings{};
+  bad.eps = 3;
+  REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("raster settings: 'eps': expected"));
+  bad = RasterSettings{};
+  bad.background = {2.0, 0.0, 0.0};
+  REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("'background'"));
+  bad = RasterSettings{};
+  bad.alpha_min = 0.5;
+  bad.alpha_max = 0.4;
+  REQUIRE_THROWS_WITH(bad.check(), FLAT_CONTAINS("must be below 'alpha_max'"));
 }

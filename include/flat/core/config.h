@@ -167,6 +167,56 @@ class Reader {
   std::vector<std::string> known_;
 };
 
+// Walks a struct's visit() applying each field's declared check to the value it
+// holds: the ranges written once in visit() also guard structs built in code
+// (e.g. render::RasterSettings handed to rasterize()), so check() keeps only
+// the cross-field rules. Sections and lists are walked too, and their check()
+// runs. Errors read like a config's: "<what>: '<key>': expected ..., got ...".
+class Validator {
+ public:
+  explicit Validator(Where where) : where_(std::move(where)) {}
+  template <class T>
+  void field(const char* key, const T& value, const Check& check = {}, const char* = "") {
+    apply_check(check, value, where_, key);
+  }
+  template <class T>
+  void field(const char* key, const T& value, const char* help) { field(key, value, Check{}, help); }
+  template <class T>
+  void required(const char* key, const T& value, const Check& check = {}, const char* help = "") {
+    field(key, value, check, help);
+  }
+  template <class T>
+  void required(const char* key, const T& value, const char* help) { field(key, value, Check{}, help); }
+  template <class S>
+  void section(const char* key, S& sub) {
+    const Where where{where_.file, where_.key(key)};
+    Validator v(where);
+    sub.visit(v);
+    run_check(sub, where);
+  }
+  template <class S>
+  void list(const char* key, std::vector<S>& items) {
+    for (size_t i = 0; i < items.size(); ++i) {
+      const Where where{where_.file, where_.key(key) + "[" + std::to_string(i) + "]"};
+      Validator v(where);
+      items[i].visit(v);
+      run_check(items[i], where);
+    }
+  }
+
+ private:
+  Where where_;
+};
+
+// The declared checks of every field of s (not s.check() itself, which calls
+// this for its own fields); `what` names s in errors.
+template <class S>
+void validate_fields(const S& s, const std::string& what) {
+  S copy = s;  // visit() is written for readers that fill the struct
+  Validator v(Where{what, ""});
+  copy.visit(v);
+}
+
 // Numbers as the shortest text that reads back to the same value ("0.1",
 // where yaml-cpp would write "0.10000000000000001"); other types pass through.
 std::string number_to_yaml(double x);

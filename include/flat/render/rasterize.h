@@ -37,16 +37,19 @@ struct RasterSettings {
   void visit(V& v) {
     v.field("window", window, config::one_of({"flat", "ts"}), "window function: flat | ts");
     v.field("eps", eps, config::range(0.0, 1.0), "FLAT window support beyond each edge, in inradii");
-    v.field("background", background, "background colour r,g,b");
+    v.field("background", background, config::range(0.0, 1.0), "background colour r,g,b in [0,1]");
     v.field("near_plane", near_plane, config::positive(), "cull triangles with a vertex nearer than this");
     v.field("alpha_max", alpha_max, config::range(0.0, 0.999), "alpha cap");
     v.field("alpha_min", alpha_min, config::range(0.0, 1.0), "skip fragments with alpha below this");
-    v.field("transmittance_min", transmittance_min, config::range(0.0, 1.0), "early-stop transmittance");
+    v.field("transmittance_min", transmittance_min, config::range(0.0, 0.999), "early-stop transmittance");
     v.field("min_inradius", min_inradius, config::non_negative(), "cull triangles with smaller screen inradius (px)");
     v.field("min_cos", min_cos, config::range(0.0, 1.0), "cull edge-on triangles below this |cos|");
     v.field("views_per_bin", views_per_bin, config::range(1, 2), "CUDA: views binned by one sort, 1 | 2 (speed only)");
   }
-  void check() const;  // throws flat::Error on bad values (also when built in code, not from YAML)
+  // Throws flat::Error on bad values (also when built in code, not from YAML):
+  // the ranges declared in visit() (config::validate_fields), then the
+  // cross-field rules.
+  void check() const;
 };
 
 struct RenderOutput {
