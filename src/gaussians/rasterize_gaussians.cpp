@@ -39,16 +39,16 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
       out = cpu::forward(in);
     }
     ctx->save_for_backward({means, scales, rotations, colors, opacities, w2c, K, background});
-    render::save_compositing_constants(ctx, k, height, width);
+    render::save_constants(ctx, k, height, width);
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.median_depth, out.max_weight};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
+    const auto c = render::load_constants<GaussianConstants>(ctx);
     GaussianInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
-                      ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), {}, at::Tensor()};
-    render::load_compositing_constants(ctx, in.k);
+                      c.height, c.width, c.k, at::Tensor()};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
     const at::Tensor g_rgb = render::grad_or_zero(grads[0], opts, V, 3, H, W);

@@ -6,6 +6,8 @@
 // Internal to src/; the primitive-specific parts stay in each module.
 #pragma once
 #include <cstdint>
+#include <cstring>
+#include <type_traits>
 #include <string>
 #include <vector>
 
@@ -13,6 +15,7 @@
 #include <torch/csrc/autograd/custom_function.h>
 
 #include "flat/camera/cameras.h"
+#include "flat/core/error.h"
 #include "flat/render/rasterize.h"
 
 namespace flat::render {
@@ -29,23 +32,31 @@ void set_compositing_constants(const RasterSettings& s, K& k) {
   k.t_min = (float)s.transmittance_min;
 }
 
-// Kept in the autograd context for the backward, with the image size ("H", "W").
+// The constants struct K and the image size, kept in the autograd context
+// for the backward as ONE small byte tensor (K is trivially copyable): no
+// string key per field, and a field added to K travels without a line here.
 template <class K>
-void save_compositing_constants(torch::autograd::AutogradContext* ctx, const K& k, int64_t height, int64_t width) {
-  ctx->saved_data["near"] = (double)k.near_plane;
-  ctx->saved_data["alpha_max"] = (double)k.alpha_max;
-  ctx->saved_data["alpha_min"] = (double)k.alpha_min;
-  ctx->saved_data["t_min"] = (double)k.t_min;
-  ctx->saved_data["H"] = height;
-  ctx->saved_data["W"] = width;
+struct SavedConstants {
+  K k;
+  int64_t height = 0, width = 0;
+};
+
+template <class K>
+void save_constants(torch::autograd::AutogradContext* ctx, const K& k, int64_t height, int64_t width) {
+  static_assert(std::is_trivially_copyable_v<K>, "the constants are saved as bytes");
+  const SavedConstants<K> saved{k, height, width};
+  at::Tensor bytes = at::empty({int64_t(sizeof(saved))}, at::kByte);
+  std::memcpy(bytes.data_ptr(), &saved, sizeof(saved));
+  ctx->saved_data["constants"] = bytes;
 }
 
 template <class K>
-void load_compositing_constants(torch::autograd::AutogradContext* ctx, K& k) {
-  k.near_plane = (float)ctx->saved_data["near"].toDouble();
-  k.alpha_max = (float)ctx->saved_data["alpha_max"].toDouble();
-  k.alpha_min = (float)ctx->saved_data["alpha_min"].toDouble();
-  k.t_min = (float)ctx->saved_data["t_min"].toDouble();
+SavedConstants<K> load_constants(torch::autograd::AutogradContext* ctx) {
+  const at::Tensor bytes = ctx->saved_data["constants"].toTensor();
+  SavedConstants<K> saved;
+  FLAT_CHECK(bytes.numel() == int64_t(sizeof(saved)), "rasterize: saved constants of the wrong size");
+  std::memcpy(&saved, bytes.data_ptr(), sizeof(saved));
+  return saved;
 }
 
 // The upstream gradient of a (V,C,H,W) output in `opts`; zeros where autograd

@@ -39,25 +39,6 @@ RasterConstants to_constants(const RasterSettings& s) {
   return k;
 }
 
-// The compositing constants (raster_dispatch.h) and the window's.
-void save_constants(AutogradContext* ctx, const RasterConstants& k, int64_t H, int64_t W) {
-  save_compositing_constants(ctx, k, H, W);
-  ctx->saved_data["eps"] = (double)k.eps;
-  ctx->saved_data["min_inradius"] = (double)k.min_inradius;
-  ctx->saved_data["min_cos"] = (double)k.min_cos;
-  ctx->saved_data["window"] = (int64_t)k.window;
-}
-
-RasterConstants load_constants(AutogradContext* ctx) {
-  RasterConstants k;
-  load_compositing_constants(ctx, k);
-  k.eps = (float)ctx->saved_data["eps"].toDouble();
-  k.min_inradius = (float)ctx->saved_data["min_inradius"].toDouble();
-  k.min_cos = (float)ctx->saved_data["min_cos"].toDouble();
-  k.window = (int)ctx->saved_data["window"].toInt();
-  return k;
-}
-
 struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& vertices, const at::Tensor& colors,
                                const at::Tensor& opacities, const at::Tensor& sigmas, const at::Tensor& w2c,
@@ -88,9 +69,9 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const RasterConstants k = load_constants(ctx);
+    const auto c = load_constants<RasterConstants>(ctx);
     RasterInputs in{saved[0].reshape({saved[0].size(0), 9}), saved[1], saved[2], saved[3], saved[4], saved[5], saved[6],
-                    ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), k};
+                    c.height, c.width, c.k};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.vertices.options();
     const at::Tensor g_rgb = grad_or_zero(grads[0], opts, V, 3, H, W), g_alpha = grad_or_zero(grads[1], opts, V, 1, H, W);

@@ -43,16 +43,16 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
       out = cpu::forward(in);
     }
     ctx->save_for_backward({means, scales, rotations, colors, opacities, w2c, K, background});
-    render::save_compositing_constants(ctx, k, height, width);
+    render::save_constants(ctx, k, height, width);
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.normal, out.median_depth, out.max_weight, out.distortion};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
+    const auto c = render::load_constants<RasterConstants>(ctx);
     SurfelInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
-                    ctx->saved_data["H"].toInt(), ctx->saved_data["W"].toInt(), {}};
-    render::load_compositing_constants(ctx, in.k);
+                    c.height, c.width, c.k};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
     auto grad_or_zero = [&](const at::Tensor& g, int64_t C) { return render::grad_or_zero(g, opts, V, C, H, W); };

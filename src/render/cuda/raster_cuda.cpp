@@ -39,13 +39,30 @@ void zero_async(const at::Tensor& t, cudaStream_t stream) {
 }
 
 constexpr int64_t kTriFloats = sizeof(PixelTri<float>) / sizeof(float);
-// Per view, kept for the backward: sorted ids, tile ranges, final T, last
-// entry, visible list, the visible triangles' screen data (empty when over
-// kKeepScreenBytes: the backward then recomputes it), the tiles' compositing
-// order and the entries' coverage masks (PairMasks). The ids, screen data and
-// masks are the bin group's (the same tensors for each of its views), the
-// visible list a slice of the group's (SavedGroup).
-constexpr int64_t kViewState = 8;
+// Per view, kept for the backward. The ids, screen data and masks are the bin
+// group's (the same tensors for each of its views), the visible list a slice
+// of the group's (SavedGroup). Autograd keeps a flat tensor list: append_to
+// and of() are the one place that knows its order.
+struct ViewState {
+  at::Tensor ids_sorted;  // the group's (triangle, tile) entries' triangle ids, sorted
+  at::Tensor ranges;      // per tile [start, end) into ids_sorted (int2)
+  at::Tensor t_final;     // per pixel, the final transmittance
+  at::Tensor last;        // per pixel, the number of entries processed
+  at::Tensor visible;     // the view's visible triangles
+  at::Tensor screen;      // the group's visible triangles' screen data; empty over
+                          // kKeepScreenBytes (the backward then recomputes it)
+  at::Tensor tile_order;  // the tiles' compositing order
+  at::Tensor masks;       // the entries' coverage masks (PairMasks)
+
+  static constexpr int64_t kFields = 8;
+  void append_to(std::vector<at::Tensor>& list) const {
+    list.insert(list.end(), {ids_sorted, ranges, t_final, last, visible, screen, tile_order, masks});
+  }
+  static ViewState of(const std::vector<at::Tensor>& list, int64_t view) {
+    const at::Tensor* t = list.data() + kFields * view;
+    return {t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]};
+  }
+};
 // Screen data and coverage masks kept across views, at most (bytes); the
 // masks are always kept and count first. At the paper's scale (24 views,
 // ~1.5M visible triangles each) it all fits and the backward skips 24
@@ -279,8 +296,9 @@ struct SavedGroup {
 std::vector<SavedGroup> saved_groups(const std::vector<at::Tensor>& views, int64_t V) {
   std::vector<SavedGroup> groups;
   for (int64_t v = 0; v < V; ++v) {
-    if (v == 0 || !views[kViewState * v].is_same(views[kViewState * (v - 1)])) groups.push_back({v, 0, 0, 0});
-    const int64_t nv = views[kViewState * v + 4].numel();
+    if (v == 0 || !ViewState::of(views, v).ids_sorted.is_same(ViewState::of(views, v - 1).ids_sorted))
+      groups.push_back({v, 0, 0, 0});
+    const int64_t nv = ViewState::of(views, v).visible.numel();
     SavedGroup& g = groups.back();
     g.views += 1;
     g.rows += nv;
@@ -443,8 +461,9 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
                       u, l.visible, l.tile_pairs, l.list_mean, l.list_max, l.entries_mean, l.entries_max);
       }
       if (for_backward)
-        views.insert(views.end(), {ids_sorted, view_ranges, t_final[j], last[j], visible.narrow(0, g.first, g.nv),
-                                   kept_tris, view_order, masks});
+        ViewState{ids_sorted, view_ranges, t_final[j], last[j], visible.narrow(0, g.first, g.nv), kept_tris,
+                  view_order, masks}
+            .append_to(views);
     }
   }
   if (V == 0) {  // no view waited for the device: the value checks still hold
@@ -461,7 +480,8 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   const c10::cuda::CUDAGuard guard(in.vertices.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
   const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
-  FLAT_CHECK((int64_t)views.size() == kViewState * V, "rasterize (cuda): backward state does not match the views");
+  FLAT_CHECK((int64_t)views.size() == ViewState::kFields * V,
+             "rasterize (cuda): backward state does not match the views");
   const auto f = in.vertices.options();
   RasterGrads g = RasterGrads::zeros_for(in);
   if (N == 0) return g;
@@ -499,13 +519,15 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
   for (const SavedGroup& b : groups) {
     if (b.live == 0) continue;
     if (pass.count + b.live > kChainViews) chain();
-    auto state = [&](int64_t v, int i) -> const at::Tensor& { return views[kViewState * v + i]; };
-    at::Tensor tris = state(b.first_view, 5);  // kept, or recomputed here
+    const ViewState first = ViewState::of(views, b.first_view);
+    at::Tensor tris = first.screen;  // kept, or recomputed here
     if (tris.numel() == 0) {
       ScreenData sd(b.rows, false, f);
-      for (int64_t v = b.first_view; v < b.first_view + b.views; ++v)
-        sd.add(in, state(v, 4).data_ptr<int>(), state(v, 4).numel(), state(v, 4).storage_offset(),
+      for (int64_t v = b.first_view; v < b.first_view + b.views; ++v) {
+        const at::Tensor& visible = ViewState::of(views, v).visible;
+        sd.add(in, visible.data_ptr<int>(), visible.numel(), visible.storage_offset(),
                make_params(in, w2c_cpu, K_cpu, bg_cpu, v), nullptr, nullptr, stream);
+      }
       tris = sd.tris;
     }
     // One compositing launch for the group's views: their ranges, tile orders
@@ -515,19 +537,19 @@ RasterGrads backward(const RasterInputs& in, const std::vector<at::Tensor>& view
     FLAT_CHECK(b.views <= kBinViews, "rasterize (cuda): backward state has a bin group of more than 2 views");
     ViewParams vps[kBinViews];
     for (int j = 0; j < b.views; ++j) vps[j] = make_params(in, w2c_cpu, K_cpu, bg_cpu, v0 + j);
-    const at::Tensor& masks = state(v0, 7);
+    const at::Tensor& masks = first.masks;
     BackwardImages img{grad_rgb.data_ptr<float>() + v0 * 3 * HW, grad_alpha.data_ptr<float>() + v0 * HW,
                        grad_depth.data_ptr<float>() + v0 * HW,  grad_normal.data_ptr<float>() + v0 * 3 * HW,
-                       state(v0, 2).data_ptr<float>(),          state(v0, 3).data_ptr<int>(),
+                       first.t_final.data_ptr<float>(),         first.last.data_ptr<int>(),
                        PairMasks{reinterpret_cast<uint32_t*>(masks.data_ptr<int>()), masks.numel() / 2}};
-    launch_raster_backward(reinterpret_cast<const int2*>(state(v0, 1).data_ptr<int>()), state(v0, 6).data_ptr<int>(),
-                           state(v0, 0).data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
+    launch_raster_backward(reinterpret_cast<const int2*>(first.ranges.data_ptr<int>()), first.tile_order.data_ptr<int>(),
+                           first.ids_sorted.data_ptr<int>(), reinterpret_cast<const PixelTri<float>*>(tris.data_ptr<float>()),
                            vps[0], group_rays(vps, (int)b.views), img,
                            pass.tri_grads + pass_rows * kTriGradStride,  // rows of the group's list
                            stream);
     check_launch("backward rasterization");
     for (int j = 0; j < b.views; ++j) {
-      const at::Tensor& visible = state(v0 + j, 4);
+      const at::Tensor visible = ViewState::of(views, v0 + j).visible;
       if (visible.numel() == 0) continue;
       const int slot = pass.count++;
       pass.cam[slot] = vps[j].cam;
