@@ -9,9 +9,9 @@
 //   ray frame   e1 = normalize(x_cam - (x_cam . d) d),  e2 = d x e1,  F = [e1 e2 d]
 //               (x_cam = the camera's right axis; (e1, e2, d) is right-handed like
 //               the camera's (x, y, z), so e1 ~ image right, e2 ~ image down)
-//   footprint   s  = init_scale * sqrt(2) * D / sigma_min(J1 [e1 e2])
+//   footprint   s  = init_scale * sqrt(2) * D / s_min(J1 [e1 e2])
 //               J1 = d(pixel)/d(point) of frame t's projection at the point d
-//               (unit distance along the ray); sigma_min its smallest singular
+//               (unit distance along the ray); s_min its smallest singular
 //               value, so a world length s in any tangent direction projects to
 //               at least init_scale*sqrt(2) px (to first order).
 //   canonical   q_k = 2 (cos a_k, sin a_k), a = 90, -30, -150 deg: centred
