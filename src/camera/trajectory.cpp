@@ -2,22 +2,35 @@
 
 #include <cmath>
 
+#include <glm/gtc/matrix_transform.hpp>
+#include <glm/mat3x3.hpp>
+#include <glm/vec3.hpp>
+
 #include "flat/core/error.h"
 
 namespace flat::camera {
 
 namespace {
 
-// Rotation of angle a (radians) about the unit axis u (Rodrigues), (3,3) double.
-at::Tensor axis_rotation(const at::Tensor& u, double a) {
-  auto K = at::zeros({3, 3}, at::kDouble);
-  K[0][1] = -u[2];
-  K[0][2] = u[1];
-  K[1][0] = u[2];
-  K[1][2] = -u[0];
-  K[2][0] = -u[1];
-  K[2][1] = u[0];
-  return at::eye(3, at::kDouble) + std::sin(a) * K + (1 - std::cos(a)) * K.matmul(K);
+// (4,4) row-major camera-to-world tensor <-> GLM's column-major rotation and
+// position (small fixed-size maths on the host is GLM's).
+void read_pose(const at::Tensor& c2w, glm::dmat3& R, glm::dvec3& p) {
+  const auto a = c2w.to(at::kCPU, at::kDouble).contiguous();
+  const double* m = a.data_ptr<double>();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) R[c][r] = m[4 * r + c];
+    p[r] = m[4 * r + 3];
+  }
+}
+
+at::Tensor pose_tensor(const glm::dmat3& R, const glm::dvec3& p) {
+  auto t = at::eye(4, at::kDouble);
+  double* m = t.data_ptr<double>();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) m[4 * r + c] = R[c][r];
+    m[4 * r + 3] = p[r];
+  }
+  return t;
 }
 
 }  // namespace
@@ -29,28 +42,25 @@ Cameras make_trajectory(const Cameras& anchor, double look_distance, const Traje
              "trajectory: the look-at distance must be a positive number, got " + std::to_string(look_distance));
   FLAT_CHECK(spec.preset == "orbit" || spec.preset == "dolly",
              "trajectory: unknown preset '" + spec.preset + "' (orbit | dolly)");
-  const auto c2w0 = anchor.c2w[0].to(at::kCPU, at::kDouble);
-  const auto R0 = c2w0.slice(0, 0, 3).slice(1, 0, 3);
-  const auto p0 = c2w0.slice(0, 0, 3).select(1, 3);
-  const auto forward = R0.select(1, 2), up = -R0.select(1, 1);  // OpenCV: +z forward, -y up
-  const auto target = p0 + look_distance * forward;
+  glm::dmat3 R0;
+  glm::dvec3 p0;
+  read_pose(anchor.c2w[0], R0, p0);
+  const glm::dvec3 forward = R0[2], up = -R0[1];  // OpenCV: +z forward, -y up
+  const glm::dvec3 target = p0 + look_distance * forward;
 
   std::vector<at::Tensor> poses;
   for (int64_t i = 0; i < spec.frames; ++i) {
     // s goes 0 -> 1 -> 0 -> -1 -> 0 over the frames (one smooth loop).
     const double s = std::sin(2 * M_PI * double(i) / double(spec.frames));
-    auto c2w = at::eye(4, at::kDouble);
     if (spec.preset == "orbit") {
-      auto R = axis_rotation(up, s * spec.degrees * M_PI / 180.0);
-      c2w.slice(0, 0, 3).slice(1, 0, 3).copy_(R.matmul(R0));
-      c2w.slice(0, 0, 3).select(1, 3).copy_(target + R.matmul(p0 - target));
+      // About the up axis through the target (Rodrigues, as glm::rotate).
+      const glm::dmat3 R = glm::dmat3(glm::rotate(glm::dmat4(1.0), s * spec.degrees * M_PI / 180.0, up));
+      poses.push_back(pose_tensor(R * R0, target + R * (p0 - target)));
     } else {
       // Dolly in and back once over the frames: 0 -> fraction -> 0 of the look distance.
       const double t = std::sin(M_PI * double(i) / double(spec.frames)) * spec.fraction * look_distance;
-      c2w.slice(0, 0, 3).slice(1, 0, 3).copy_(R0);
-      c2w.slice(0, 0, 3).select(1, 3).copy_(p0 + t * forward);
+      poses.push_back(pose_tensor(R0, p0 + t * forward));
     }
-    poses.push_back(c2w);
   }
   Cameras out{anchor.intrinsics[0].to(at::kCPU, at::kFloat).unsqueeze(0).expand({spec.frames, 4}).contiguous(),
               at::stack(poses).to(at::kFloat)};

@@ -3,21 +3,14 @@
 #include <algorithm>
 #include <cmath>
 
+#include <glm/geometric.hpp>
+
 #include "flat/core/error.h"
 #include "data/synthetic/camera_path.h"
 
 namespace flat::data::synth {
 
 namespace {
-
-Vec3 sub(Vec3 a, Vec3 b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-Vec3 add(Vec3 a, Vec3 b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-Vec3 scale(Vec3 a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-Vec3 cross(Vec3 a, Vec3 b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-Vec3 normalise(Vec3 a) {
-  double n = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-  return scale(a, 1.0 / n);
-}
 
 // Forward direction from yaw (about y, 0 = +z) and pitch (up positive).
 Vec3 heading(double yaw, double pitch) {
@@ -27,9 +20,9 @@ Vec3 heading(double yaw, double pitch) {
 // OpenCV camera-to-world looking along `forward` with world up +y: camera z =
 // forward, x = right = forward x up, y = down = z x x.
 std::array<double, 16> look(Vec3 eye, Vec3 forward) {
-  Vec3 z = normalise(forward);
-  Vec3 x = normalise(cross(z, {0, 1, 0}));
-  Vec3 y = cross(z, x);
+  const Vec3 z = glm::normalize(forward);
+  const Vec3 x = glm::normalize(glm::cross(z, Vec3{0, 1, 0}));
+  const Vec3 y = glm::cross(z, x);
   return {x[0], y[0], z[0], eye[0], x[1], y[1], z[1], eye[1], x[2], y[2], z[2], eye[2], 0, 0, 0, 1};
 }
 
@@ -61,7 +54,7 @@ Path make_path(const Layout& L, bool room, const std::string& motion, int64_t fr
       Vec3 f = heading(yaw, pitch);
       double dist = rng.uniform(0.6, 1.2);
       for (int64_t i = 0; i < frames; ++i) {
-        Vec3 e = add(eye, scale(f, dist * t_of(i)));
+        Vec3 e = eye + f * (dist * t_of(i));
         // Stay well inside the room (furniture stands along the walls).
         e[0] = std::clamp(e[0], -(h[0] - 1.0), h[0] - 1.0);
         e[2] = std::clamp(e[2], -(h[2] - 1.0), h[2] - 1.0);
@@ -76,7 +69,7 @@ Path make_path(const Layout& L, bool room, const std::string& motion, int64_t fr
       for (int64_t i = 0; i < frames; ++i) {
         double a = a0 + sweep * (2 * t_of(i) - 1);
         Vec3 e{c[0] + radius * std::sin(a), eye[1], c[2] + radius * std::cos(a)};
-        p.c2w.push_back(look(e, sub(c, e)));
+        p.c2w.push_back(look(e, c - e));
       }
     } else {
       fail("synthetic scene: unknown motion '" + motion + "' (pan, zoom, orbit, mixed)");
@@ -93,18 +86,18 @@ Path make_path(const Layout& L, bool room, const std::string& motion, int64_t fr
     double sweep = rng.uniform(120, 300) * deg * (rng.uniform() < 0.5 ? -1 : 1);
     for (int64_t i = 0; i < frames; ++i) {
       Vec3 e = on_circle(a0 + sweep * t_of(i), radius);
-      p.c2w.push_back(look(e, sub(c, e)));
+      p.c2w.push_back(look(e, c - e));
     }
   } else if (p.motion == "pan") {
     Vec3 e = on_circle(a0, radius);
-    Vec3 f = normalise(sub(c, e));
+    Vec3 f = glm::normalize(c - e);
     double yaw0 = std::atan2(f[0], f[2]), pitch = std::asin(f[1]), span = rng.uniform(15, 25) * deg;
     for (int64_t i = 0; i < frames; ++i) p.c2w.push_back(look(e, heading(yaw0 + span * (2 * t_of(i) - 1), pitch)));
   } else if (p.motion == "zoom") {
     double end = rng.uniform(0.5, 0.7);
     for (int64_t i = 0; i < frames; ++i) {
       Vec3 e = on_circle(a0, radius * lerp(1.0, end, t_of(i)));
-      p.c2w.push_back(look(e, sub(c, e)));
+      p.c2w.push_back(look(e, c - e));
     }
   } else {
     fail("synthetic scene: unknown motion '" + motion + "' (pan, zoom, orbit, mixed)");

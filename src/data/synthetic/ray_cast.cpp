@@ -61,7 +61,7 @@ Candidate cast_box(const Box& b, const at::Tensor& o, const at::Tensor& d) {
   auto face = axis * 2 + positive.squeeze(-1).to(at::kLong);
   auto id = face + b.first_id;
   std::vector<double> cols;
-  for (const auto& col : b.colour) cols.insert(cols.end(), col.begin(), col.end());
+  for (const auto& col : b.colour) cols.insert(cols.end(), {col.x, col.y, col.z});
   auto palette = at::tensor(cols, o.options().dtype(at::kDouble)).view({6, 3}).to(o.scalar_type());
   auto local_hit = lo + at::where(at::isinf(t), at::zeros_like(t), t).unsqueeze(-1) * ld;
   auto albedo = palette.index_select(0, face) * checker(local_hit, b.checker);

@@ -6,10 +6,13 @@
 #include <vector>
 
 #include <ATen/ATen.h>
+#include <glm/vec3.hpp>
 
 namespace flat::data::synth {
 
-using Vec3 = std::array<double, 3>;
+// Small fixed-size vector maths on the host is GLM's (the design card's library
+// for it); x, y, z also read as [0], [1], [2].
+using Vec3 = glm::dvec3;
 
 // An oriented box (rotation `yaw` about world y). `inside` = seen from within
 // (the room shell): rays hit its far faces. Surface ids: first_id + 2*axis + (positive side).
