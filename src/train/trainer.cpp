@@ -171,6 +171,441 @@ void replace_run_folder(const std::string& dir) {
   if (ec) spdlog::warn("--overwrite: the old run was moved to {} but cannot be deleted ({})", old, ec.message());
 }
 
+// ---- the run -------------------------------------------------------------------
+// One call of run_training, section by section: run_training calls these in
+// the order they are declared. What one section leaves for the next is a
+// member; members are declared in the order they come to life, so they go
+// (on return or while an exception unwinds) in the reverse order, last
+// the stop-signal handlers.
+class Run {
+ public:
+  Run(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode, const distributed::DistributedEnv& env)
+      : cfg_(cfg), config_yaml_(config_yaml), mode_(mode), env_(env), rank0_(env.rank == 0) {}
+
+  // Checks of the run folder (rank 0), logging, stop signals, seeds; this
+  // rank's device and, with several ranks, the process group.
+  void start_ranks();
+  // The model of the stage's task, its objective and optimiser.
+  void start_session();
+  // Continues from the newest intact checkpoint (--resume) or starts at step
+  // 0; then every rank holds rank 0's weights.
+  void resume_or_start_fresh();
+  // The training loader (this rank's share of each batch) and the validation
+  // loader, and what validation compares with.
+  void open_loaders();
+  // Everything has loaded: only now is the run folder replaced (--overwrite)
+  // or created, and written in.
+  void open_run_folder();
+  enum class LoopEnd { completed, stopped_by_signal };
+  // Validation at the first step, then the steps to cfg.steps with their
+  // metrics, checkpoints, validations, NaN guard and stop requests.
+  LoopEnd train();
+  // The final model file and the closing lines (after a completed loop), then
+  // the clean end on every rank.
+  TrainSummary finish(LoopEnd end);
+
+ private:
+  void run_validation(int64_t step);
+  void write_checkpoint();
+  TrainSummary end_ranks();
+
+  torch::nn::Module& net() { return session_->model(); }  // the trained module
+  optim::AdamW& optimiser() { return *session_->optimiser; }
+  const ModelSignature& signature() const { return session_->signature; }
+  bool bf16() const { return session_->bf16; }
+
+  const TrainConfig& cfg_;
+  const std::string& config_yaml_;
+  const StartMode mode_;
+  const distributed::DistributedEnv& env_;
+  const bool rank0_;  // rank 0: the only rank that writes in the run folder
+
+  std::optional<StopSignals> stop_signals_;  // installed by start_ranks, restored last
+  TrainSummary summary_;
+  RunDir run_dir_;  // paths only: created once everything has loaded (open_run_folder)
+  at::Device device_{at::kCPU};  // this rank's device: cfg.device, cuda:LOCAL_RANK with several ranks
+  std::unique_ptr<DataParallel> dp_;  // with more than one rank
+  std::optional<TrainingSession> session_;
+  TrainerState state_;  // what checkpoints hold besides the weights: step, skips, stage, config
+  data::LoaderConfig train_data_;  // this rank's share of each batch
+  std::optional<data::Loader> train_loader_;
+  std::unique_ptr<data::Loader> val_loader_;  // none without validation.datasets
+  std::string random_latents_;  // which scenes hold random-encoder latents; empty: none
+  at::Tensor dataset_mean_;     // the training set's mean image (scene task with validation)
+  std::unique_ptr<MetricsLog> metrics_;  // rank 0
+  std::optional<Progress> progress_;     // rank 0, while steps remain
+};
+
+void Run::start_ranks() {
+  // Data parallelism: rank 0 alone touches the run folder (logs, metrics,
+  // TensorBoard, checkpoints, validation grids, the final model); the other
+  // ranks log warnings and errors to stderr with their rank.
+  if (rank0_) {
+    check_run_folder(cfg_.run_dir, mode_);
+    setup_logging(cfg_.log.level);
+  } else {
+    setup_rank_logging(cfg_.log.level, env_);
+  }
+  // From here to the end a stop request is honoured: one that comes during
+  // start-up or a validation is acted on after the next step (a checkpoint,
+  // then exit 128 + signal).
+  stop_signals_.emplace();
+  summary_.run_dir = cfg_.run_dir;
+  run_dir_ = RunDir{cfg_.run_dir};
+
+  if (cfg_.threads > 0) at::set_num_threads(int(cfg_.threads));
+  torch::manual_seed(uint64_t(cfg_.seed));
+
+  // ---- ranks ---------------------------------------------------------------------
+  // One GPU per rank: cuda:LOCAL_RANK, the current device before NCCL starts
+  // (kernels launched without a device of their own go there too).
+  device_ = at::Device(cfg_.device == "cuda" ? at::kCUDA : at::kCPU);
+  if (device_.is_cuda() && env_.distributed()) {
+    device_ = at::Device(at::kCUDA, static_cast<c10::DeviceIndex>(env_.local_rank));
+    const int64_t gpus = torch::cuda::is_available() ? int64_t(torch::cuda::device_count()) : 0;
+    FLAT_CHECK(env_.local_rank < gpus, "distributed: rank " + std::to_string(env_.rank) + " has LOCAL_RANK " +
+                                           std::to_string(env_.local_rank) + " but this host shows " +
+                                           std::to_string(gpus) + " CUDA device(s): start at most that many ranks "
+                                           "per host (--nproc, --nproc-per-node) or check CUDA_VISIBLE_DEVICES");
+    c10::impl::getDeviceGuardImpl(at::kCUDA)->setDevice(device_);
+  }
+  if (env_.distributed()) {
+    dp_ = std::make_unique<DataParallel>(cfg_.distributed, env_, device_);
+    spdlog::info("distributed: rank {} of {} on {}, backend {}, timeout {} s", env_.rank, env_.world_size,
+                 device_.str(), dp_->backend(), cfg_.distributed.timeout_seconds);
+  }
+}
+
+// ---- model, objective, optimiser ------------------------------------------------
+void Run::start_session() { session_.emplace(cfg_, device_); }
+
+// ---- resume ------------------------------------------------------------------
+void Run::resume_or_start_fresh() {
+  state_.stage = cfg_.stage;
+  state_.config_yaml = config_yaml_;
+  if (mode_ == StartMode::resume) {
+    // Rank 0 picks the newest intact checkpoint (clearing a half-written one,
+    // naming and setting aside broken ones); every rank loads it.
+    std::optional<LoadedCheckpoint> loaded;
+    if (rank0_) loaded = load_newest_intact_checkpoint(run_dir_.checkpoints());
+    std::string latest = loaded ? loaded->dir : std::string();
+    if (dp_) {
+      const int64_t step = dp_->broadcast(latest.empty() ? -1 : ckpt_step(latest));
+      latest = step < 0 ? std::string() : checkpoint_folder(run_dir_.checkpoints(), step);
+    }
+    if (latest.empty()) {
+      spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run_dir_.root);
+    } else {
+      auto ckpt = loaded ? std::move(*loaded) : read_checkpoint(latest);
+      load_model_weights(net(), ckpt.model, ckpt.signature, signature(), latest + "/model.safetensors");
+      optimiser().load_state(ckpt.optimiser, latest + "/optimizer.safetensors");
+      restore_rng(ckpt.rng, latest + "/rng.safetensors");
+      state_.step = ckpt.state.step;
+      state_.skipped_steps = ckpt.state.skipped_steps;
+      state_.consecutive_skips = ckpt.state.consecutive_skips;
+      summary_.last_checkpoint = latest;
+      spdlog::info("resume: {} at step {} of {}", latest, state_.step, cfg_.steps);
+    }
+  }
+  summary_.first_step = state_.step;
+  if (dp_) {
+    // Every rank starts from rank 0's weights (the same seed and checkpoint
+    // give them already; this makes sure), then averages its gradients.
+    dp_->share_weights(net());
+    session_->use_data_parallel(dp_.get());
+  }
+}
+
+// ---- data --------------------------------------------------------------------
+void Run::open_loaders() {
+  // data.batch_size is the global batch: rank r of W loads B/W of each, the
+  // samples (b*W + r)*B/W ... of the stream, so the W shares together are the
+  // batch one process would load (loader.h).
+  train_data_ = cfg_.data;
+  train_data_.camera_rays = cfg_.pipeline.model.camera_rays;  // the camera latents the model reads
+  if (dp_) {
+    FLAT_CHECK(cfg_.data.batch_size % env_.world_size == 0,
+               "data.batch_size " + std::to_string(cfg_.data.batch_size) + " is the global batch and must be a "
+               "multiple of the " + std::to_string(env_.world_size) + " ranks");
+    train_data_.batch_size = cfg_.data.batch_size / env_.world_size;
+  }
+  train_loader_.emplace(train_data_, state_.step, env_.rank, env_.world_size);
+  if (!cfg_.validation.datasets.empty()) {
+    data::LoaderConfig v = cfg_.data;
+    v.datasets = cfg_.validation.datasets;
+    v.camera_rays = cfg_.pipeline.model.camera_rays;
+    v.batch_size = 1;
+    v.workers = 0;
+    v.seed = 1000003;  // fixed: the same held-out views at every validation
+    v.skip_bad_scenes = false;
+    val_loader_ = std::make_unique<data::Loader>(v);
+  } else {
+    spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
+  }
+  // Provenance: latents of a random-weight encoder carry almost nothing of the
+  // scene; every figure made from them says so.
+  if (!session_->vae_task()) {
+    for (const auto* l : {&*train_loader_, val_loader_.get()}) {
+      if (!l) continue;
+      const auto enc = l->latent_encoders();
+      if (enc.count("random"))
+        random_latents_ += (random_latents_.empty() ? "" : "; ") + std::to_string(enc.at("random")) + " of " +
+                           std::to_string(l->scene_count()) + (l == &*train_loader_ ? " training" : " held-out") +
+                           " scenes";
+    }
+  }
+  // The "same output for every scene" baseline: the training set's mean image.
+  if (val_loader_ && !session_->vae_task()) dataset_mean_ = training_mean_image(cfg_.data, 32);
+}
+
+void Run::open_run_folder() {
+  // Everything that reads user files has succeeded: only now does a new run
+  // folder appear (a run that fails to start leaves nothing behind).
+  if (rank0_) {
+    if (mode_ == StartMode::overwrite) replace_run_folder(run_dir_.root);
+    RunDir::create(run_dir_.root);
+    setup_logging(cfg_.log.level, run_dir_.logs() + "/train.log");
+    config::save_text(run_dir_.config_file(), config_yaml_);
+    metrics_ = std::make_unique<MetricsLog>(run_dir_.root, cfg_.log.tensorboard,
+                                            mode_ == StartMode::resume ? state_.step : -1);
+  }
+  const int64_t params = model::count_parameters(net());
+  spdlog::info("flat_train: stage '{}' (task {}), steps {} to {}, run folder {}{}", cfg_.stage, cfg_.task, state_.step,
+               cfg_.steps, run_dir_.root,
+               summary_.last_checkpoint.empty() ? "" : " (resumed from " + summary_.last_checkpoint + ")");
+  if (session_->vae_task())
+    spdlog::info("Wan VAE: {:.3f} M parameters (dim {}, z_dim {}), frames {}x{}, windows of {}, device {}, precision {}; "
+                 "loss {} L1 + {} L2 + {} LPIPS + {} KL",
+                 double(params) / 1e6, cfg_.pipeline.model.vae.dim, cfg_.pipeline.model.vae.z_dim, cfg_.data.height,
+                 cfg_.data.width, cfg_.data.input_frames, cfg_.device, bf16() ? "bf16 autocast" : "fp32", cfg_.vae.l1,
+                 cfg_.vae.l2, cfg_.vae.lpips, cfg_.vae.kl);
+  else
+    spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
+                 cfg_.pipeline.model.vae.dim, cfg_.pipeline.model.heads, cfg_.device,
+                 bf16() ? "bf16 autocast" : "fp32");
+  if (!random_latents_.empty()) {
+    spdlog::warn("=====================================================================");
+    spdlog::warn("RANDOM-ENCODER LATENTS: {} hold latents of a random-weight encoder.", random_latents_);
+    spdlog::warn("They carry almost nothing of the scene: the figures of this run are");
+    spdlog::warn("pipeline checks, not results. Train a VAE (task: vae) or use Wan's.");
+    spdlog::warn("=====================================================================");
+  }
+  if (dp_)
+    spdlog::info("data parallel: {} ranks, global batch {} ({} per rank), {} gradient bucket(s) of <= {} MB{}",
+                 env_.world_size, cfg_.data.batch_size, train_data_.batch_size, dp_->buckets(),
+                 cfg_.distributed.bucket_mb, cfg_.distributed.overlap ? ", all-reduced during backward" : "");
+}
+
+void Run::run_validation(int64_t step) {
+  if (!val_loader_) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto r = session_->vae_task()
+               ? validate_vae(session_->vae, *val_loader_, cfg_.validation.scenes, session_->vae_lpips,
+                              cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr)
+               : validate(*session_->pipeline, *val_loader_, cfg_.validation.scenes,
+                          session_->objective->lpips_network(), cfg_.validation.grid_views,
+                          dp_ ? &dp_->group() : nullptr, dataset_mean_, bf16());
+  signal_for_test(step);
+  if (std::isnan(summary_.first_val_psnr)) summary_.first_val_psnr = r.psnr;
+  summary_.last_val_psnr = r.psnr;
+  summary_.mean_colour_psnr = r.mean_colour_psnr;
+  if (!rank0_) return;
+  metrics_->write("val", step, r.scalars());
+  std::string grid;
+  if (r.grid.defined()) {
+    char name[64];
+    std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
+    grid = write_preview_image(r.grid, run_dir_.renders() + name);
+  }
+  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const std::string lp = std::isnan(r.lpips) ? "n/a" : fmt::format("{:.3f}", r.lpips);
+  if (session_->vae_task())
+    spdlog::info("validation @ step {}: reconstruction PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, "
+                 "LPIPS {}; latents of different samples correlate {:.3f} on average; {} frames of {} held-out "
+                 "windows ({:.1f} s){}",
+                 step, r.psnr, r.mean_colour_psnr, r.ssim, lp, r.latent_correlation, r.views, r.samples, secs,
+                 grid.empty() ? "" : "; grid " + grid);
+  else
+    spdlog::info("validation @ step {}: PSNR {:.2f} dB | baselines: mean colour {:.2f}, dataset mean {:.2f}, swap "
+                 "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out samples "
+                 "({:.1f} s){}{}",
+                 step, r.psnr, r.mean_colour_psnr, r.dataset_mean_psnr, r.swap_psnr, r.ssim, lp, r.normal_cosine,
+                 r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,
+                 random_latents_.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
+  summary_.swap_psnr = r.swap_psnr;
+  summary_.dataset_mean_psnr = r.dataset_mean_psnr;
+}
+
+void Run::write_checkpoint() {
+  if (!rank0_) return;
+  summary_.last_checkpoint =
+      save_checkpoint(run_dir_.checkpoints(), state_, net(), signature(), optimiser(), cfg_.checkpoint.keep);
+  spdlog::info("checkpoint: {}", summary_.last_checkpoint);
+}
+
+Run::LoopEnd Run::train() {
+  // A run resumed at or past its last step trains no more, but its final
+  // file is written (again): a run stopped by a signal right at its end, or
+  // resumed with --set steps=<its step>, still gets model.safetensors (or
+  // vae.safetensors).
+  const bool finished = state_.step >= cfg_.steps;
+  if (finished) spdlog::info("flat_train: the run already did its {} steps; writing its final outputs", cfg_.steps);
+  // Validation at the first step: step 0 of a new run; for a resumed run,
+  // the one due right after its checkpoint (its row went with the lost work,
+  // or was never written when the kill came during it): recomputed from the
+  // same weights, so val.jsonl keeps every row.
+  if (state_.step == 0 || (mode_ == StartMode::resume &&
+                           (state_.step % cfg_.validation.every == 0 || state_.step == cfg_.steps)))
+    run_validation(state_.step);
+
+  // ---- the loop ------------------------------------------------------------------
+  int64_t applied_steps = 0;  // of this session
+  if (rank0_ && !finished) progress_.emplace(cfg_.stage, cfg_.steps - state_.step, cfg_.log.progress_seconds);
+  while (state_.step < cfg_.steps) {
+    const int64_t step = state_.step;
+    const auto t0 = std::chrono::steady_clock::now();
+    data::Batch batch = train_loader_->next();
+    const auto& nan_steps = cfg_.debug.nan_steps;
+    if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
+      batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
+
+    // With data parallelism every rank learns here whether any rank was asked to stop.
+    StepOutcome out = session_->step(batch, step, nullptr, g_stop_signal.load());
+    const StepResult& res = out.result;
+    const double lr = out.lr, grad_norm = out.grad_norm;
+    const bool ok = out.applied;
+    if (dp_ && step == summary_.first_step)
+      spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
+                   dp_->started_in_backward(), dp_->buckets());
+    if (ok) {
+      ++applied_steps;
+      state_.consecutive_skips = 0;
+    } else {
+      ++state_.skipped_steps;
+      ++state_.consecutive_skips;
+      spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
+                   res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(grad_norm) : res.nonfinite,
+                   state_.consecutive_skips, state_.skipped_steps);
+      if (state_.consecutive_skips >= cfg_.nan_guard.max_consecutive) {
+        if (progress_) progress_->abandon();
+        fail("stopping: " + std::to_string(state_.consecutive_skips) +
+             " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
+             "). Check the data and the learning rate; the last good checkpoint is " +
+             (summary_.last_checkpoint.empty() ? std::string("none yet") : summary_.last_checkpoint) +
+             " (resume with --resume " + run_dir_.root + ")");
+      }
+    }
+    state_.step = step + 1;
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+
+    if (rank0_) {
+      Scalars row = {{"loss", res.loss}};
+      for (const auto& [name, value] : res.terms)
+        if (name != "total") row.push_back({name, value});
+      row.push_back({"lr", lr});
+      row.push_back({"grad_norm", grad_norm});
+      row.push_back({"skipped", ok ? 0.0 : 1.0});
+      row.push_back({"triangles", double(res.triangles)});
+      row.push_back({"step_seconds", seconds});
+      if (device_.is_cuda()) row.push_back({"peak_memory_gib", peak_memory_gib(device_)});
+      metrics_->write("train", step, row);
+      progress_->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
+    }
+
+    const bool last = state_.step == cfg_.steps;
+    const int stop = out.stop_signal;
+    if (state_.step % cfg_.checkpoint.every == 0 || last || stop) write_checkpoint();
+    if (stop) {
+      if (progress_) progress_->abandon();
+      spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
+                   state_.step, run_dir_.root);
+      summary_.exit_code = 128 + stop;
+      summary_.steps_done = state_.step;
+      summary_.skipped_steps = state_.skipped_steps;
+      return LoopEnd::stopped_by_signal;
+    }
+    if (state_.step % cfg_.validation.every == 0 || last) run_validation(state_.step);
+  }
+  // A session whose every step was skipped learned nothing: not a success,
+  // and no final model file (its checkpoints hold the unchanged weights).
+  if (state_.step > summary_.first_step && applied_steps == 0) {
+    if (progress_) progress_->abandon();
+    fail("every one of the " + std::to_string(state_.step - summary_.first_step) + " steps of this session (" +
+         std::to_string(summary_.first_step) + " to " + std::to_string(state_.step - 1) +
+         ") had a non-finite loss or gradient and was skipped: nothing was learned, no final model written. Check "
+         "the data and the learning rate; the last good checkpoint is " +
+         (summary_.last_checkpoint.empty() ? std::string("none") : summary_.last_checkpoint));
+  }
+  if (progress_) progress_->finish();
+  return LoopEnd::completed;
+}
+
+// ---- the end -------------------------------------------------------------------
+TrainSummary Run::finish(LoopEnd end) {
+  // Stopped by a signal: its checkpoint is written and the summary says so
+  // (train()); no final model file.
+  if (end == LoopEnd::stopped_by_signal) return end_ranks();
+  summary_.steps_done = state_.step;
+  summary_.skipped_steps = state_.skipped_steps;
+  if (!rank0_) return end_ranks();
+  if (session_->vae_task()) {
+    // The latent statistics of the training windows, folded into the file
+    // that flat_latents, flat_vae and init.from: wan_vae read.
+    data::LoaderConfig stats_data = train_data_;
+    stats_data.batch_size = 1;
+    stats_data.workers = 0;
+    data::Loader stats_loader(stats_data);
+    const auto stats = measure_latent_statistics(session_->vae, stats_loader, cfg_.vae.stats_samples);
+    summary_.model_file = run_dir_.root + "/vae.safetensors";
+    write_vae_file(session_->vae, stats, summary_.model_file,
+                   {{"producer", "flat_train"}, {"stage", cfg_.stage}, {"task", "vae"},
+                    {"step", std::to_string(state_.step)}});
+    spdlog::info("flat_train: VAE written to {} (Wan 2.1 key names; latent mean {:.3f}..{:.3f}, std {:.3f}..{:.3f} "
+                 "over {} training windows, folded in)",
+                 summary_.model_file, stats.mean.min().item<double>(), stats.mean.max().item<double>(),
+                 stats.std.min().item<double>(), stats.std.max().item<double>(), stats.samples);
+  } else {
+    summary_.model_file = run_dir_.root + "/model.safetensors";
+    auto meta = pipeline::signature_metadata(signature());
+    meta.insert({{"producer", "flat_train"}, {"stage", cfg_.stage}, {"step", std::to_string(state_.step)}});
+    if (!random_latents_.empty()) meta.insert({{"latent_encoder", "random"}});
+    model::save_weights(net(), summary_.model_file, model::WeightNaming::wan, meta);
+  }
+  spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg_.stage, state_.step,
+               state_.skipped_steps);
+  if (!std::isnan(summary_.last_val_psnr)) {
+    if (session_->vae_task())
+      spdlog::info("held-out reconstruction PSNR: {:.2f} dB -> {:.2f} dB (mean-colour baseline {:.2f} dB)",
+                   summary_.first_val_psnr, summary_.last_val_psnr, summary_.mean_colour_psnr);
+    else
+      spdlog::info("held-out PSNR: {:.2f} dB -> {:.2f} dB | baselines: mean colour {:.2f} dB, dataset mean {:.2f} dB, "
+                   "swap {:.2f} dB{}",
+                   summary_.first_val_psnr, summary_.last_val_psnr, summary_.mean_colour_psnr,
+                   summary_.dataset_mean_psnr, summary_.swap_psnr,
+                   random_latents_.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
+  }
+  spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
+               "{})",
+               run_dir_.root, session_->vae_task() ? "vae.safetensors" : "model.safetensors");
+  return end_ranks();
+}
+
+// The clean end on every rank (not after an error: a peer may be gone).
+// The peak GPU memory of every rank is logged by rank 0 (what a cluster job
+// must fit in per GPU).
+TrainSummary Run::end_ranks() {
+  if (device_.is_cuda()) {
+    std::vector<double> peaks(size_t(env_.world_size), 0.0);
+    peaks[size_t(env_.rank)] = peak_memory_gib(device_);
+    if (dp_) peaks = dp_->sum(peaks);
+    std::string list;
+    for (size_t r = 0; r < peaks.size(); ++r) list += fmt::format("{}{:.2f}", r ? ", " : "", peaks[r]);
+    spdlog::info("peak GPU memory (GiB, caching allocator) of rank 0..{}: {}", peaks.size() - 1, list);
+  }
+  if (dp_) dp_->finish();
+  return summary_;
+}
+
 }  // namespace
 
 TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
@@ -188,364 +623,14 @@ TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::s
 
 TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode,
                           const distributed::DistributedEnv& env) {
-  // Data parallelism: rank 0 alone touches the run folder (logs, metrics,
-  // TensorBoard, checkpoints, validation grids, the final model); the other
-  // ranks log warnings and errors to stderr with their rank.
-  const bool root = env.rank == 0;
-  if (root) {
-    check_run_folder(cfg.run_dir, mode);
-    setup_logging(cfg.log.level);
-  } else {
-    setup_rank_logging(cfg.log.level, env);
-  }
-  // From here to the end a stop request is honoured: one that comes during
-  // start-up or a validation is acted on after the next step (a checkpoint,
-  // then exit 128 + signal).
-  StopSignals signals;
-  TrainSummary summary;
-  summary.run_dir = cfg.run_dir;
-  const RunDir run{cfg.run_dir};  // paths only: created once everything below has loaded
-
-  if (cfg.threads > 0) at::set_num_threads(int(cfg.threads));
-  torch::manual_seed(uint64_t(cfg.seed));
-
-  // ---- ranks ---------------------------------------------------------------------
-  // One GPU per rank: cuda:LOCAL_RANK, the current device before NCCL starts
-  // (kernels launched without a device of their own go there too).
-  at::Device device(cfg.device == "cuda" ? at::kCUDA : at::kCPU);
-  if (device.is_cuda() && env.distributed()) {
-    device = at::Device(at::kCUDA, static_cast<c10::DeviceIndex>(env.local_rank));
-    const int64_t gpus = torch::cuda::is_available() ? int64_t(torch::cuda::device_count()) : 0;
-    FLAT_CHECK(env.local_rank < gpus, "distributed: rank " + std::to_string(env.rank) + " has LOCAL_RANK " +
-                                          std::to_string(env.local_rank) + " but this host shows " +
-                                          std::to_string(gpus) + " CUDA device(s): start at most that many ranks "
-                                          "per host (--nproc, --nproc-per-node) or check CUDA_VISIBLE_DEVICES");
-    c10::impl::getDeviceGuardImpl(at::kCUDA)->setDevice(device);
-  }
-  std::unique_ptr<DataParallel> dp;
-  if (env.distributed()) {
-    dp = std::make_unique<DataParallel>(cfg.distributed, env, device);
-    spdlog::info("distributed: rank {} of {} on {}, backend {}, timeout {} s", env.rank, env.world_size,
-                 device.str(), dp->backend(), cfg.distributed.timeout_seconds);
-  }
-
-  // ---- model, objective, optimiser ------------------------------------------------
-  TrainingSession session(cfg, device);
-  torch::nn::Module& net = session.model();  // the trained module
-  auto& optimiser = *session.optimiser;
-  const ModelSignature& signature = session.signature;
-  const bool bf16 = session.bf16;
-
-  // ---- resume ------------------------------------------------------------------
-  TrainerState state;
-  state.stage = cfg.stage;
-  state.config_yaml = config_yaml;
-  if (mode == StartMode::resume) {
-    // Rank 0 picks the newest intact checkpoint (clearing a half-written one,
-    // naming and setting aside broken ones); every rank loads it.
-    std::optional<LoadedCheckpoint> loaded;
-    if (root) loaded = load_newest_intact_checkpoint(run.checkpoints());
-    std::string latest = loaded ? loaded->dir : std::string();
-    if (dp) {
-      const int64_t step = dp->broadcast(latest.empty() ? -1 : ckpt_step(latest));
-      latest = step < 0 ? std::string() : checkpoint_folder(run.checkpoints(), step);
-    }
-    if (latest.empty()) {
-      spdlog::warn("resume: '{}' has no checkpoint yet; starting the stage from step 0", run.root);
-    } else {
-      auto ckpt = loaded ? std::move(*loaded) : read_checkpoint(latest);
-      load_model_weights(net, ckpt.model, ckpt.signature, signature, latest + "/model.safetensors");
-      optimiser.load_state(ckpt.optimiser, latest + "/optimizer.safetensors");
-      restore_rng(ckpt.rng, latest + "/rng.safetensors");
-      state.step = ckpt.state.step;
-      state.skipped_steps = ckpt.state.skipped_steps;
-      state.consecutive_skips = ckpt.state.consecutive_skips;
-      summary.last_checkpoint = latest;
-      spdlog::info("resume: {} at step {} of {}", latest, state.step, cfg.steps);
-    }
-  }
-  summary.first_step = state.step;
-  if (dp) {
-    // Every rank starts from rank 0's weights (the same seed and checkpoint
-    // give them already; this makes sure), then averages its gradients.
-    dp->share_weights(net);
-    session.use_data_parallel(dp.get());
-  }
-
-  // ---- data --------------------------------------------------------------------
-  // data.batch_size is the global batch: rank r of W loads B/W of each, the
-  // samples (b*W + r)*B/W ... of the stream, so the W shares together are the
-  // batch one process would load (loader.h).
-  data::LoaderConfig train_data = cfg.data;
-  train_data.camera_rays = cfg.pipeline.model.camera_rays;  // the camera latents the model reads
-  if (dp) {
-    FLAT_CHECK(cfg.data.batch_size % env.world_size == 0,
-               "data.batch_size " + std::to_string(cfg.data.batch_size) + " is the global batch and must be a "
-               "multiple of the " + std::to_string(env.world_size) + " ranks");
-    train_data.batch_size = cfg.data.batch_size / env.world_size;
-  }
-  data::Loader loader(train_data, state.step, env.rank, env.world_size);
-  std::unique_ptr<data::Loader> val_loader;
-  if (!cfg.validation.datasets.empty()) {
-    data::LoaderConfig v = cfg.data;
-    v.datasets = cfg.validation.datasets;
-    v.camera_rays = cfg.pipeline.model.camera_rays;
-    v.batch_size = 1;
-    v.workers = 0;
-    v.seed = 1000003;  // fixed: the same held-out views at every validation
-    v.skip_bad_scenes = false;
-    val_loader = std::make_unique<data::Loader>(v);
-  } else {
-    spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
-  }
-  // Provenance: latents of a random-weight encoder carry almost nothing of the
-  // scene; every figure made from them says so.
-  std::string random_latents;
-  if (!session.vae_task()) {
-    for (const auto* l : {&loader, val_loader.get()}) {
-      if (!l) continue;
-      const auto enc = l->latent_encoders();
-      if (enc.count("random"))
-        random_latents += (random_latents.empty() ? "" : "; ") + std::to_string(enc.at("random")) + " of " +
-                          std::to_string(l->scene_count()) + (l == &loader ? " training" : " held-out") + " scenes";
-    }
-  }
-  // The "same output for every scene" baseline: the training set's mean image.
-  at::Tensor dataset_mean;
-  if (val_loader && !session.vae_task()) dataset_mean = training_mean_image(cfg.data, 32);
-  // Everything that reads user files has succeeded: only now does a new run
-  // folder appear (a run that fails to start leaves nothing behind).
-  std::unique_ptr<MetricsLog> metrics;
-  if (root) {
-    if (mode == StartMode::overwrite) replace_run_folder(run.root);
-    RunDir::create(run.root);
-    setup_logging(cfg.log.level, run.logs() + "/train.log");
-    config::save_text(run.config_file(), config_yaml);
-    metrics = std::make_unique<MetricsLog>(run.root, cfg.log.tensorboard, mode == StartMode::resume ? state.step : -1);
-  }
-  const int64_t params = model::count_parameters(net);
-  spdlog::info("flat_train: stage '{}' (task {}), steps {} to {}, run folder {}{}", cfg.stage, cfg.task, state.step,
-               cfg.steps, run.root,
-               summary.last_checkpoint.empty() ? "" : " (resumed from " + summary.last_checkpoint + ")");
-  if (session.vae_task())
-    spdlog::info("Wan VAE: {:.3f} M parameters (dim {}, z_dim {}), frames {}x{}, windows of {}, device {}, precision {}; "
-                 "loss {} L1 + {} L2 + {} LPIPS + {} KL",
-                 double(params) / 1e6, cfg.pipeline.model.vae.dim, cfg.pipeline.model.vae.z_dim, cfg.data.height,
-                 cfg.data.width, cfg.data.input_frames, cfg.device, bf16 ? "bf16 autocast" : "fp32", cfg.vae.l1,
-                 cfg.vae.l2, cfg.vae.lpips, cfg.vae.kl);
-  else
-    spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
-                 cfg.pipeline.model.vae.dim, cfg.pipeline.model.heads, cfg.device, bf16 ? "bf16 autocast" : "fp32");
-  if (!random_latents.empty()) {
-    spdlog::warn("=====================================================================");
-    spdlog::warn("RANDOM-ENCODER LATENTS: {} hold latents of a random-weight encoder.", random_latents);
-    spdlog::warn("They carry almost nothing of the scene: the figures of this run are");
-    spdlog::warn("pipeline checks, not results. Train a VAE (task: vae) or use Wan's.");
-    spdlog::warn("=====================================================================");
-  }
-  if (dp)
-    spdlog::info("data parallel: {} ranks, global batch {} ({} per rank), {} gradient bucket(s) of <= {} MB{}",
-                 env.world_size, cfg.data.batch_size, train_data.batch_size, dp->buckets(),
-                 cfg.distributed.bucket_mb, cfg.distributed.overlap ? ", all-reduced during backward" : "");
-
-  auto run_validation = [&](int64_t step) {
-    if (!val_loader) return;
-    const auto t0 = std::chrono::steady_clock::now();
-    auto r = session.vae_task()
-                 ? validate_vae(session.vae, *val_loader, cfg.validation.scenes, session.vae_lpips,
-                                cfg.validation.grid_views, dp ? &dp->group() : nullptr)
-                 : validate(*session.pipeline, *val_loader, cfg.validation.scenes, session.objective->lpips_network(),
-                            cfg.validation.grid_views, dp ? &dp->group() : nullptr, dataset_mean, bf16);
-    signal_for_test(step);
-    if (std::isnan(summary.first_val_psnr)) summary.first_val_psnr = r.psnr;
-    summary.last_val_psnr = r.psnr;
-    summary.mean_colour_psnr = r.mean_colour_psnr;
-    if (!root) return;
-    metrics->write("val", step, r.scalars());
-    std::string grid;
-    if (r.grid.defined()) {
-      char name[64];
-      std::snprintf(name, sizeof(name), "/val_step_%08lld", static_cast<long long>(step));
-      grid = write_preview_image(r.grid, run.renders() + name);
-    }
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    const std::string lp = std::isnan(r.lpips) ? "n/a" : fmt::format("{:.3f}", r.lpips);
-    if (session.vae_task())
-      spdlog::info("validation @ step {}: reconstruction PSNR {:.2f} dB (mean-colour baseline {:.2f}), SSIM {:.3f}, "
-                   "LPIPS {}; latents of different samples correlate {:.3f} on average; {} frames of {} held-out "
-                   "windows ({:.1f} s){}",
-                   step, r.psnr, r.mean_colour_psnr, r.ssim, lp, r.latent_correlation, r.views, r.samples, secs,
-                   grid.empty() ? "" : "; grid " + grid);
-    else
-      spdlog::info("validation @ step {}: PSNR {:.2f} dB | baselines: mean colour {:.2f}, dataset mean {:.2f}, swap "
-                   "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out samples "
-                   "({:.1f} s){}{}",
-                   step, r.psnr, r.mean_colour_psnr, r.dataset_mean_psnr, r.swap_psnr, r.ssim, lp, r.normal_cosine,
-                   r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,
-                   random_latents.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
-    summary.swap_psnr = r.swap_psnr;
-    summary.dataset_mean_psnr = r.dataset_mean_psnr;
-  };
-  auto write_checkpoint = [&] {
-    if (!root) return;
-    summary.last_checkpoint =
-        save_checkpoint(run.checkpoints(), state, net, signature, optimiser, cfg.checkpoint.keep);
-    spdlog::info("checkpoint: {}", summary.last_checkpoint);
-  };
-  // The clean end on every rank (not after an error: a peer may be gone).
-  // The peak GPU memory of every rank is logged by rank 0 (what a cluster job
-  // must fit in per GPU).
-  auto finish = [&] {
-    if (device.is_cuda()) {
-      std::vector<double> peaks(size_t(env.world_size), 0.0);
-      peaks[size_t(env.rank)] = peak_memory_gib(device);
-      if (dp) peaks = dp->sum(peaks);
-      std::string list;
-      for (size_t r = 0; r < peaks.size(); ++r) list += fmt::format("{}{:.2f}", r ? ", " : "", peaks[r]);
-      spdlog::info("peak GPU memory (GiB, caching allocator) of rank 0..{}: {}", peaks.size() - 1, list);
-    }
-    if (dp) dp->finish();
-    return summary;
-  };
-
-  // A run resumed at or past its last step trains no more, but its final
-  // file is written (again): a run stopped by a signal right at its end, or
-  // resumed with --set steps=<its step>, still gets model.safetensors (or
-  // vae.safetensors).
-  const bool finished = state.step >= cfg.steps;
-  if (finished) spdlog::info("flat_train: the run already did its {} steps; writing its final outputs", cfg.steps);
-  // Validation at the first step: step 0 of a new run; for a resumed run,
-  // the one due right after its checkpoint (its row went with the lost work,
-  // or was never written when the kill came during it): recomputed from the
-  // same weights, so val.jsonl keeps every row.
-  if (state.step == 0 || (mode == StartMode::resume &&
-                          (state.step % cfg.validation.every == 0 || state.step == cfg.steps)))
-    run_validation(state.step);
-
-  // ---- the loop ------------------------------------------------------------------
-  std::optional<Progress> progress;
-  int64_t applied_steps = 0;  // of this session
-  if (root && !finished) progress.emplace(cfg.stage, cfg.steps - state.step, cfg.log.progress_seconds);
-  while (state.step < cfg.steps) {
-    const int64_t step = state.step;
-    const auto t0 = std::chrono::steady_clock::now();
-    data::Batch batch = loader.next();
-    const auto& nan_steps = cfg.debug.nan_steps;
-    if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
-      batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
-
-    // With data parallelism every rank learns here whether any rank was asked to stop.
-    StepOutcome out = session.step(batch, step, nullptr, g_stop_signal.load());
-    const StepResult& res = out.result;
-    const double lr = out.lr, grad_norm = out.grad_norm;
-    const bool ok = out.applied;
-    if (dp && step == summary.first_step)
-      spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
-                   dp->started_in_backward(), dp->buckets());
-    if (ok) {
-      ++applied_steps;
-      state.consecutive_skips = 0;
-    } else {
-      ++state.skipped_steps;
-      ++state.consecutive_skips;
-      spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
-                   res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(grad_norm) : res.nonfinite,
-                   state.consecutive_skips, state.skipped_steps);
-      if (state.consecutive_skips >= cfg.nan_guard.max_consecutive) {
-        if (progress) progress->abandon();
-        fail("stopping: " + std::to_string(state.consecutive_skips) +
-             " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
-             "). Check the data and the learning rate; the last good checkpoint is " +
-             (summary.last_checkpoint.empty() ? std::string("none yet") : summary.last_checkpoint) +
-             " (resume with --resume " + run.root + ")");
-      }
-    }
-    state.step = step + 1;
-    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-
-    if (root) {
-      Scalars row = {{"loss", res.loss}};
-      for (const auto& [name, value] : res.terms)
-        if (name != "total") row.push_back({name, value});
-      row.push_back({"lr", lr});
-      row.push_back({"grad_norm", grad_norm});
-      row.push_back({"skipped", ok ? 0.0 : 1.0});
-      row.push_back({"triangles", double(res.triangles)});
-      row.push_back({"step_seconds", seconds});
-      if (device.is_cuda()) row.push_back({"peak_memory_gib", peak_memory_gib(device)});
-      metrics->write("train", step, row);
-      progress->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
-    }
-
-    const bool last = state.step == cfg.steps;
-    const int stop = out.stop_signal;
-    if (state.step % cfg.checkpoint.every == 0 || last || stop) write_checkpoint();
-    if (stop) {
-      if (progress) progress->abandon();
-      spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
-                   state.step, run.root);
-      summary.exit_code = 128 + stop;
-      summary.steps_done = state.step;
-      summary.skipped_steps = state.skipped_steps;
-      return finish();
-    }
-    if (state.step % cfg.validation.every == 0 || last) run_validation(state.step);
-  }
-  // A session whose every step was skipped learned nothing: not a success,
-  // and no final model file (its checkpoints hold the unchanged weights).
-  if (state.step > summary.first_step && applied_steps == 0) {
-    if (progress) progress->abandon();
-    fail("every one of the " + std::to_string(state.step - summary.first_step) + " steps of this session (" +
-         std::to_string(summary.first_step) + " to " + std::to_string(state.step - 1) +
-         ") had a non-finite loss or gradient and was skipped: nothing was learned, no final model written. Check "
-         "the data and the learning rate; the last good checkpoint is " +
-         (summary.last_checkpoint.empty() ? std::string("none") : summary.last_checkpoint));
-  }
-  if (progress) progress->finish();
-
-  // ---- the end -------------------------------------------------------------------
-  summary.steps_done = state.step;
-  summary.skipped_steps = state.skipped_steps;
-  if (!root) return finish();
-  if (session.vae_task()) {
-    // The latent statistics of the training windows, folded into the file
-    // that flat_latents, flat_vae and init.from: wan_vae read.
-    data::LoaderConfig stats_data = train_data;
-    stats_data.batch_size = 1;
-    stats_data.workers = 0;
-    data::Loader stats_loader(stats_data);
-    const auto stats = measure_latent_statistics(session.vae, stats_loader, cfg.vae.stats_samples);
-    summary.model_file = run.root + "/vae.safetensors";
-    write_vae_file(session.vae, stats, summary.model_file,
-                   {{"producer", "flat_train"}, {"stage", cfg.stage}, {"task", "vae"},
-                    {"step", std::to_string(state.step)}});
-    spdlog::info("flat_train: VAE written to {} (Wan 2.1 key names; latent mean {:.3f}..{:.3f}, std {:.3f}..{:.3f} "
-                 "over {} training windows, folded in)",
-                 summary.model_file, stats.mean.min().item<double>(), stats.mean.max().item<double>(),
-                 stats.std.min().item<double>(), stats.std.max().item<double>(), stats.samples);
-  } else {
-    summary.model_file = run.root + "/model.safetensors";
-    auto meta = pipeline::signature_metadata(signature);
-    meta.insert({{"producer", "flat_train"}, {"stage", cfg.stage}, {"step", std::to_string(state.step)}});
-    if (!random_latents.empty()) meta.insert({{"latent_encoder", "random"}});
-    model::save_weights(net, summary.model_file, model::WeightNaming::wan, meta);
-  }
-  spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg.stage, state.step,
-               state.skipped_steps);
-  if (!std::isnan(summary.last_val_psnr)) {
-    if (session.vae_task())
-      spdlog::info("held-out reconstruction PSNR: {:.2f} dB -> {:.2f} dB (mean-colour baseline {:.2f} dB)",
-                   summary.first_val_psnr, summary.last_val_psnr, summary.mean_colour_psnr);
-    else
-      spdlog::info("held-out PSNR: {:.2f} dB -> {:.2f} dB | baselines: mean colour {:.2f} dB, dataset mean {:.2f} dB, "
-                   "swap {:.2f} dB{}",
-                   summary.first_val_psnr, summary.last_val_psnr, summary.mean_colour_psnr, summary.dataset_mean_psnr,
-                   summary.swap_psnr, random_latents.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
-  }
-  spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
-               "{})",
-               run.root, session.vae_task() ? "vae.safetensors" : "model.safetensors");
-  return finish();
+  Run run(cfg, config_yaml, mode, env);
+  run.start_ranks();
+  run.start_session();
+  run.resume_or_start_fresh();
+  run.open_loaders();
+  run.open_run_folder();
+  const Run::LoopEnd end = run.train();
+  return run.finish(end);
 }
 
 }  // namespace flat::train
