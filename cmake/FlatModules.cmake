@@ -27,6 +27,10 @@ function(flat_add_module name)
   foreach(d IN LISTS M_DEPS)
     if(TARGET ${d})
       list(APPEND deps ${d})
+    elseif(d MATCHES "^flat_mod_")
+      # A module must be declared after the modules it depends on; skipping it
+      # would only show up as undefined references in some executable.
+      message(FATAL_ERROR "module ${name}: DEPS names ${d}, which is not declared (yet): declare ${d} first")
     endif()
   endforeach()
   add_library(flat_mod_${name} STATIC ${srcs})
