@@ -75,7 +75,7 @@ bool AdamW::fused_8bit(const Slot& s, const at::Tensor& grad) const {
     return q.codes.device() == s.param.device() && q.codes.is_contiguous() && q.absmax.is_contiguous() &&
            q.absmax.scalar_type() == at::kFloat && reinterpret_cast<uintptr_t>(q.codes.data_ptr()) % 8 == 0;
   };
-  return fused_8bit_available() && options_.fused && s.param.is_cuda() && grad.device() == s.param.device() &&
+  return fused_8bit_available() && options_.fused_8bit && s.param.is_cuda() && grad.device() == s.param.device() &&
          dtype_ok(s.param) && dtype_ok(grad) && s.param.is_contiguous() && grad.is_contiguous() &&
          grad.numel() == s.param.numel() && state_ok(s.exp_avg_q8) && state_ok(s.exp_avg_sq_q8);
 }

@@ -70,6 +70,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   adamw.eps = cfg.optim.eps;
   adamw.weight_decay = cfg.optim.weight_decay;
   adamw.fused = cfg.optim.fused;
+  adamw.fused_8bit = cfg.optim.fused_8bit;
   adamw.state_bits = cfg.optim.name == "adamw8bit" ? 8 : 32;
   if (cfg.task == "vae") {
     vae = model::WanVAE(cfg.pipeline.model.vae);

@@ -51,6 +51,7 @@ AdamWOptions options(bool fused) {
   o.min_8bit_numel = 0;  // every size below is quantised, the 1-value tensor too
   o.weight_decay = 0.01;
   o.fused = fused;
+  o.fused_8bit = fused;
   return o;
 }
 

@@ -15,10 +15,10 @@
 // (blockwise_quantisation.h: uint8 codes + one float per 256 values, about a
 // quarter of fp32 state); each step dequantises them, updates as above in
 // fp32, and quantises them again. Smaller tensors (biases, norms) keep fp32
-// state, as bitsandbytes does. On CUDA (fused, a build with FLAT_WITH_CUDA,
+// state, as bitsandbytes does. On CUDA (fused_8bit, a build with FLAT_WITH_CUDA,
 // contiguous fp32 or bf16 parameters and gradients) that is one fused kernel
-// per tensor updating the state in place (src/train/cuda/adamw8bit_step.cu);
-// otherwise, and with fused = false, the ATen ops of update_8bit: the CPU
+// per tensor updating the state in place (src/optim/cuda/adamw8bit_step.cu);
+// otherwise, and with fused_8bit = false, the ATen ops of update_8bit: the CPU
 // path and the reference the kernel is tested against (same arithmetic, op
 // for op).
 #pragma once
@@ -36,7 +36,8 @@ namespace flat::optim {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
-  bool fused = true;  // CUDA: ATen's fused kernel (8-bit: ours); false: the op-by-op update everywhere
+  bool fused = true;       // CUDA, fp32-state tensors: ATen's fused multi-tensor kernel; false: op by op
+  bool fused_8bit = true;  // CUDA, 8-bit-state tensors: our fused kernel; false: the ATen reference ops
   int state_bits = 32;             // 32 | 8
   int64_t min_8bit_numel = 4096;   // smaller tensors keep fp32 state
 };

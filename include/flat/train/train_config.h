@@ -72,7 +72,8 @@ struct OptimConfig {
   std::string schedule = "cosine";  // after warm-up: constant | cosine | linear (to min_lr_ratio * lr)
   double min_lr_ratio = 0.1;
   double grad_clip = 1.0;  // global L2 norm; 0 = off
-  bool fused = true;       // CUDA: ATen's fused AdamW kernel; with adamw8bit, our fused 8-bit kernel
+  bool fused = true;       // CUDA: ATen's fused AdamW kernel for the fp32-state parameters
+  bool fused_8bit = true;  // CUDA, adamw8bit: our fused kernel for the 8-bit-state parameters
 
   template <class V>
   void visit(V& v) {
@@ -86,7 +87,9 @@ struct OptimConfig {
     v.field("schedule", schedule, config::one_of({"constant", "cosine", "linear"}), "schedule after warm-up");
     v.field("min_lr_ratio", min_lr_ratio, config::range(0.0, 1.0), "final lr / peak lr (cosine, linear)");
     v.field("grad_clip", grad_clip, config::non_negative(), "clip the global gradient norm to this (0 = off)");
-    v.field("fused", fused, "CUDA: fused kernels (AdamW: one for all parameters; adamw8bit: one per tensor); false: op by op");
+    v.field("fused", fused, "CUDA: ATen's fused multi-tensor AdamW for the fp32-state parameters; false: op by op");
+    v.field("fused_8bit", fused_8bit,
+            "CUDA, adamw8bit: our fused kernel for the 8-bit-state parameters (one per tensor); false: ATen ops");
   }
 };
 
