@@ -21,7 +21,8 @@ RenderedViews normalise_by_alpha(const render::RenderOutput& out) {
   auto has = out.alpha > kMinAlphaForGeometry;
   auto safe_alpha = at::where(has, out.alpha, at::ones_like(out.alpha));
   v.depth = at::where(has, out.depth / safe_alpha, at::zeros_like(out.depth));
-  v.normal = at::where(has, out.normal / safe_alpha, at::zeros_like(out.normal));
+  // 3DGS renders no normal: the caller derives it from this depth.
+  if (out.normal.defined()) v.normal = at::where(has, out.normal / safe_alpha, at::zeros_like(out.normal));
   return v;
 }
 
@@ -124,15 +125,15 @@ RenderedViews ScenePipeline::render(const primitives::ScenePrimitives& scene, co
              "pipeline: a " + scene.representation + " scene given to a " + config_.representation + " pipeline");
   const auto kept = prune(scene, config_.prune_opacity);
   render::RenderOutput out = rasterize_scene(kept, cams, height, width, config_.raster);
+  auto views = normalise_by_alpha(out);
   // 3DGS has no surface normal: the paper takes its normals from the rendered
   // depth by finite differences (zero outside the covered pixels).
-  if (!out.normal.defined()) {
-    const auto has = out.alpha > kMinAlphaForGeometry;
-    const auto depth = at::where(has, out.depth / at::where(has, out.alpha, at::ones_like(out.alpha)),
-                                 at::zeros_like(out.depth));
-    out.normal = loss::normals_from_depth(depth, cams.intrinsics.to(depth.device(), depth.scalar_type())) * out.alpha;
+  if (!views.normal.defined()) {
+    const auto& d = views.depth;
+    views.normal = at::where(views.alpha > kMinAlphaForGeometry,
+                             loss::normals_from_depth(d, cams.intrinsics.to(d.device(), d.scalar_type())),
+                             at::zeros_like(d).expand({-1, 3, -1, -1}));
   }
-  auto views = normalise_by_alpha(out);
   views.distortion = out.distortion;
   views.triangles = kept.size();
   return views;

@@ -76,7 +76,8 @@ struct RenderedViews {
 // Below this alpha a pixel has no depth or normal (division would amplify noise).
 inline constexpr double kMinAlphaForGeometry = 1e-4;
 
-// Depth and normal divided by alpha where alpha > kMinAlphaForGeometry.
+// Depth and normal divided by alpha where alpha > kMinAlphaForGeometry (an
+// undefined normal, 3DGS's, stays undefined).
 RenderedViews normalise_by_alpha(const render::RenderOutput& out);
 
 // One scene (no batch dimension) through the rasterizer of its representation
