@@ -119,7 +119,7 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
       auto t0 = Clock::now();
       {
         AutocastScope autocast(session.bf16, session.device.type());
-        auto l = loss::lpips_distance(net, a, b, cfg.loss.lpips_max_size, cfg.loss.lpips_chunk).mean();
+        auto l = loss::lpips_distance(net, a, b, session.objective->lpips_options()).mean();
         l.backward();
       }
       sync(session.device);

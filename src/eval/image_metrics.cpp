@@ -38,7 +38,7 @@ at::Tensor ssim(const at::Tensor& rendered, const at::Tensor& target, SsimConven
 at::Tensor lpips(loss::Lpips& net, const at::Tensor& rendered, const at::Tensor& target, int64_t max_size,
                  int64_t chunk) {
   torch::NoGradGuard no_grad;
-  return loss::lpips_distance(net, rendered, target, max_size, chunk);
+  return loss::lpips_distance(net, rendered, target, {.max_size = max_size, .chunk = chunk});
 }
 
 }  // namespace flat::eval

@@ -4,6 +4,7 @@
 
 #include <filesystem>
 
+#include <c10/core/impl/LocalDispatchKeySet.h>
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
@@ -91,22 +92,57 @@ void LpipsImpl::load(const std::string& path) {
     convs_[c]->bias.copy_(read_tensor(*file, specs[i++].name));
   }
   for (int k = 0; k < 5; ++k) lins_[k]->weight.copy_(read_tensor(*file, "lin" + std::to_string(k) + ".weight"));
+  bf16_weights_.clear();
 }
 
-at::Tensor LpipsImpl::features_distance(const at::Tensor& a, const at::Tensor& b) {
-  const int64_t V = a.size(0);
-  // Both images through VGG at once.
-  auto x = (at::cat({a, b}, 0) * 2 - 1 - shift_.to(a.dtype())) / scale_.to(a.dtype());
-  at::Tensor total = at::zeros({V}, a.options());
-  int tap = 0;
-  for (size_t c = 0; c < convs_.size(); ++c) {
-    x = at::relu(convs_[c]->forward(x));
+std::vector<LpipsImpl::ConvWeights> LpipsImpl::conv_weights(bool bf16) {
+  std::vector<ConvWeights> w;
+  if (!bf16) {
+    for (auto& conv : convs_) w.push_back({conv->weight, conv->bias});
+    return w;
+  }
+  // The copy follows the parameters to another device.
+  if (bf16_weights_.empty() || bf16_weights_[0].weight.device() != convs_[0]->weight.device()) {
+    torch::NoGradGuard no_grad;
+    const bool cuda = convs_[0]->weight.is_cuda();
+    bf16_weights_.clear();
+    for (auto& conv : convs_) {
+      auto weight = conv->weight.to(at::kBFloat16);
+      if (cuda) weight = weight.contiguous(at::MemoryFormat::ChannelsLast);
+      bf16_weights_.push_back({weight, conv->bias.to(at::kBFloat16)});
+    }
+  }
+  return bf16_weights_;
+}
+
+std::vector<at::Tensor> LpipsImpl::taps(const at::Tensor& x, bool bf16) {
+  // Explicit dtypes: an enclosing autocast would otherwise pick them, and the
+  // backward's recomputation (on autograd's thread) runs without it.
+  c10::impl::ExcludeDispatchKeyGuard no_autocast(c10::autocast_dispatch_keyset);
+  const auto dtype = convs_[0]->weight.scalar_type();
+  const auto w = conv_weights(bf16);
+  auto h = (x.to(dtype) * 2 - 1 - shift_.to(dtype)) / scale_.to(dtype);
+  if (bf16) h = h.to(at::kBFloat16);
+  if (bf16 && h.is_cuda()) h = h.contiguous(at::MemoryFormat::ChannelsLast);
+  std::vector<at::Tensor> out;
+  for (size_t c = 0; c < w.size(); ++c) {
+    h = at::conv2d(h, w[c].weight, w[c].bias, 1, 1).relu_();
     if (!kVgg[c].tap_after) continue;
-    auto f = x / (x.square().sum(1, true).sqrt() + 1e-10);
-    auto diff = (f.narrow(0, 0, V) - f.narrow(0, V, V)).square();
-    total = total + lins_[tap]->forward(diff).mean({1, 2, 3});
-    ++tap;
-    if (tap < 5) x = at::max_pool2d(x, {2, 2}, {2, 2});
+    auto f = h.to(dtype);
+    out.push_back(f / (f.square().sum(1, true).sqrt() + 1e-10));
+    if (out.size() < 5) h = at::max_pool2d(h, {2, 2}, {2, 2});
+  }
+  return out;
+}
+
+at::Tensor LpipsImpl::distance(const std::vector<at::Tensor>& fa, const std::vector<at::Tensor>& fb) {
+  FLAT_CHECK(fa.size() == 5 && fb.size() == 5, "lpips: expected 5 tap features per image batch");
+  c10::impl::ExcludeDispatchKeyGuard no_autocast(c10::autocast_dispatch_keyset);  // as in taps()
+  at::Tensor total;
+  for (size_t k = 0; k < 5; ++k) {
+    auto per_channel = (fa[k] - fb[k]).square().mean({2, 3});  // (V,C)
+    auto d = at::matmul(per_channel, lins_[k]->weight.reshape({-1}).to(per_channel.dtype()));
+    total = total.defined() ? total + d : d;
   }
   return total;
 }
@@ -115,38 +151,55 @@ at::Tensor LpipsImpl::forward(const at::Tensor& a, const at::Tensor& b) {
   check_shape(a, {-1, 3, -1, -1}, "lpips: first image batch", "(V,3,H,W)");
   FLAT_CHECK(a.sizes() == b.sizes(), "lpips: image shapes differ: " + shape_str(a) + " vs " + shape_str(b));
   FLAT_CHECK(a.size(2) >= 16 && a.size(3) >= 16, "lpips: images must be at least 16x16, got " + shape_str(a));
-  auto w = convs_[0]->weight;
-  return features_distance(a.to(w.dtype()), b.to(w.dtype()));
+  // Both batches through VGG at once.
+  const int64_t V = a.size(0);
+  const auto dtype = convs_[0]->weight.scalar_type();
+  auto f = taps(at::cat({a.to(dtype), b.to(dtype)}, 0), /*bf16=*/false);
+  std::vector<at::Tensor> fa, fb;
+  for (const auto& t : f) {
+    fa.push_back(t.narrow(0, 0, V));
+    fb.push_back(t.narrow(0, V, V));
+  }
+  return distance(fa, fb);
 }
 
 namespace {
 
+std::vector<at::Tensor> taps_without_grad(LpipsImpl& net, const at::Tensor& x, bool bf16) {
+  torch::NoGradGuard no_grad;
+  return net.taps(x, bf16);
+}
+
 // One chunk through LPIPS without keeping VGG activations: forward under
-// no-grad, backward re-runs the chunk with grad and differentiates it.
+// no-grad, backward re-runs the chunk with grad and differentiates it. A
+// target that needs no gradient is recomputed without grad (nothing kept).
 struct LpipsCheckpoint : public torch::autograd::Function<LpipsCheckpoint> {
   static at::Tensor forward(torch::autograd::AutogradContext* ctx, const at::Tensor& a, const at::Tensor& b,
-                            LpipsImpl* net) {
+                            LpipsImpl* net, bool bf16) {
     ctx->save_for_backward({a, b});
     ctx->saved_data["net"] = reinterpret_cast<int64_t>(net);  // the caller's module outlives the graph
+    ctx->saved_data["bf16"] = bf16;
     torch::NoGradGuard no_grad;
-    return net->forward(a, b);
+    return net->distance(net->taps(a, bf16), net->taps(b, bf16));
   }
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
                                                  torch::autograd::variable_list grad_out) {
     auto saved = ctx->get_saved_variables();
     auto* net = reinterpret_cast<LpipsImpl*>(ctx->saved_data["net"].toInt());
+    const bool bf16 = ctx->saved_data["bf16"].toBool();
     const bool need_a = ctx->needs_input_grad(0), need_b = ctx->needs_input_grad(1);
     torch::AutoGradMode enable(true);
     auto a = saved[0].detach().requires_grad_(need_a);
     auto b = saved[1].detach().requires_grad_(need_b);
-    auto d = net->forward(a, b);
+    auto fb = need_b ? net->taps(b, bf16) : taps_without_grad(*net, b, bf16);
+    auto d = net->distance(net->taps(a, bf16), fb);
     std::vector<at::Tensor> inputs;
     if (need_a) inputs.push_back(a);
     if (need_b) inputs.push_back(b);
     auto grads = torch::autograd::grad({d}, inputs, {grad_out[0]});
     at::Tensor ga = need_a ? grads[0] : at::Tensor();
     at::Tensor gb = need_b ? grads[need_a ? 1 : 0] : at::Tensor();
-    return {ga, gb, at::Tensor()};
+    return {ga, gb, at::Tensor(), at::Tensor()};
   }
 };
 
@@ -165,17 +218,25 @@ at::Tensor resize_longer_side(const at::Tensor& x, int64_t max_size) {
 
 }  // namespace
 
-at::Tensor lpips_distance(Lpips& net, const at::Tensor& a, const at::Tensor& b, int64_t max_size, int64_t chunk) {
+at::Tensor lpips_distance(Lpips& net, const at::Tensor& a, const at::Tensor& b, const LpipsOptions& o) {
   check_shape(a, {-1, 3, -1, -1}, "lpips: rendered images", "(V,3,H,W)");
   FLAT_CHECK(a.sizes() == b.sizes(), "lpips: image shapes differ: " + shape_str(a) + " vs " + shape_str(b));
-  FLAT_CHECK(chunk > 0, "lpips: chunk must be positive");
-  auto ra = resize_longer_side(a, max_size), rb = resize_longer_side(b, max_size);
-  const bool grad = at::GradMode::is_enabled() && (ra.requires_grad() || rb.requires_grad());
+  FLAT_CHECK(o.chunk > 0, "lpips: chunk must be positive");
+  auto ra = resize_longer_side(a, o.max_size), rb = resize_longer_side(b, o.max_size);
+  FLAT_CHECK(ra.size(2) >= 16 && ra.size(3) >= 16, "lpips: images must be at least 16x16, got " + shape_str(ra));
+  const bool grad_mode = at::GradMode::is_enabled();
+  const bool grad = grad_mode && (ra.requires_grad() || rb.requires_grad());
   std::vector<at::Tensor> parts;
-  for (int64_t start = 0; start < a.size(0); start += chunk) {
-    const int64_t n = std::min(chunk, a.size(0) - start);
+  for (int64_t start = 0; start < a.size(0); start += o.chunk) {
+    const int64_t n = std::min(o.chunk, a.size(0) - start);
     auto ca = ra.narrow(0, start, n), cb = rb.narrow(0, start, n);
-    parts.push_back(grad ? LpipsCheckpoint::apply(ca, cb, net.get()) : net->forward(ca, cb));
+    if (grad && o.checkpoint) {
+      parts.push_back(LpipsCheckpoint::apply(ca, cb, net.get(), o.bf16));
+      continue;
+    }
+    // The target's taps once, without grad, unless it needs a gradient itself.
+    auto fb = grad_mode && cb.requires_grad() ? net->taps(cb, o.bf16) : taps_without_grad(*net, cb, o.bf16);
+    parts.push_back(net->distance(net->taps(ca, o.bf16), fb));
   }
   return at::cat(parts, 0);
 }

@@ -15,7 +15,12 @@ const at::Tensor& need(const at::Tensor& t, const char* name, const char* term) 
 }
 }  // namespace
 
-Objective::Objective(LossConfig cfg, const at::Device& device) : cfg_(std::move(cfg)) {
+Objective::Objective(LossConfig cfg, const at::Device& device, bool bf16_run) : cfg_(std::move(cfg)) {
+  const bool bf16 = cfg_.lpips_precision == "bf16" || (cfg_.lpips_precision == "auto" && bf16_run && device.is_cuda());
+  lpips_options_ = {.max_size = cfg_.lpips_max_size,
+                    .chunk = cfg_.lpips_chunk,
+                    .checkpoint = cfg_.lpips_checkpoint,
+                    .bf16 = bf16};
   if (cfg_.lambda_perc > 0) {
     lpips_ = Lpips();
     lpips_->load(cfg_.lpips_weights);  // throws naming the file / tensor
@@ -34,7 +39,7 @@ LossResult Objective::operator()(const LossInputs& in) {
   if (cfg_.lambda_rgb > 0) add("rgb", cfg_.lambda_rgb, l2_loss(need(in.rgb, "rgb", "rgb"), need(in.target_rgb, "target_rgb", "rgb")));
   if (cfg_.lambda_perc > 0) {
     auto d = lpips_distance(lpips_, need(in.rgb, "rgb", "lpips"), need(in.target_rgb, "target_rgb", "lpips"),
-                            cfg_.lpips_max_size, cfg_.lpips_chunk);
+                            lpips_options_);
     add("lpips", cfg_.lambda_perc, d.mean());
   }
   if (cfg_.lambda_depth > 0) {

@@ -104,7 +104,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   }
   decoder->to(device);
   pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
-  objective = std::make_unique<loss::Objective>(cfg.loss, device);
+  objective = std::make_unique<loss::Objective>(cfg.loss, device, bf16);
   optimiser = std::make_unique<optim::AdamW>(decoder->named_parameters().pairs(), adamw);
 }
 

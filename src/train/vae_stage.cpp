@@ -97,7 +97,9 @@ StepResult vae_forward_backward(model::WanVAE& vae, const VaeStageConfig& cfg, l
     std::vector<std::pair<std::string, at::Tensor>> terms = {{"l1", l1}, {"l2", l2}, {"kl", kl}};
     if (cfg.lpips > 0) {
       FLAT_CHECK(!lpips.is_empty(), "VAE stage: vae.lpips > 0 but no LPIPS network was loaded");
-      auto lp = loss::lpips_distance(lpips, as_frames(recon).clamp(0, 1), as_frames(video), 512, 8).mean();
+      auto lp = loss::lpips_distance(lpips, as_frames(recon).clamp(0, 1), as_frames(video),
+                                     {.max_size = 512, .chunk = 8, .checkpoint = true, .bf16 = bf16 && device.is_cuda()})
+                    .mean();
       total = total + cfg.lpips * lp;
       terms.push_back({"lpips", lp});
     }

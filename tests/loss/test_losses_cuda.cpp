@@ -102,7 +102,7 @@ TEST_CASE("LPIPS on CUDA equals the CPU value and gradient (random weights)", "[
     at::globalContext().setAllowTF32CuDNN(false);
     auto a = m.rgb.to(device, at::kFloat).requires_grad_(true);
     auto b = m.target.to(device, at::kFloat);
-    auto d = loss::lpips_distance(*net, a, b, 0, 1);
+    auto d = loss::lpips_distance(*net, a, b, {.max_size = 0, .chunk = 1});
     d.sum().backward();
     values.push_back(d.detach().cpu());
     grads.push_back(a.grad().cpu());

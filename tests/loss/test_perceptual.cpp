@@ -2,6 +2,7 @@
 // checkpointed chunks, resizing, and the weights file checks.
 #include <cmath>
 
+#include "flat/core/autocast_scope.h"
 #include "flat/core/tensor_io.h"
 #include "flat/loss/lpips.h"
 #include "flat/loss/objective.h"
@@ -77,7 +78,7 @@ TEST_CASE("LPIPS: chunked, checkpointed gradients equal plain autograd and finit
   (net->forward(x1, b) * w).sum().backward();
   auto x2 = a.clone().requires_grad_(true);
   auto y2 = b.clone().requires_grad_(true);
-  auto d2 = lpips_distance(net, x2, y2, 0, 2);  // chunks of 2: (2, 1)
+  auto d2 = lpips_distance(net, x2, y2, {.max_size = 0, .chunk = 2});  // chunks of 2: (2, 1)
   CHECK(flat::test::rel_error(d2, net->forward(a, b)) < 1e-12);
   (d2 * w).sum().backward();
   CHECK(flat::test::rel_error(x2.grad(), x1.grad()) < 1e-10);
@@ -96,6 +97,61 @@ TEST_CASE("LPIPS: chunked, checkpointed gradients equal plain autograd and finit
   }
 }
 
+TEST_CASE("LPIPS: a target without grad, checkpointed or not, gives the plain value and gradient", "[loss][lpips]") {
+  auto net = seeded_lpips(12);
+  net->to(at::kDouble);
+  auto g = gen(13);
+  auto a = at::rand({3, 3, 16, 24}, g, at::kDouble), b = at::rand({3, 3, 16, 24}, g, at::kDouble);
+  auto w = at::rand({3}, g, at::kDouble);
+  auto x1 = a.clone().requires_grad_(true);
+  (net->forward(x1, b) * w).sum().backward();
+  for (bool checkpoint : {false, true}) {
+    for (int64_t chunk : {1, 2, 3}) {
+      INFO("checkpoint " << checkpoint << " chunk " << chunk);
+      auto x2 = a.clone().requires_grad_(true);
+      auto d = lpips_distance(net, x2, b, {.max_size = 0, .chunk = chunk, .checkpoint = checkpoint});
+      CHECK(flat::test::rel_error(d, net->forward(a, b)) < 1e-12);
+      (d * w).sum().backward();
+      CHECK(flat::test::rel_error(x2.grad(), x1.grad()) < 1e-10);
+    }
+  }
+}
+
+TEST_CASE("LPIPS bf16: near fp32, one gradient with or without checkpointing; autocast does not leak in",
+          "[loss][lpips]") {
+  auto net = seeded_lpips(14);
+  auto g = gen(15);
+  auto a = at::rand({2, 3, 24, 32}, g), b = at::rand({2, 3, 24, 32}, g);
+  const auto fp32 = lpips_distance(net, a, b, {.max_size = 0});
+  std::vector<at::Tensor> values, grads;
+  for (bool checkpoint : {false, true}) {
+    auto x = a.clone().requires_grad_(true);
+    auto d = lpips_distance(net, x, b, {.max_size = 0, .chunk = 2, .checkpoint = checkpoint, .bf16 = true});
+    CHECK(d.scalar_type() == at::kFloat);
+    d.sum().backward();
+    values.push_back(d.detach());
+    grads.push_back(x.grad());
+  }
+  INFO("fp32 " << fp32 << " bf16 " << values[0]);
+  CHECK(flat::test::rel_error(values[0], fp32) < 3e-2);
+  CHECK(flat::test::rel_error(values[0], fp32) > 0);  // the convolutions did run in bf16
+  CHECK(flat::test::rel_error(values[1], values[0]) < 1e-6);
+  CHECK(flat::test::rel_error(grads[1], grads[0]) < 1e-5);
+  // The fp32 path stays fp32 inside an enclosing bf16 autocast (as the
+  // training step has), in the forward and in the checkpointed recomputation.
+  auto x = a.clone().requires_grad_(true);
+  at::Tensor under_autocast;
+  {
+    flat::AutocastScope autocast(true, at::kCPU);
+    under_autocast = lpips_distance(net, x, b, {.max_size = 0, .chunk = 1, .checkpoint = true});
+  }
+  CHECK(flat::test::rel_error(under_autocast, fp32) < 1e-6);
+  under_autocast.sum().backward();
+  auto y = a.clone().requires_grad_(true);
+  lpips_distance(net, y, b, {.max_size = 0, .chunk = 1, .checkpoint = false}).sum().backward();
+  CHECK(flat::test::rel_error(x.grad(), y.grad()) < 1e-5);
+}
+
 TEST_CASE("LPIPS: large images are resized to the configured size", "[loss][lpips]") {
   auto net = seeded_lpips(5);
   auto g = gen(6);
@@ -104,8 +160,8 @@ TEST_CASE("LPIPS: large images are resized to the configured size", "[loss][lpip
   auto opts = F::InterpolateFuncOptions().size(std::vector<int64_t>{16, 24}).mode(torch::kBilinear)
                   .align_corners(false).antialias(true);
   auto expected = net->forward(F::interpolate(a, opts), F::interpolate(b, opts));
-  CHECK(flat::test::rel_error(lpips_distance(net, a, b, 24, 4), expected) < 1e-6);
-  CHECK(flat::test::rel_error(lpips_distance(net, a, b, 48, 4), net->forward(a, b)) < 1e-6);  // no resize
+  CHECK(flat::test::rel_error(lpips_distance(net, a, b, {.max_size = 24}), expected) < 1e-6);
+  CHECK(flat::test::rel_error(lpips_distance(net, a, b, {.max_size = 48}), net->forward(a, b)) < 1e-6);  // no resize
 }
 
 TEST_CASE("LPIPS weights file: round trip, and rejection naming the tensor", "[loss][lpips]") {
@@ -146,6 +202,29 @@ TEST_CASE("objective refuses to start without LPIPS weights when lambda_perc > 0
   REQUIRE_THROWS_WITH(Objective(cfg), FLAT_CONTAINS("LPIPS"));
   cfg.lambda_perc = 0;
   CHECK_NOTHROW(Objective(cfg));
+}
+
+TEST_CASE("objective: lpips_precision auto follows a bf16 run on CUDA only; the lpips_* keys reach LPIPS",
+          "[loss][objective]") {
+  auto dir = flat::test::scratch_dir("loss_objective_precision");
+  auto net = seeded_lpips(16);
+  LossConfig cfg;
+  cfg.lpips_weights = (dir / "lpips.safetensors").string();
+  flat::save_safetensors(cfg.lpips_weights, weights_of(net));
+  cfg.lpips_chunk = 17;
+  cfg.lpips_checkpoint = false;
+  cfg.lpips_max_size = 320;
+  const auto o = Objective(cfg, at::kCPU, /*bf16_run=*/true).lpips_options();
+  CHECK(o.chunk == 17);
+  CHECK(!o.checkpoint);
+  CHECK(o.max_size == 320);
+  CHECK(!o.bf16);  // auto: fp32 on the CPU even in a bf16 run
+  cfg.lpips_precision = "bf16";
+  CHECK(Objective(cfg, at::kCPU, false).lpips_options().bf16);
+  cfg.lpips_precision = "fp32";
+  CHECK(!Objective(cfg, at::kCPU, true).lpips_options().bf16);
+  REQUIRE_THROWS_WITH(flat::config::parse<LossConfig>("lpips_precision: fp16\n", "loss.yaml"),
+                      FLAT_CONTAINS("lpips_precision"));
 }
 
 TEST_CASE("objective: weighted sum of named terms", "[loss][objective]") {

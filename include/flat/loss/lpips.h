@@ -37,6 +37,14 @@ const std::vector<LpipsTensorSpec>& lpips_tensor_specs();
 // flat::Error naming the file and the missing or mis-shaped tensor.
 void check_lpips_file(const std::string& path);
 
+// How lpips_distance runs the network.
+struct LpipsOptions {
+  int64_t max_size = 512;             // resize the longer side to this first (0: never resize)
+  int64_t chunk = 4;                  // views per pass through VGG
+  bool checkpoint = true;  // grad mode: free each pass's VGG activations, recompute them in backward
+  bool bf16 = false;       // convolutions in bf16 (channels-last on CUDA); else in the parameters' dtype
+};
+
 class LpipsImpl : public torch::nn::Module {
  public:
   // Random weights (He-initialised convs, non-negative lin weights): for tests
@@ -44,24 +52,40 @@ class LpipsImpl : public torch::nn::Module {
   LpipsImpl();
   // Loads and checks the weights file (see check_lpips_file).
   void load(const std::string& path);
-  // a, b: (V,3,H,W) in [0,1], H, W >= 16. Returns (V) distances.
+  // a, b: (V,3,H,W) in [0,1], H, W >= 16. Returns (V) distances, in fp32
+  // (the parameters' dtype), both batches through the network at once.
   at::Tensor forward(const at::Tensor& a, const at::Tensor& b);
 
+  // The five channel-normalised tap features of images x (V,3,H,W) in [0,1].
+  // Convolutions in the parameters' dtype, or with bf16 in a bf16 copy of the
+  // weights (channels-last on CUDA, made once); the tap maths in the
+  // parameters' dtype. The caller's autocast state does not apply.
+  std::vector<at::Tensor> taps(const at::Tensor& x, bool bf16);
+  // d = sum_k w_k . mean_hw (fa_k - fb_k)^2: (V). The 1x1 lin conv and the
+  // spatial mean commute (both linear), so the mean is taken first. In the
+  // taps' dtype, whatever the caller's autocast state.
+  at::Tensor distance(const std::vector<at::Tensor>& fa, const std::vector<at::Tensor>& fb);
+
  private:
-  at::Tensor features_distance(const at::Tensor& a, const at::Tensor& b);
+  struct ConvWeights {
+    at::Tensor weight, bias;
+  };
+  std::vector<ConvWeights> conv_weights(bool bf16);
   std::vector<torch::nn::Conv2d> convs_;  // VGG16 features convs, in order
   std::vector<torch::nn::Conv2d> lins_;   // lin0..lin4
   at::Tensor shift_, scale_;
+  std::vector<ConvWeights> bf16_weights_;  // made by the first bf16 taps(), dropped by load()
 };
 TORCH_MODULE(Lpips);
 
 // LPIPS of large image batches with bounded memory: images whose longer side
-// exceeds max_size (> 0) are first resized (bilinear, antialiased, aspect
+// exceeds o.max_size (> 0) are first resized (bilinear, antialiased, aspect
 // kept) so that it equals max_size, and the V images go through the network
-// `chunk` at a time. In grad mode each chunk's VGG activations are freed after
-// its forward and recomputed in backward (activation checkpointing), so peak
-// memory is that of one chunk. Returns (V).
-at::Tensor lpips_distance(Lpips& net, const at::Tensor& a, const at::Tensor& b, int64_t max_size = 512,
-                          int64_t chunk = 4);
+// o.chunk at a time. A `b` that needs no gradient (the training target) goes
+// through VGG once, without grad. In grad mode with o.checkpoint each chunk's
+// VGG activations are freed after its forward and recomputed in backward, so
+// peak memory is that of one chunk; without, plain autograd keeps them all
+// (faster: no second forward). Returns (V), fp32.
+at::Tensor lpips_distance(Lpips& net, const at::Tensor& a, const at::Tensor& b, const LpipsOptions& o = {});
 
 }  // namespace flat::loss

@@ -27,6 +27,8 @@ struct LossConfig {
   std::string lpips_weights;               // safetensors file, see docs/losses.md
   int64_t lpips_max_size = 512;            // longer side before LPIPS (0 = never resize)
   int64_t lpips_chunk = 4;                 // views per LPIPS pass
+  bool lpips_checkpoint = true;            // recompute each pass's VGG activations in backward
+  std::string lpips_precision = "auto";    // auto (bf16 in a bf16 run on CUDA) | fp32 | bf16
   std::string depth_target = "depth";      // the target map holds "depth" or "disparity"
   double normal_alpha_threshold = 0.5;     // M = alpha > threshold
 
@@ -43,7 +45,12 @@ struct LossConfig {
             "weight of the 2DGS depth-distortion regulariser");
     v.field("lpips_weights", lpips_weights, "LPIPS VGG safetensors file");
     v.field("lpips_max_size", lpips_max_size, config::non_negative(), "resize longer side to this before LPIPS");
-    v.field("lpips_chunk", lpips_chunk, config::positive(), "views per LPIPS chunk");
+    v.field("lpips_chunk", lpips_chunk, config::positive(), "views per LPIPS pass through VGG");
+    v.field("lpips_checkpoint", lpips_checkpoint,
+            "free each LPIPS pass's VGG activations and recompute them in backward (memory of one pass; "
+            "false: faster, keeps every pass's activations)");
+    v.field("lpips_precision", lpips_precision, config::one_of({"auto", "fp32", "bf16"}),
+            "LPIPS convolution dtype: auto = bf16 when the run computes in bf16 on CUDA, else fp32");
     v.field("depth_target", depth_target, config::one_of({"depth", "disparity"}), "what the target depth map holds");
     v.field("normal_alpha_threshold", normal_alpha_threshold, config::range(0.0, 1.0),
             "normal loss mask: alpha above this");
@@ -71,15 +78,19 @@ class Objective {
   // Validates the config; with lambda_perc > 0 loads the LPIPS weights and
   // throws flat::Error (naming the file and tensor) when they are missing or
   // wrong: training never starts silently without its perceptual loss.
-  explicit Objective(LossConfig cfg, const at::Device& device = at::kCPU);
+  // bf16_run: the run computes in bf16 (lpips_precision auto follows it on CUDA).
+  explicit Objective(LossConfig cfg, const at::Device& device = at::kCPU, bool bf16_run = false);
   LossResult operator()(const LossInputs& in);
   const LossConfig& config() const { return cfg_; }
   // The loaded LPIPS network (empty holder when lambda_perc is 0), for metrics.
   Lpips lpips_network() const { return lpips_; }
+  // How the loss runs LPIPS (from the lpips_* keys and the run's precision).
+  const LpipsOptions& lpips_options() const { return lpips_options_; }
 
  private:
   LossConfig cfg_;
   Lpips lpips_{nullptr};
+  LpipsOptions lpips_options_;
 };
 
 }  // namespace flat::loss

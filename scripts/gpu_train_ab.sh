@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# Same-run A/B of training-step changes on the GPU machine, in one call
+# (issue #30: "each measured side by side with the previous commit"):
+#   1. build flat_bench (and flat_synth, flat_latents) from the working tree:
+#      variant 0, the base; then apply each patch of AB_PATCHES in turn
+#      (cumulatively), rebuilding flat_bench and keeping a copy of each binary;
+#   2. per stage of AB_STAGES, make one synthetic room with random-weight dim-96
+#      latents at the stage's sizes (as scripts/gpu_check.sh train does);
+#   3. time `flat_bench train` on configs/stageN.yaml as shipped by each
+#      variant (the patched configs for patched variants), interleaved over
+#      AB_ROUNDS rounds, then the extra settings of AB_SETS on the last variant.
+# Usage there (repo root; .deps/glm and the patch folder carried):
+#   AB_DIR=.ab AB_PATCHES="lpips" AB_STAGES="1 2" \
+#   AB_SETS="ckpt17|--set loss.lpips_checkpoint=true --set loss.lpips_chunk=17" bash scripts/gpu_train_ab.sh
+# AB_SETS: ';'-separated "label|flat_bench arguments" entries. Each variant's
+# configs are snapshotted with its binary, so a patched config counts as part
+# of its variant. Output: a summary table (step as trained, it/s, LPIPS alone,
+# peak, by part) and every log in $OUT/train_ab_logs.tgz.
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+FINAL_OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$FINAL_OUT"
+OUT=/tmp/flat_train_ab_logs; rm -rf "$OUT"; mkdir -p "$OUT"
+trap 'tar czf "$FINAL_OUT/train_ab_logs.tgz" -C "$OUT" .' EXIT
+AB_DIR="${AB_DIR:-$ROOT/.ab}"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+BIN="${AB_BIN_DIR:-/tmp/flat_train_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
+DATA="${AB_DATA_DIR:-/tmp/flat_train_ab_data}"
+STAGES="${AB_STAGES:-1}"
+ROUNDS="${AB_ROUNDS:-1}"
+STEPS="${AB_STEPS:-10}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
+cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
+  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} \
+  >"$OUT/configure.log" 2>&1 || { tail -40 "$OUT/configure.log"; exit 1; }
+source "$ROOT/scripts/gpu_sync_mtimes.sh"
+names=(base)
+build_variant() {  # $1: index; $2: extra targets
+  local t0; t0=$(date +%s)
+  sync_mtimes "$ROOT" "$BUILD"
+  ninja -C "$BUILD" flat_bench $2 >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
+  rm -rf "$BIN/configs_$1"; cp -a "$ROOT/configs" "$BIN/configs_$1"
+  echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
+}
+build_variant 0 "flat_synth flat_latents"
+cp "$BUILD/flat_synth" "$BUILD/flat_latents" "$BIN/"
+i=0
+for p in ${AB_PATCHES:-}; do
+  i=$((i + 1)); names+=("$p")
+  patch -p1 -s -d "$ROOT" <"$AB_DIR/$p.patch" || { echo "patch $p does not apply"; exit 1; }
+  build_variant $i ""
+done
+for stage in $STAGES; do
+  case $stage in
+    1) size=176x320; frames=17 ;;
+    2) size=176x320; frames=49 ;;
+    3) size=360x640; frames=49 ;;
+    4) size=432x768; frames=49 ;;
+    *) echo "unknown stage $stage"; exit 1 ;;
+  esac
+  D="$DATA/stage$stage"
+  if [ ! -f "$D/.done" ]; then
+    rm -rf "$D"
+    { OMP_NUM_THREADS=16 "$BIN/flat_synth" --out "$D" --scenes 1 --seed "$stage" --family room --frames $frames \
+        --size $size --motion mixed &&
+      "$BIN/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda \
+        --precision bf16 && touch "$D/.done"; } >"$OUT/data_stage$stage.log" 2>&1 ||
+      { echo "data for stage $stage failed:"; tail -5 "$OUT/data_stage$stage.log"; exit 1; }
+  fi
+done
+run() {  # $1: label, $2: variant, $3: stage, $4: round, rest: extra arguments
+  local label=$1 v=$2 stage=$3 r=$4; shift 4
+  local log="$OUT/bench_${label}_stage${stage}_r$r.log"
+  "$BIN/flat_bench_$v" train --config "$BIN/configs_$v/stage$stage.yaml" --random-lpips --warmup 3 --steps "$STEPS" \
+    --set "data.datasets=[{root: $DATA/stage$stage}]" --set validation.datasets=[] --set data.workers=4 "$@" \
+    >"$log" 2>&1 || { echo "$label stage $stage failed:"; tail -5 "$log"; }
+  local trained lp peak
+  trained=$(grep -E "as trained" "$log" | tail -1 | awk -F'|' '{print $3 "ms," $4}')
+  lp=$(grep -E "LPIPS fwd\+bwd alone" "$log" | tail -1 | awk -F'|' '{print $3}')
+  peak=$(grep -oE "peak memory[^|]*" "$log" | tail -1)
+  printf "%-10s stage %s round %s | step as trained %s | LPIPS alone %s ms | %s\n" \
+    "$label" "$stage" "$r" "$trained" "$lp" "$peak" | tr -s ' ' | tee -a "$OUT/summary.log"
+}
+for stage in $STAGES; do
+  for r in $(seq 1 "$ROUNDS"); do
+    for v in $(seq 0 $i); do run "${names[$v]}" "$v" "$stage" "$r"; done
+  done
+  IFS=';' read -ra sets <<<"${AB_SETS:-}"
+  for s in "${sets[@]}"; do
+    [ -z "$s" ] && continue
+    # shellcheck disable=SC2086
+    run "${s%%|*}" "$i" "$stage" 1 ${s#*|}
+  done
+done
+echo "== variants: ${names[*]}; by part (first round):"
+for f in "$OUT"/bench_*_r1.log; do
+  echo "-- $(basename "$f" .log)"; grep -E "^\| " "$f" | grep -vE "^\|---|^\| part" | cut -c1-110
+done
