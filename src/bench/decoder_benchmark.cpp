@@ -63,13 +63,13 @@ double op_ms(const torch::Device& dev, Fn&& fn) {
 // residual add on its own for scale) and inside the heads, on real inputs.
 void time_block_ops(const std::string& name, ResidualBlock& block, const at::Tensor& h, const torch::Device& dev) {
   const int64_t n1 = block->conv1->past_frames(), n2 = block->conv2->past_frames();
-  const at::Tensor p1 = rms_norm_silu_padded(h, block->norm1->gamma, n1);
+  const at::Tensor p1 = block->norm1->silu_padded(h, n1);
   const at::Tensor y1 = block->conv1->forward_prepadded(p1);
-  const at::Tensor p2 = rms_norm_silu_padded(y1, block->norm2->gamma, n2);
+  const at::Tensor p2 = block->norm2->silu_padded(y1, n2);
   const at::Tensor skip = block->shortcut ? block->shortcut->forward(h) : h;
-  const double norm1 = op_ms(dev, [&] { (void)rms_norm_silu_padded(h, block->norm1->gamma, n1); });
+  const double norm1 = op_ms(dev, [&] { (void)block->norm1->silu_padded(h, n1); });
   const double conv1 = op_ms(dev, [&] { (void)block->conv1->forward_prepadded(p1); });
-  const double norm2 = op_ms(dev, [&] { (void)rms_norm_silu_padded(y1, block->norm2->gamma, n2); });
+  const double norm2 = op_ms(dev, [&] { (void)block->norm2->silu_padded(y1, n2); });
   const double conv2 = op_ms(dev, [&] { (void)block->conv2->forward_prepadded(p2, skip); });
   const double add = op_ms(dev, [&] { (void)(y1 + skip); });
   const double gib = double(h.numel() * h.element_size()) / double(1ull << 30);
@@ -81,8 +81,8 @@ void time_block_ops(const std::string& name, ResidualBlock& block, const at::Ten
 void time_head_ops(OutputHeads& heads, const at::Tensor& f, const torch::Device& dev) {
   for (size_t i = 0; i < heads->convs.size(); ++i) {
     const int64_t n = heads->convs[i]->past_frames();
-    const at::Tensor p = rms_norm_silu_padded(f, heads->norms[i]->gamma, n);
-    const double norm = op_ms(dev, [&] { (void)rms_norm_silu_padded(f, heads->norms[i]->gamma, n); });
+    const at::Tensor p = heads->norms[i]->silu_padded(f, n);
+    const double norm = op_ms(dev, [&] { (void)heads->norms[i]->silu_padded(f, n); });
     const double conv = op_ms(dev, [&] { (void)heads->convs[i]->forward_prepadded(p); });
     spdlog::info("  head {} ({} outputs): norm {:6.2f} conv {:6.2f} ms", i, heads->convs[i]->out_channels(), norm, conv);
   }
@@ -191,23 +191,25 @@ void run_decoder_benchmark(const DecoderBenchOptions& o) {
   const torch::Device dev = cli::resolve_device(o.device);
   const bool cuda = dev.is_cuda();
   const auto dtype = o.dtype == "bf16" ? torch::kBFloat16 : torch::kFloat;
-  set_fused_norm_enabled(o.fused_norm);
   // cuDNN autotuning: the warm-up runs try the algorithms for every conv shape.
   at::globalContext().setBenchmarkCuDNN(o.cudnn_benchmark);
-  set_cutlass_conv_choice(o.conv == "auto" ? "" : o.conv);
   torch::manual_seed(0);
 
   SceneDecoderConfig config;
   config.vae.dim = o.dim;
   config.heads = o.heads;
   config.stream_trunk_frames = o.stream_trunk_frames;
+  // --fused-norm and --conv are the model config's kernel choices (model.kernels).
+  config.kernels.fused_norm = o.fused_norm;
+  config.kernels.conv_backend = o.conv;
+  validate_kernels(config.kernels, "flat_bench decoder (--fused-norm, --conv)");
   SceneDecoder scene(config);
   scene->eval();
   scene->to(dev, dtype);
   if (o.channels_last) to_channels_last_3d(*scene);
   WanVAE vae{nullptr};
   if (o.camera == "encoded") {
-    vae = WanVAE(config.vae);
+    vae = WanVAE(config.vae, config.kernels);
     vae->eval();
     vae->to(dev, dtype);
     if (o.channels_last) to_channels_last_3d(*vae);

@@ -19,8 +19,8 @@ at::Tensor PointwiseConv2dImpl::forward(const at::Tensor& tokens) {
   return at::linear(tokens, weight.view({weight.size(0), weight.size(1)}), bias);
 }
 
-AttentionBlockImpl::AttentionBlockImpl(int64_t channels) {
-  norm = register_module("norm", RMSNorm(channels, /*images=*/true));
+AttentionBlockImpl::AttentionBlockImpl(int64_t channels, const KernelChoices& kernels) {
+  norm = register_module("norm", RMSNorm(channels, /*images=*/true, kernels.fused_norm));
   to_qkv = register_module("to_qkv", PointwiseConv2d(channels, 3 * channels));
   proj = register_module("proj", PointwiseConv2d(channels, channels));
 }

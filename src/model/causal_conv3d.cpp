@@ -21,9 +21,10 @@ at::Tensor pad_past_frames(const at::Tensor& x, int64_t n) {
 }
 
 CausalConv3dImpl::CausalConv3dImpl(int64_t in_channels, int64_t out_channels, Int3 kernel, Int3 stride,
-                                   Int3 padding)
-    : stride_(stride), padding_(padding) {
+                                   Int3 padding, std::string conv_backend)
+    : stride_(stride), padding_(padding), conv_backend_(std::move(conv_backend)) {
   FLAT_CHECK(in_channels > 0 && out_channels > 0, "CausalConv3d: channel counts must be positive");
+  check_conv_backend(conv_backend_);
   weight = register_parameter("weight", torch::empty({out_channels, in_channels, kernel[0], kernel[1], kernel[2]}));
   bias = register_parameter("bias", torch::empty({out_channels}));
   reset_parameters();
@@ -46,7 +47,9 @@ at::Tensor CausalConv3dImpl::forward_prepadded(const at::Tensor& x_padded, const
   FLAT_CHECK(x_padded.dim() == 5 && x_padded.size(1) == in_channels(),
              "CausalConv3d: expected input (B," + std::to_string(in_channels()) + ",T,H,W), got " +
                  shape_str(x_padded));
-  if (stride_ == Int3{1, 1, 1}) return conv3d_inference(x_padded, weight, bias, {0, padding_[1], padding_[2]}, residual);
+  if (stride_ == Int3{1, 1, 1}) {
+    return conv3d_inference(x_padded, weight, bias, {0, padding_[1], padding_[2]}, residual, conv_backend_);
+  }
   at::Tensor y = at::conv3d(x_padded, weight, bias, {stride_[0], stride_[1], stride_[2]}, {0, padding_[1], padding_[2]});
   return residual.defined() ? y + residual : y;
 }

@@ -1,6 +1,6 @@
 #include "flat/model/conv3d_inference.h"
 
-#include <atomic>
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -27,7 +27,7 @@
 namespace flat::model {
 namespace {
 
-std::atomic<bool> g_enabled{true};
+// Diagnostics for tests (what ran, not what may run): per thread.
 thread_local std::string g_last_path = "cudnn";
 
 at::Tensor conv3d_aten(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
@@ -46,8 +46,9 @@ struct Timed {
   int choice = kCudnn;
 };
 
+// The per-shape timing results: a cache of measurements (each problem shape on
+// each device timed once, whoever asks), not a choice; guarded by g_mutex.
 std::mutex g_mutex;
-std::string g_forced;                 // "" = time per shape, "cudnn", or a config name
 std::map<std::string, Timed> g_timed;  // by problem key
 
 bool fits_int(const at::Tensor& t) { return !t.defined() || t.numel() < std::numeric_limits<int>::max(); }
@@ -61,7 +62,7 @@ bool is_sm90(int device) {
 // not apply (then cuDNN runs, as before this path existed).
 std::optional<cuda::Conv3dProblem> problem_for(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
                                                std::array<int64_t, 3> padding, const at::Tensor& residual) {
-  if (!g_enabled || !x.is_cuda() || x.dim() != 5 || weight.dim() != 5) return std::nullopt;
+  if (!x.is_cuda() || x.dim() != 5 || weight.dim() != 5) return std::nullopt;
   const auto bf16 = at::kBFloat16;
   if (x.scalar_type() != bf16 || weight.scalar_type() != bf16 || (bias.defined() && bias.scalar_type() != bf16) ||
       (residual.defined() && residual.scalar_type() != bf16)) {
@@ -166,19 +167,36 @@ bool cutlass_conv_compiled() {
 #endif
 }
 
-void set_cutlass_conv_enabled(bool enabled) { g_enabled = enabled; }
-
-void set_cutlass_conv_choice(const std::string& name) {
+std::vector<std::string> conv_backends() {
+  std::vector<std::string> names{"auto", "cudnn"};
 #if FLAT_WITH_CUTLASS
-  std::string known = "cudnn";
-  for (int c = 0; c < cuda::conv3d_sm90_config_count(); ++c) known += std::string(", ") + cuda::conv3d_sm90_config_name(c);
-  FLAT_CHECK(name.empty() || name == "cudnn" || config_by_name(name) != kCudnn,
-             "conv3d: unknown CUTLASS configuration '" + name + "' (known: " + known + ")");
-  const std::lock_guard<std::mutex> lock(g_mutex);
-  g_forced = name;
-#else
-  FLAT_CHECK(name.empty() || name == "cudnn", "conv3d: this build has no CUTLASS kernels (FLAT_WITH_CUTLASS=OFF)");
+  for (int c = 0; c < cuda::conv3d_sm90_config_count(); ++c) names.emplace_back(cuda::conv3d_sm90_config_name(c));
 #endif
+  return names;
+}
+
+namespace {
+// "" when name is a backend of this build, else what was expected.
+std::string conv_backend_expected(const std::string& name) {
+  const auto names = conv_backends();
+  if (std::find(names.begin(), names.end(), name) != names.end()) return "";
+  std::string list;
+  for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+  return "one of {" + list + "}" +
+         (cutlass_conv_compiled() ? std::string(" (auto, cudnn or a CUTLASS tile configuration)")
+                                  : std::string(" (this build has no CUTLASS kernels: FLAT_WITH_CUTLASS=OFF)"));
+}
+}  // namespace
+
+void check_conv_backend(const std::string& name) {
+  const std::string expected = conv_backend_expected(name);
+  FLAT_CHECK(expected.empty(), "conv3d: unknown conv backend '" + name + "': expected " + expected);
+}
+
+config::Check conv_backend_check() {
+  config::Check c;
+  c.text = conv_backend_expected;
+  return c;
 }
 
 std::string cutlass_conv_report() {
@@ -195,30 +213,30 @@ std::string cutlass_conv_report() {
 }
 
 at::Tensor conv3d_inference(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
-                            std::array<int64_t, 3> padding, const at::Tensor& residual) {
+                            std::array<int64_t, 3> padding, const at::Tensor& residual, const std::string& backend) {
 #if FLAT_WITH_CUTLASS
-  const auto p = problem_for(x, weight, bias, padding, residual);
+  const bool timed = backend == "auto";
+  const int forced = timed ? kCudnn : config_by_name(backend);  // cudnn: kCudnn
+  if (!timed && forced == kCudnn && backend != "cudnn") check_conv_backend(backend);  // throws
+  const auto p = (timed || forced != kCudnn) ? problem_for(x, weight, bias, padding, residual) : std::nullopt;
   if (p) {
     const c10::cuda::CUDAGuard guard(x.device());
     at::Tensor out = at::empty({p->n, p->k, p->out_d(), p->out_h(), p->out_w()},
                                x.options().memory_format(at::MemoryFormat::ChannelsLast3d));
     int choice = kCudnn;
-    {
+    if (!timed) {
+      choice = cuda::conv3d_sm90_can_run(forced, *p) ? forced : kCudnn;
+    } else {
       const std::lock_guard<std::mutex> lock(g_mutex);
-      if (!g_forced.empty()) {
-        choice = config_by_name(g_forced);
-        if (choice != kCudnn && !cuda::conv3d_sm90_can_run(choice, *p)) choice = kCudnn;
-      } else {
-        const std::string key = key_of(*p, bias.defined(), residual.defined()) + " dev" + std::to_string(x.get_device());
-        auto it = g_timed.find(key);
-        if (it == g_timed.end()) {
-          it = g_timed.emplace(key, time_candidates(*p, x, weight, bias, padding, residual, out)).first;
-          spdlog::debug("conv3d {}: {}", key, it->second.choice == kCudnn
-                                                  ? "cudnn"
-                                                  : cuda::conv3d_sm90_config_name(it->second.choice));
-        }
-        choice = it->second.choice;
+      const std::string key = key_of(*p, bias.defined(), residual.defined()) + " dev" + std::to_string(x.get_device());
+      auto it = g_timed.find(key);
+      if (it == g_timed.end()) {
+        it = g_timed.emplace(key, time_candidates(*p, x, weight, bias, padding, residual, out)).first;
+        spdlog::debug("conv3d {}: {}", key, it->second.choice == kCudnn
+                                                ? "cudnn"
+                                                : cuda::conv3d_sm90_config_name(it->second.choice));
       }
+      choice = it->second.choice;
     }
     if (choice != kCudnn) {
       run_cutlass(choice, *p, x, weight, bias, residual, out);
@@ -226,6 +244,8 @@ at::Tensor conv3d_inference(const at::Tensor& x, const at::Tensor& weight, const
       return out;
     }
   }
+#else
+  if (backend != "auto" && backend != "cudnn") check_conv_backend(backend);  // throws
 #endif
   g_last_path = "cudnn";
   return conv3d_aten(x, weight, bias, padding, residual);

@@ -10,19 +10,21 @@
 
 namespace flat::model {
 
-Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : scene_variant_(scene_variant) {
+Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant, const KernelChoices& kernels)
+    : scene_variant_(scene_variant) {
   config.check();
+  const std::string& backend = kernels.conv_backend;
   // dims = dim * [mult[-1]] + reversed(mult): [384, 384, 384, 192, 96] for the pretrained model.
   std::vector<int64_t> dims{config.dim * config.dim_mult.back()};
   for (auto it = config.dim_mult.rbegin(); it != config.dim_mult.rend(); ++it) dims.push_back(config.dim * *it);
   std::vector<int64_t> temporal_upsample(config.temporal_downsample.rbegin(), config.temporal_downsample.rend());
 
   conv1 = register_module("conv1",
-                          CausalConv3d(config.z_dim, dims[0], Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}));
+                          CausalConv3d(config.z_dim, dims[0], Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend));
   auto middle = register_module("middle", std::make_shared<torch::nn::Module>());
-  mid1 = ResidualBlock(dims[0], dims[0]);
-  mid_attn = AttentionBlock(dims[0]);
-  mid2 = ResidualBlock(dims[0], dims[0]);
+  mid1 = ResidualBlock(dims[0], dims[0], kernels);
+  mid_attn = AttentionBlock(dims[0], kernels);
+  mid2 = ResidualBlock(dims[0], dims[0], kernels);
   middle->register_module("0", mid1);
   middle->register_module("1", mid_attn);
   middle->register_module("2", mid2);
@@ -35,7 +37,7 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : s
     int64_t in = (i == 0) ? dims[i] : dims[i] / 2;
     const int64_t out = dims[i + 1];
     for (int64_t r = 0; r < config.num_res_blocks + 1; ++r) {
-      ResidualBlock block(in, out);
+      ResidualBlock block(in, out, kernels);
       upsamples->register_module(std::to_string(index++), block);
       up_res.push_back(block);
       up_kind.push_back(0);
@@ -48,7 +50,7 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : s
         FLAT_CHECK(mode == ResampleMode::upsample2d, "Decoder3d: the scene variant expects a spatial-only last upsample");
         mode = ResampleMode::conv_only;
       }
-      Resample resample(out, mode);
+      Resample resample(out, mode, kernels);
       upsamples->register_module(std::to_string(index++), resample);
       up_resample.push_back(resample);
       up_kind.push_back(1);
@@ -57,8 +59,8 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant) : s
   out_features_ = dims.back();
   if (!scene_variant) {
     auto head = register_module("head", std::make_shared<torch::nn::Module>());
-    head_norm = RMSNorm(out_features_, /*images=*/false);
-    head_conv = CausalConv3d(out_features_, 3, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+    head_norm = RMSNorm(out_features_, /*images=*/false, kernels.fused_norm);
+    head_conv = CausalConv3d(out_features_, 3, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend);
     head->register_module("0", head_norm);
     head->register_module("2", head_conv);
   }

@@ -18,7 +18,7 @@ std::vector<std::pair<std::string, ChannelRange>> head_groups(const primitives::
 }
 
 OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const primitives::HeadChannels& layout,
-                                 const std::string& mode)
+                                 const std::string& mode, const KernelChoices& kernels)
     : channels_(layout) {
   std::vector<std::pair<std::string, ChannelRange>> heads;
   if (mode == "independent") {
@@ -30,8 +30,8 @@ OutputHeadsImpl::OutputHeadsImpl(int64_t in_channels, const primitives::HeadChan
   }
   for (const auto& [name, range] : heads) {
     auto head = register_module(name, std::make_shared<torch::nn::Module>());
-    RMSNorm norm(in_channels, /*images=*/false);
-    CausalConv3d conv(in_channels, range.count, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+    RMSNorm norm(in_channels, /*images=*/false, kernels.fused_norm);
+    CausalConv3d conv(in_channels, range.count, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, kernels.conv_backend);
     head->register_module("0", norm);
     head->register_module("2", conv);
     norms.push_back(norm);

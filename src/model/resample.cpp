@@ -1,6 +1,5 @@
 #include "flat/model/resample.h"
 
-#include <atomic>
 #include <cmath>
 #include <mutex>
 
@@ -12,7 +11,6 @@
 
 namespace flat::model {
 namespace {
-std::atomic<bool> g_subpixel{true};
 
 // The four phase filters of upsample_conv_subpixel, (4*O, I, 1, 2, 2), and the
 // bias repeated for them.
@@ -32,10 +30,11 @@ std::pair<at::Tensor, at::Tensor> subpixel_filters(const at::Tensor& w, const at
 // padding 1 (so (H+1) x (W+1) positions); phase (a, b) is the window starting
 // at (a, b). 4/9 of the multiply-adds, and the 4x larger upsampled tensor is
 // never materialised.
-at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias4) {
+at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias4,
+                                  const std::string& backend) {
   const int64_t B = x.size(0), T = x.size(2), H = x.size(3), W = x.size(4);
   const int64_t O = weight.size(0) / 4;
-  at::Tensor y = conv3d_inference(x, weight, bias4, {0, 1, 1});  // (B,4O,T,H+1,W+1)
+  at::Tensor y = conv3d_inference(x, weight, bias4, {0, 1, 1}, {}, backend);  // (B,4O,T,H+1,W+1)
   at::Tensor out = at::empty({B, O, T, 2 * H, 2 * W}, x.options().memory_format(x.suggest_memory_format()));
   at::Tensor phases = out.unflatten(4, {W, 2}).unflatten(3, {H, 2});  // (B,O,T,H,2,W,2)
   for (int64_t a = 0; a < 2; ++a) {
@@ -47,9 +46,9 @@ at::Tensor upsample_conv_subpixel(const at::Tensor& x, const at::Tensor& weight,
 }
 }  // namespace
 
-void set_subpixel_upsample(bool enabled) { g_subpixel = enabled; }
-
-ResampleImpl::ResampleImpl(int64_t channels, ResampleMode mode) : mode_(mode) {
+ResampleImpl::ResampleImpl(int64_t channels, ResampleMode mode, const KernelChoices& kernels)
+    : mode_(mode), subpixel_(kernels.subpixel_upsample), conv_backend_(kernels.conv_backend) {
+  check_conv_backend(conv_backend_);
   const bool down = mode == ResampleMode::downsample2d || mode == ResampleMode::downsample3d;
   const int64_t out = down ? channels : channels / 2;
   FLAT_CHECK(down || channels % 2 == 0, "Resample: upsampling needs an even channel count, got " +
@@ -62,10 +61,10 @@ ResampleImpl::ResampleImpl(int64_t channels, ResampleMode mode) : mode_(mode) {
   resample->register_module("1", conv);
   if (mode == ResampleMode::upsample3d) {
     time_conv = register_module(
-        "time_conv", CausalConv3d(channels, 2 * channels, Int3{3, 1, 1}, Int3{1, 1, 1}, Int3{1, 0, 0}));
+        "time_conv", CausalConv3d(channels, 2 * channels, Int3{3, 1, 1}, Int3{1, 1, 1}, Int3{1, 0, 0}, conv_backend_));
   } else if (mode == ResampleMode::downsample3d) {
     time_conv = register_module(
-        "time_conv", CausalConv3d(channels, channels, Int3{3, 1, 1}, Int3{2, 1, 1}, Int3{0, 0, 0}));
+        "time_conv", CausalConv3d(channels, channels, Int3{3, 1, 1}, Int3{2, 1, 1}, Int3{0, 0, 0}, conv_backend_));
   }
 }
 
@@ -75,13 +74,13 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
   switch (mode_) {
     case ResampleMode::upsample2d:
     case ResampleMode::upsample3d: {
-      if (g_subpixel) {
+      if (subpixel_) {
         const auto format = x.suggest_memory_format();
         // (Inference tensors have no version counter: no cache for them.)
         if ((at::GradMode::is_enabled() && (conv_weight.requires_grad() || conv_bias.requires_grad())) ||
             conv_weight.is_inference() || conv_bias.is_inference()) {
           const auto [weight, bias4] = subpixel_filters(conv_weight, conv_bias, format);
-          return upsample_conv_subpixel(x, weight, bias4);
+          return upsample_conv_subpixel(x, weight, bias4, conv_backend_);
         }
         // Without autograd the phase filters are built once per weight
         // version, dtype, device and layout (each build syncs on a tiny
@@ -98,7 +97,7 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
           weight = subpixel_cache_.weight;
           bias4 = subpixel_cache_.bias;
         }
-        return upsample_conv_subpixel(x, weight, bias4);
+        return upsample_conv_subpixel(x, weight, bias4, conv_backend_);
       }
       // Nearest x2 is exact in any dtype (the reference's fp32 detour changes nothing).
       const std::vector<int64_t> size{x.size(2), 2 * x.size(3), 2 * x.size(4)};
@@ -107,7 +106,7 @@ at::Tensor ResampleImpl::spatial(const at::Tensor& x) const {
       return at::conv3d(up, w, conv_bias, {1, 1, 1}, {0, 1, 1});
     }
     case ResampleMode::conv_only:
-      return conv3d_inference(x, w.contiguous(x.suggest_memory_format()), conv_bias, {0, 1, 1});
+      return conv3d_inference(x, w.contiguous(x.suggest_memory_format()), conv_bias, {0, 1, 1}, {}, conv_backend_);
     case ResampleMode::downsample2d:
     case ResampleMode::downsample3d: {
       at::Tensor padded = at::constant_pad_nd(x, {0, 1, 0, 1});  // right and bottom (ZeroPad2d(0,1,0,1))

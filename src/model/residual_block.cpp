@@ -9,22 +9,24 @@ at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv
   // The norm + SiLU writes straight into the causally padded input of the
   // conv; in streaming mode the padding is the layer's history instead of zeros.
   const int64_t n = conv->past_frames();
-  if (cache == nullptr) return conv->forward_prepadded(rms_norm_silu_padded(x, norm->gamma, n), residual);
-  return conv->forward_prepadded(rms_norm_silu_streamed(x, norm->gamma, n, cache->next()), residual);
+  if (cache == nullptr) return conv->forward_prepadded(norm->silu_padded(x, n), residual);
+  return conv->forward_prepadded(norm->silu_streamed(x, n, cache->next()), residual);
 }
 
-ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels) {
+ResidualBlockImpl::ResidualBlockImpl(int64_t in_channels, int64_t out_channels, const KernelChoices& kernels) {
   auto residual = register_module("residual", std::make_shared<torch::nn::Module>());
-  norm1 = RMSNorm(in_channels, /*images=*/false);
-  conv1 = CausalConv3d(in_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
-  norm2 = RMSNorm(out_channels, /*images=*/false);
-  conv2 = CausalConv3d(out_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+  const std::string& backend = kernels.conv_backend;
+  norm1 = RMSNorm(in_channels, /*images=*/false, kernels.fused_norm);
+  conv1 = CausalConv3d(in_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend);
+  norm2 = RMSNorm(out_channels, /*images=*/false, kernels.fused_norm);
+  conv2 = CausalConv3d(out_channels, out_channels, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend);
   residual->register_module("0", norm1);
   residual->register_module("2", conv1);
   residual->register_module("3", norm2);
   residual->register_module("6", conv2);
   if (in_channels != out_channels) {
-    shortcut = register_module("shortcut", CausalConv3d(in_channels, out_channels, Int3{1, 1, 1}));
+    shortcut = register_module("shortcut", CausalConv3d(in_channels, out_channels, Int3{1, 1, 1}, Int3{1, 1, 1},
+                                                        Int3{0, 0, 0}, backend));
   }
 }
 

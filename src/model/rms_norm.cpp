@@ -1,6 +1,5 @@
 #include "flat/model/rms_norm.h"
 
-#include <atomic>
 #include <cmath>
 
 #include <torch/torch.h>
@@ -16,7 +15,6 @@
 
 namespace flat::model {
 namespace {
-std::atomic<bool> g_fused_enabled{true};
 
 // The normalisation factor sqrt(C) / max(||x||, 1e-12) over dim 1, in fp32.
 at::Tensor inverse_norm(const at::Tensor& x) {
@@ -32,12 +30,20 @@ at::Tensor gamma_like(const at::Tensor& gamma, const at::Tensor& x) {
 }
 }  // namespace
 
-RMSNormImpl::RMSNormImpl(int64_t channels, bool images) {
+RMSNormImpl::RMSNormImpl(int64_t channels, bool images, bool fused) : fused_(fused) {
   FLAT_CHECK(channels > 0, "RMS_norm: channels must be positive");
   gamma = register_parameter("gamma", images ? torch::ones({channels, 1, 1}) : torch::ones({channels, 1, 1, 1}));
 }
 
 at::Tensor RMSNormImpl::forward(const at::Tensor& x) { return rms_norm(x, gamma); }
+
+at::Tensor RMSNormImpl::silu_padded(const at::Tensor& x, int64_t n, const at::Tensor& history) const {
+  return rms_norm_silu_padded(x, gamma, n, history, fused_);
+}
+
+at::Tensor RMSNormImpl::silu_streamed(const at::Tensor& x, int64_t n, at::Tensor& history) const {
+  return rms_norm_silu_streamed(x, gamma, n, history, fused_);
+}
 
 at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma) {
   FLAT_CHECK(x.dim() >= 2 && x.size(1) == gamma.numel(),
@@ -45,14 +51,12 @@ at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma) {
   return x * inverse_norm(x).to(x.scalar_type()) * gamma_like(gamma, x);
 }
 
-void set_fused_norm_enabled(bool enabled) { g_fused_enabled = enabled; }
-
 bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
 #if FLAT_WITH_CUDA
   const bool grad = at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad());
   const bool dtype_ok = (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
                         gamma.scalar_type() == x.scalar_type();
-  return g_fused_enabled && x.is_cuda() && !grad && dtype_ok && x.dim() == 5 &&
+  return x.is_cuda() && !grad && dtype_ok && x.dim() == 5 &&
          x.is_contiguous(at::MemoryFormat::ChannelsLast3d) && cuda::rms_norm_silu_supported(x.size(1));
 #else
   (void)x;
@@ -67,7 +71,7 @@ namespace {
 // the result as the layer's next streaming history (written by the fused
 // kernel as a second destination, so no copy of them afterwards).
 at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history,
-                            at::Tensor* history_out) {
+                            at::Tensor* history_out, bool fused) {
   FLAT_CHECK(x.dim() == 5 && x.size(1) == gamma.numel(),
              "RMS_norm+SiLU: expected (B," + std::to_string(gamma.numel()) + ",T,H,W), got " + shape_str(x));
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
@@ -88,7 +92,7 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
   };
   at::Tensor body = out.narrow(2, n, T);
 #if FLAT_WITH_CUDA
-  if (fused_norm_available(x, gamma) && out.is_contiguous(at::MemoryFormat::ChannelsLast3d)) {
+  if (fused && fused_norm_available(x, gamma) && out.is_contiguous(at::MemoryFormat::ChannelsLast3d)) {
     at::Tensor g = gamma.contiguous();
     at::Tensor next;
     if (history_out != nullptr && n > 0 && T >= n) next = at::empty({B, C, n, H, W}, x.options().memory_format(format));
@@ -101,6 +105,8 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
     }
     return keep_history(out);
   }
+#else
+  (void)fused;
 #endif
   at::Tensor y = x * inverse_norm(x).to(x.scalar_type());
   y.mul_(gamma_like(gamma, x));
@@ -117,13 +123,15 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
 
 }  // namespace
 
-at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history) {
-  return norm_silu_padded(x, gamma, n, history, nullptr);
+at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history,
+                                bool fused) {
+  return norm_silu_padded(x, gamma, n, history, nullptr, fused);
 }
 
-at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history) {
+at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history,
+                                  bool fused) {
   const at::Tensor past = history;
-  return norm_silu_padded(x, gamma, n, past, &history);
+  return norm_silu_padded(x, gamma, n, past, &history, fused);
 }
 
 }  // namespace flat::model

@@ -11,14 +11,17 @@ namespace flat::model {
 SceneDecoderImpl::SceneDecoderImpl(const SceneDecoderConfig& config, const primitives::HeadChannels& layout)
     : config_(config) {
   config_.vae.check();
+  const KernelChoices& kernels = config_.kernels;
+  validate_kernels(kernels, "SceneDecoderConfig");
   if (config_.camera) {
     adapter = register_module("adapter", CameraAdapter(config_.camera_channels, config_.vae.z_dim,
-                                                       config_.adapter_zero_kernel, config_.adapter_zero_init));
+                                                       config_.adapter_zero_kernel, config_.adapter_zero_init, kernels));
   }
-  conv2 = register_module("conv2", CausalConv3d(config_.vae.z_dim, config_.vae.z_dim, Int3{1, 1, 1}));
-  decoder = register_module("decoder", Decoder3d(config_.vae, /*scene_variant=*/true));
+  conv2 = register_module("conv2", CausalConv3d(config_.vae.z_dim, config_.vae.z_dim, Int3{1, 1, 1}, Int3{1, 1, 1},
+                                                Int3{0, 0, 0}, kernels.conv_backend));
+  decoder = register_module("decoder", Decoder3d(config_.vae, /*scene_variant=*/true, kernels));
   decoder->set_activation_checkpointing(config_.activation_checkpointing);
-  heads = register_module("heads", OutputHeads(decoder->out_features(), layout, config_.heads));
+  heads = register_module("heads", OutputHeads(decoder->out_features(), layout, config_.heads, kernels));
 }
 
 at::Tensor SceneDecoderImpl::channels_last_input(const at::Tensor& x) const {

@@ -60,12 +60,15 @@ int64_t vae_dim_of_file(const std::string& path, const WanVAEConfig& like) {
   fail(file + ": not a Wan 2.1 VAE file (no encoder.conv1.weight or decoder.conv1.weight, in either naming)");
 }
 
-WanVAEImpl::WanVAEImpl(const WanVAEConfig& config) : config_(config) {
+WanVAEImpl::WanVAEImpl(const WanVAEConfig& config, const KernelChoices& kernels) : config_(config) {
   config_.check();
-  encoder = register_module("encoder", Encoder3d(config_));
-  conv1 = register_module("conv1", CausalConv3d(2 * config_.z_dim, 2 * config_.z_dim, Int3{1, 1, 1}));
-  conv2 = register_module("conv2", CausalConv3d(config_.z_dim, config_.z_dim, Int3{1, 1, 1}));
-  decoder = register_module("decoder", Decoder3d(config_, /*scene_variant=*/false));
+  validate_kernels(kernels, "WanVAE");
+  const Int3 one{1, 1, 1}, none{0, 0, 0};
+  encoder = register_module("encoder", Encoder3d(config_, kernels));
+  conv1 = register_module("conv1", CausalConv3d(2 * config_.z_dim, 2 * config_.z_dim, one, one, none,
+                                                kernels.conv_backend));
+  conv2 = register_module("conv2", CausalConv3d(config_.z_dim, config_.z_dim, one, one, none, kernels.conv_backend));
+  decoder = register_module("decoder", Decoder3d(config_, /*scene_variant=*/false, kernels));
 }
 
 at::Tensor WanVAEImpl::encode_moments(const at::Tensor& video, bool streaming) {

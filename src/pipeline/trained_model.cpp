@@ -91,11 +91,12 @@ ModelSignature model_signature(const PipelineConfig& p) {
   model.visit(d);
   std::string yaml;
   for (const auto& row : d.rows)
-    // Keys that change how the decoder runs, not its weights, stay out, and
-    // so does the initialisation; the ablations' camera rays enter only when
-    // not the paper's (older signatures stay valid).
+    // Keys that change how the decoder runs, not its weights (the kernel
+    // choices included), stay out, and so does the initialisation; the
+    // ablations' camera rays enter only when not the paper's (older
+    // signatures stay valid).
     if (row.key != "pipeline.model.stream_trunk_frames" && row.key != "pipeline.model.activation_checkpointing" &&
-        row.key != "pipeline.model.adapter_zero_init" &&
+        row.key != "pipeline.model.adapter_zero_init" && row.key.rfind("pipeline.model.kernels.", 0) != 0 &&
         !(row.key == "pipeline.model.camera_rays" && row.value == "rppc"))
       yaml += row.key + ": " + row.value + "\n";
   // Triangle models keep the signature they always had; the Gaussian

@@ -73,7 +73,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   adamw.fused_8bit = cfg.optim.fused_8bit;
   adamw.state_bits = cfg.optim.name == "adamw8bit" ? 8 : 32;
   if (cfg.task == "vae") {
-    vae = model::WanVAE(cfg.pipeline.model.vae);
+    vae = model::WanVAE(cfg.pipeline.model.vae, cfg.pipeline.model.kernels);
     vae_loss = cfg.vae;
     signature = vae_signature(cfg.pipeline.model.vae);
     if (cfg.init.from == "wan_vae") {

@@ -20,11 +20,6 @@ struct Case {
   std::array<int64_t, 3> pad;
 };
 
-// Restores the per-shape choice however a test case ends.
-struct ChoiceReset {
-  ~ChoiceReset() { set_cutlass_conv_choice(""); }
-};
-
 // The input channels a configuration takes per step: the last number of its name.
 int64_t tile_k(const std::string& name) { return std::stoll(name.substr(name.rfind('x') + 1)); }
 
@@ -48,6 +43,18 @@ TEST_CASE("conv3d_inference on the CPU is conv3d + residual", "[model]") {
   auto res = torch::randn({1, 16, 2, 5, 6});
   auto ref = at::conv3d(x, w, b, {1, 1, 1}, {0, 1, 1}) + res;
   CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}, res), ref) < 1e-6);
+  // Every backend of this build gives the same result on the CPU (cuDNN's
+  // place is ATen's there); unknown names throw, naming the valid ones.
+  for (const std::string& backend : conv_backends()) {
+    INFO("backend " << backend);
+    CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}, res, backend), ref) < 1e-6);
+    CHECK(conv3d_inference_last_path() == "cudnn");
+  }
+  CHECK(conv_backends().front() == "auto");
+  CHECK(conv_backends().size() == (cutlass_conv_compiled() ? 8u : 2u));  // auto, cudnn, six tile configurations
+  CHECK_THROWS_WITH(conv3d_inference(x, w, b, {0, 1, 1}, res, "64x64x64"),
+                    FLAT_CONTAINS("unknown conv backend '64x64x64'"));
+  CHECK_THROWS_WITH(check_conv_backend(""), FLAT_CONTAINS("one of {auto, cudnn"));
 }
 
 TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model][cuda]") {
@@ -66,8 +73,6 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
       {1, 192, 3, 8, 10, 384, 1, 1, 1, {0, 0, 0}},   // 1x1x1 shortcut
       {1, 64, 4, 6, 6, 16, 3, 3, 3, {0, 1, 1}},      // narrow output (one partial N tile)
   };
-  set_cutlass_conv_enabled(true);
-  const ChoiceReset reset;
   for (const Case& k : cases) {
     auto x = torch::randn({k.n, k.c, k.d, k.h, k.w}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto w = (torch::randn({k.k, k.c, k.t, k.r, k.s}, torch::kCUDA) / std::sqrt(double(k.c * k.t * k.r * k.s)))
@@ -78,16 +83,16 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
     auto res = torch::randn(ref0.sizes(), torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto ref1 = ref0 + res.to(torch::kFloat);
     int cutlass_runs = 0;
-    for (const std::string config : {"128x96x32", "256x96x32", "128x96x64", "256x96x64", "128x128x64", "128x192x64", ""}) {
-      set_cutlass_conv_choice(config);
+    for (const std::string config :
+         {"128x96x32", "256x96x32", "128x96x64", "256x96x64", "128x128x64", "128x192x64", "auto"}) {
       for (bool with_res : {false, true}) {
-        auto out = conv3d_inference(x, w, b, k.pad, with_res ? res : at::Tensor());
+        auto out = conv3d_inference(x, w, b, k.pad, with_res ? res : at::Tensor(), config);
         const std::string path = conv3d_inference_last_path();
         INFO("x " << flat::shape_str(x) << " w " << flat::shape_str(w) << " config '" << config << "' residual "
                   << with_res << " ran " << path);
         // A forced configuration runs exactly where its K step divides the
         // input channels (every output count here is a multiple of 8).
-        if (!config.empty()) CHECK(path == (k.c % tile_k(config) == 0 ? config : std::string("cudnn")));
+        if (config != "auto") CHECK(path == (k.c % tile_k(config) == 0 ? config : std::string("cudnn")));
         cutlass_runs += path != "cudnn" ? 1 : 0;
         REQUIRE(out.sizes() == ref0.sizes());
         CHECK(out.is_contiguous(cl));
@@ -102,23 +107,23 @@ TEST_CASE("CUTLASS conv3d equals an fp32 conv for every configuration", "[model]
   {
     auto x = torch::randn({1, 96, 4, 6, 9}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
     auto w = (torch::randn({96, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
-    set_cutlass_conv_choice("128x96x32");
-    auto out = conv3d_inference(x, w, at::Tensor(), {0, 1, 1});
+    auto out = conv3d_inference(x, w, at::Tensor(), {0, 1, 1}, {}, "128x96x32");
     CHECK(conv3d_inference_last_path() == "128x96x32");
+    // cudnn: never a CUTLASS kernel, same result.
+    auto out_cudnn = conv3d_inference(x, w, at::Tensor(), {0, 1, 1}, {}, "cudnn");
+    CHECK(conv3d_inference_last_path() == "cudnn");
+    CHECK(flat::test::rel_error(out_cudnn.to(torch::kFloat), out.to(torch::kFloat)) < 1e-2);
     auto ref = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), {}, {1, 1, 1}, {0, 1, 1});
     CHECK(flat::test::rel_error(out.to(torch::kFloat), ref) < 1e-2);
   }
-  set_cutlass_conv_choice("");
   // The per-shape timing recorded a choice for every auto-timed shape.
   const std::string report = cutlass_conv_report();
   CHECK(report.find("-> ") != std::string::npos);
-  CHECK_THROWS_WITH(set_cutlass_conv_choice("64x64x64"), FLAT_CONTAINS("unknown CUTLASS configuration"));
 }
 
 TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   if (!cutlass_conv_compiled()) FLAT_SKIP("built without CUTLASS");
-  const ChoiceReset reset;
   torch::manual_seed(6);
   torch::NoGradGuard no_grad;
   const auto cl = at::MemoryFormat::ChannelsLast3d;
@@ -126,27 +131,28 @@ TEST_CASE("CUTLASS conv3d is skipped where it does not apply", "[model][cuda]") 
   auto x = torch::randn({1, 96, 4, 6, 7}, torch::kCUDA).to(torch::kBFloat16).contiguous(cl);
   auto w = (torch::randn({12, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
   auto b = torch::randn({12}, torch::kCUDA).to(torch::kBFloat16);
-  set_cutlass_conv_choice("128x96x32");
+  const std::string forced = "128x96x32";
   auto ref = at::conv3d(x.to(torch::kFloat), w.to(torch::kFloat), b.to(torch::kFloat), {1, 1, 1}, {0, 1, 1});
-  CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}).to(torch::kFloat), ref) < 1e-2);
+  CHECK(flat::test::rel_error(conv3d_inference(x, w, b, {0, 1, 1}, {}, forced).to(torch::kFloat), ref) < 1e-2);
   CHECK(conv3d_inference_last_path() == "cudnn");
   // A bias of the wrong length, or an input view off 16-byte alignment: cuDNN
   // (which names the bad bias itself), never the CUTLASS kernel.
   auto w16 = (torch::randn({16, 96, 3, 3, 3}, torch::kCUDA) * 0.03).to(torch::kBFloat16).contiguous(cl);
-  CHECK_THROWS(conv3d_inference(x, w16, b, {0, 1, 1}));
+  CHECK_THROWS(conv3d_inference(x, w16, b, {0, 1, 1}, {}, forced));
   CHECK(conv3d_inference_last_path() == "cudnn");
   auto buffer = torch::zeros({x.numel() + 1}, x.options());
   auto shifted = buffer.narrow(0, 1, x.numel()).view({1, 4, 6, 7, 96}).permute({0, 4, 1, 2, 3});
   shifted.copy_(x);
   REQUIRE(shifted.is_contiguous(cl));
   auto ref16 = at::conv3d(x.to(torch::kFloat), w16.to(torch::kFloat), {}, {1, 1, 1}, {0, 1, 1});
-  CHECK(flat::test::rel_error(conv3d_inference(shifted, w16, {}, {0, 1, 1}).to(torch::kFloat), ref16) < 1e-2);
+  CHECK(flat::test::rel_error(conv3d_inference(shifted, w16, {}, {0, 1, 1}, {}, forced).to(torch::kFloat), ref16) <
+        1e-2);
   CHECK(conv3d_inference_last_path() == "cudnn");
   // Under autograd the differentiable cuDNN path runs: gradients reach x.
   auto xg = x.detach().clone().requires_grad_(true);
   {
     torch::AutoGradMode grad(true);
-    conv3d_inference(xg, w, b, {0, 1, 1}).to(torch::kFloat).sum().backward();
+    conv3d_inference(xg, w, b, {0, 1, 1}, {}, forced).to(torch::kFloat).sum().backward();
   }
   CHECK(xg.grad().defined());
   CHECK(conv3d_inference_last_path() == "cudnn");

@@ -20,10 +20,8 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
       auto gamma = (torch::rand({c, 1, 1, 1}, torch::kCUDA) + 0.5).to(dtype);
       auto history = torch::randn({2, c, 2, 5, 7}, torch::kCUDA).to(dtype);
       REQUIRE(fused_norm_available(x, gamma));
-      auto fused = rms_norm_silu_padded(x, gamma, 2, history);
-      set_fused_norm_enabled(false);
-      auto aten = rms_norm_silu_padded(x, gamma, 2, history);
-      set_fused_norm_enabled(true);
+      auto fused = rms_norm_silu_padded(x, gamma, 2, history, /*fused=*/true);
+      auto aten = rms_norm_silu_padded(x, gamma, 2, history, /*fused=*/false);
       INFO("C = " << c << " dtype " << dtype);
       CHECK(fused.is_contiguous(at::MemoryFormat::ChannelsLast3d));
       CHECK(flat::test::rel_error(fused, aten) < (dtype == torch::kFloat ? 1e-5 : 1e-2));

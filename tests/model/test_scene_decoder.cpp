@@ -1,11 +1,14 @@
 // FLAT scene decoder: shapes and channel map, zero-initialised camera adapter,
 // gradients reaching the adapter, streaming == full, camera latents.
+#include <algorithm>
 #include <iostream>
 
 #include "flat/camera/cameras.h"
+#include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/model/camera_latents.h"
 #include "flat/model/scene_decoder.h"
+#include "flat/model/wan_vae.h"
 #include "flat/model/weights.h"
 #include "test_support.h"
 
@@ -123,6 +126,71 @@ TEST_CASE("Zero-initialised adapter: cameras change nothing at init, gradient re
   REQUIRE(g.defined());
   CHECK(g.abs().sum().item<double>() > 0.0);
   CHECK(scene->adapter->zero_conv->bias.grad().abs().sum().item<double>() > 0.0);
+}
+
+TEST_CASE("Kernel choices: YAML keys reach every module; the reference upsample form gives the same output",
+          "[model][scene]") {
+  const KernelChoices defaults;
+  CHECK(defaults.fused_norm);
+  CHECK(defaults.subpixel_upsample);
+  CHECK(defaults.conv_backend == "auto");
+  const auto cfg = flat::config::parse<SceneDecoderConfig>(
+      "vae: {dim: 8}\nkernels: {fused_norm: false, subpixel_upsample: false, conv_backend: cudnn}\n", "model.yaml");
+  REQUIRE_FALSE(cfg.kernels.fused_norm);
+  REQUIRE_FALSE(cfg.kernels.subpixel_upsample);
+  REQUIRE(cfg.kernels.conv_backend == "cudnn");
+  CHECK(flat::config::to_yaml(cfg).find("conv_backend: cudnn") != std::string::npos);
+
+  torch::manual_seed(7);
+  SceneDecoder fast(tiny_config());  // the defaults: sub-pixel upsampling
+  torch::manual_seed(7);
+  SceneDecoder reference(cfg);  // same architecture and seed: same weights
+  // Every norm, conv and upsample of the model holds the choices it was built with.
+  auto kernels_of = [](torch::nn::Module& model, int64_t expected_upsamples) {
+    std::vector<std::string> seen;
+    int64_t upsamples = 0;
+    for (const auto& m : model.modules(/*include_self=*/false)) {
+      if (const auto* n = m->as<RMSNormImpl>()) seen.push_back(n->fused() ? "fused" : "aten");
+      if (const auto* c = m->as<CausalConv3dImpl>()) seen.push_back(c->conv_backend());
+      if (const auto* r = m->as<ResampleImpl>()) {
+        if (r->mode() == ResampleMode::upsample2d || r->mode() == ResampleMode::upsample3d) {
+          ++upsamples;
+          seen.push_back(r->subpixel_upsample() ? "subpixel" : "nearest");
+        }
+      }
+    }
+    REQUIRE(upsamples == expected_upsamples);
+    std::sort(seen.begin(), seen.end());
+    seen.erase(std::unique(seen.begin(), seen.end()), seen.end());
+    return seen;
+  };
+  // (The scene decoder upsamples twice, in time and space; its last x2 is gone.)
+  CHECK(kernels_of(*fast, 2) == std::vector<std::string>{"auto", "fused", "subpixel"});
+  CHECK(kernels_of(*reference, 2) == std::vector<std::string>{"aten", "cudnn", "nearest"});
+  // The Wan VAE (encoder and decoder) takes the same choices.
+  WanVAE vae(cfg.vae, cfg.kernels);
+  CHECK(kernels_of(*vae, 3) == std::vector<std::string>{"aten", "cudnn", "nearest"});
+
+  torch::NoGradGuard no_grad;
+  auto latent = torch::randn({1, 16, 3, 2, 3});
+  auto cams = torch::randn({1, 32, 3, 2, 3});
+  for (const bool streaming : {false, true}) {
+    INFO("streaming " << streaming);
+    auto a = fast->forward(latent, cams, streaming), b = reference->forward(latent, cams, streaming);
+    REQUIRE(a.sizes() == b.sizes());
+    CHECK(flat::test::rel_error(b, a) < 1e-5);
+  }
+
+  // An unknown backend is a config error naming the key and the valid names,
+  // whether it comes from YAML or from a config built in code.
+  REQUIRE_THROWS_WITH(flat::config::parse<SceneDecoderConfig>("kernels: {conv_backend: fastest}\n", "model.yaml"),
+                      FLAT_CONTAINS("model.yaml: 'kernels.conv_backend': expected one of {auto, cudnn") &&
+                          FLAT_CONTAINS("got 'fastest'"));
+  SceneDecoderConfig bad = tiny_config();
+  bad.kernels.conv_backend = "fastest";
+  REQUIRE_THROWS_WITH(SceneDecoder(bad), FLAT_CONTAINS("SceneDecoderConfig: 'kernels.conv_backend'"));
+  REQUIRE_THROWS_WITH(flat::config::parse<SceneDecoderConfig>("kernels: {fused_norm: maybe}\n", "model.yaml"),
+                      FLAT_CONTAINS("kernels.fused_norm"));
 }
 
 TEST_CASE("RMS_norm + SiLU matches its definition; gradient vs finite differences", "[model][scene]") {

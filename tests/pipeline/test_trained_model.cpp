@@ -78,6 +78,33 @@ TEST_CASE("--config layers over the config the model carries", "[pipeline]") {
   CHECK(m.config_source.find("window.yaml") != std::string::npos);
 }
 
+TEST_CASE("kernel choices are config keys that reach the loaded decoder and leave the signature alone",
+          "[pipeline]") {
+  const auto dir = test::scratch_dir("trained_model_kernels");
+  const std::string file = (dir / "model.safetensors").string();
+  test::write_tiny_model(file);  // trained with the default kernels
+  std::ofstream(dir / "kernels.yaml")
+      << "pipeline:\n  model:\n    kernels: {fused_norm: false, subpixel_upsample: false, conv_backend: cudnn}\n";
+  auto m = pipeline::load_trained_model(file, (dir / "kernels.yaml").string());
+  CHECK_FALSE(m.config.model.kernels.fused_norm);
+  CHECK_FALSE(m.config.model.kernels.subpixel_upsample);
+  CHECK(m.config.model.kernels.conv_backend == "cudnn");
+  // The decoder was built with them: its modules hold them.
+  CHECK_FALSE(m.decoder->decoder->mid1->norm1->fused());
+  CHECK(m.decoder->decoder->conv1->conv_backend() == "cudnn");
+  CHECK(m.decoder->heads->convs[0]->conv_backend() == "cudnn");
+  CHECK_FALSE(m.decoder->decoder->up_resample[0]->subpixel_upsample());
+  // Speed only: the signature is that of the defaults.
+  CHECK(pipeline::model_signature(m.config).yaml == pipeline::model_signature(test::tiny_pipeline_config()).yaml);
+  // An unknown backend names the key, wherever it is given.
+  std::ofstream(dir / "bad.yaml") << "pipeline:\n  model:\n    kernels: {conv_backend: fastest}\n";
+  REQUIRE_THROWS_WITH(pipeline::load_trained_model(file, (dir / "bad.yaml").string()),
+                      FLAT_CONTAINS("'model.kernels.conv_backend': expected one of {auto, cudnn") &&
+                          FLAT_CONTAINS("'fastest'"));
+  REQUIRE_THROWS_WITH(pipeline::load_trained_model(file, "", {"model.kernels.conv_backend=fastest"}),
+                      FLAT_CONTAINS("kernels.conv_backend"));
+}
+
 TEST_CASE("the model signature names the ablations that change what the weights mean", "[pipeline]") {
   pipeline::PipelineConfig p;
   const std::string paper = pipeline::model_signature(p).yaml;

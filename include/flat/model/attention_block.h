@@ -9,6 +9,7 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
+#include "flat/model/kernel_choices.h"
 #include "flat/model/rms_norm.h"
 
 namespace flat::model {
@@ -26,7 +27,9 @@ TORCH_MODULE(PointwiseConv2d);
 
 class AttentionBlockImpl : public torch::nn::Module {
  public:
-  explicit AttentionBlockImpl(int64_t channels);
+  // kernels: its norm keeps fused_norm like every other (the attention's
+  // norm has no SiLU, so it always runs as ATen ops).
+  explicit AttentionBlockImpl(int64_t channels, const KernelChoices& kernels = {});
   // x (B,C,T,H,W) -> same shape. Frames are independent: no streaming state.
   at::Tensor forward(const at::Tensor& x);
 

@@ -13,6 +13,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/stream_cache.h"
 
 namespace flat::model {
@@ -21,7 +22,8 @@ class CameraAdapterImpl : public torch::nn::Module {
  public:
   // zero_kernel: 3 (3x3x3 zero conv) or 1 (1x1x1). zero_init false keeps the
   // conv's default (random) initialisation: the ablation "without zero-init".
-  CameraAdapterImpl(int64_t camera_channels, int64_t latent_channels, int64_t zero_kernel, bool zero_init = true);
+  CameraAdapterImpl(int64_t camera_channels, int64_t latent_channels, int64_t zero_kernel, bool zero_init = true,
+                    const KernelChoices& kernels = {});
   // (B,32,T',h,w) -> (B,16,T',h,w), the term added to the latent.
   at::Tensor forward(const at::Tensor& camera_latents, StreamCache* cache = nullptr);
 

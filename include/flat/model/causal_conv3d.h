@@ -5,6 +5,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <string>
 
 #include <ATen/ATen.h>
 #include <torch/nn/module.h>
@@ -18,8 +19,11 @@ using Int3 = std::array<int64_t, 3>;
 
 class CausalConv3dImpl : public torch::nn::Module {
  public:
+  // conv_backend: which implementation runs its stride-1 convs without
+  // autograd (conv3d_inference's backend, KernelChoices::conv_backend);
+  // unknown names throw.
   CausalConv3dImpl(int64_t in_channels, int64_t out_channels, Int3 kernel, Int3 stride = {1, 1, 1},
-                   Int3 padding = {0, 0, 0});
+                   Int3 padding = {0, 0, 0}, std::string conv_backend = "auto");
 
   // Full sequence: pads 2*pt zero frames in front (one copy), then the conv.
   at::Tensor forward(const at::Tensor& x);
@@ -35,6 +39,7 @@ class CausalConv3dImpl : public torch::nn::Module {
   int64_t past_frames() const { return 2 * padding_[0]; }
   int64_t in_channels() const { return weight.size(1); }
   int64_t out_channels() const { return weight.size(0); }
+  const std::string& conv_backend() const { return conv_backend_; }
   // Re-draws the parameters: zeros (for the adapter's zero conv) or PyTorch's
   // default conv init (uniform +-1/sqrt(fan_in)).
   void reset_parameters(bool zero = false);
@@ -43,6 +48,7 @@ class CausalConv3dImpl : public torch::nn::Module {
 
  private:
   Int3 stride_, padding_;
+  std::string conv_backend_;
 };
 TORCH_MODULE(CausalConv3d);
 

@@ -17,6 +17,7 @@
 
 #include "flat/model/attention_block.h"
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/resample.h"
 #include "flat/model/residual_block.h"
 #include "flat/model/rms_norm.h"
@@ -27,7 +28,8 @@ namespace flat::model {
 
 class Decoder3dImpl : public torch::nn::Module {
  public:
-  Decoder3dImpl(const WanVAEConfig& config, bool scene_variant = false);
+  // kernels: the implementations its norms, convs and upsamples use.
+  Decoder3dImpl(const WanVAEConfig& config, bool scene_variant = false, const KernelChoices& kernels = {});
   // Full sequence (cache == nullptr) or one latent frame with the caches.
   at::Tensor forward(const at::Tensor& z, StreamCache* cache = nullptr);
   // forward() in two parts: conv1, middle and the `upsamples` stages [0, end),

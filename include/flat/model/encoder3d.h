@@ -11,6 +11,7 @@
 
 #include "flat/model/attention_block.h"
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/resample.h"
 #include "flat/model/residual_block.h"
 #include "flat/model/rms_norm.h"
@@ -21,7 +22,7 @@ namespace flat::model {
 
 class Encoder3dImpl : public torch::nn::Module {
  public:
-  explicit Encoder3dImpl(const WanVAEConfig& config);
+  explicit Encoder3dImpl(const WanVAEConfig& config, const KernelChoices& kernels = {});
   // Full sequence (cache == nullptr) or one chunk (1 frame first, then 4).
   at::Tensor forward(const at::Tensor& x, StreamCache* cache = nullptr);
 

@@ -22,6 +22,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/rms_norm.h"
 #include "flat/model/stream_cache.h"
 #include "flat/primitives/head_channels.h"
@@ -40,7 +41,8 @@ std::vector<std::pair<std::string, ChannelRange>> head_groups(const primitives::
 class OutputHeadsImpl : public torch::nn::Module {
  public:
   // mode: "independent" or "monolithic".
-  OutputHeadsImpl(int64_t in_channels, const primitives::HeadChannels& layout, const std::string& mode);
+  OutputHeadsImpl(int64_t in_channels, const primitives::HeadChannels& layout, const std::string& mode,
+                  const KernelChoices& kernels = {});
   // features (B,96,T,H,W) -> raw parameters (B,total,T,H,W).
   at::Tensor forward(const at::Tensor& features, StreamCache* cache = nullptr);
 

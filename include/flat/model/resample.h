@@ -17,6 +17,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/stream_cache.h"
 
 namespace flat::model {
@@ -25,19 +26,26 @@ enum class ResampleMode { upsample2d, upsample3d, downsample2d, downsample3d, co
 
 class ResampleImpl : public torch::nn::Module {
  public:
-  ResampleImpl(int64_t channels, ResampleMode mode);
+  // kernels: subpixel_upsample (the upsampling convs as one sub-pixel conv on
+  // the low-resolution input: same result, 4/9 of the work; false: nearest x2
+  // then the 3x3 conv, as the reference does) and conv_backend (its convs and
+  // time_conv's).
+  ResampleImpl(int64_t channels, ResampleMode mode, const KernelChoices& kernels = {});
   // Full sequence (cache == nullptr) or one streaming chunk.
   //  upsample3d full: frame 0 passes, frames 1.. are doubled: T -> 1 + 2(T-1).
   //  downsample3d full: frame 0 passes, then the stride-2 conv over all frames: 1+2k -> 1+k.
   at::Tensor forward(const at::Tensor& x, StreamCache* cache = nullptr);
 
   ResampleMode mode() const { return mode_; }
+  bool subpixel_upsample() const { return subpixel_; }
   // The per-frame 2D conv, stored as Conv2d parameters (out,in,3,3).
   at::Tensor conv_weight, conv_bias;
   CausalConv3d time_conv{nullptr};
 
  private:
   ResampleMode mode_;
+  bool subpixel_;
+  std::string conv_backend_;
   at::Tensor spatial(const at::Tensor& x) const;  // the per-frame part
   void interleave_into(at::Tensor out, const at::Tensor& y) const;  // (B,2C,T,..) -> out (B,C,2T,..)
   // upsample3d's temporal half: [frame 0 if pass_first] + frames doubled by time_conv.
@@ -51,10 +59,5 @@ class ResampleImpl : public torch::nn::Module {
   mutable SubpixelCache subpixel_cache_;
 };
 TORCH_MODULE(Resample);
-
-// Upsampling convs run as one sub-pixel conv on the low-resolution input (same
-// result, 4/9 of the work; default on). Off: nearest x2 then the 3x3 conv, as
-// the reference does (tests compare the two).
-void set_subpixel_upsample(bool enabled);
 
 }  // namespace flat::model

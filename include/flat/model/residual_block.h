@@ -11,6 +11,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "flat/model/causal_conv3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/rms_norm.h"
 #include "flat/model/stream_cache.h"
 
@@ -18,7 +19,8 @@ namespace flat::model {
 
 class ResidualBlockImpl : public torch::nn::Module {
  public:
-  ResidualBlockImpl(int64_t in_channels, int64_t out_channels);
+  // kernels: fused_norm for the norms, conv_backend for the convs.
+  ResidualBlockImpl(int64_t in_channels, int64_t out_channels, const KernelChoices& kernels = {});
   // cache == nullptr: full sequence; else one streaming chunk.
   at::Tensor forward(const at::Tensor& x, StreamCache* cache = nullptr);
 
@@ -30,6 +32,7 @@ TORCH_MODULE(ResidualBlock);
 // conv(silu(norm(x))) (+ residual): the unit of residual blocks and of the
 // encoder's, decoder's and scene decoder's heads. cache == nullptr: full
 // sequence (zero past frames); else one streaming chunk (the layer's history).
+// The kernels are those norm and conv were built with.
 at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv, StreamCache* cache,
                           const at::Tensor& residual = {});
 

@@ -12,31 +12,41 @@ namespace flat::model {
 
 class RMSNormImpl : public torch::nn::Module {
  public:
-  RMSNormImpl(int64_t channels, bool images);
+  // fused: rms_norm_silu_padded / _streamed of this norm may use the fused
+  // CUDA kernel (KernelChoices::fused_norm).
+  RMSNormImpl(int64_t channels, bool images, bool fused = true);
   // Normalises over dim 1 of (B,C,...) tensors.
   at::Tensor forward(const at::Tensor& x);
+  // rms_norm_silu_padded / rms_norm_silu_streamed with this norm's gamma and choice.
+  at::Tensor silu_padded(const at::Tensor& x, int64_t n, const at::Tensor& history = {}) const;
+  at::Tensor silu_streamed(const at::Tensor& x, int64_t n, at::Tensor& history) const;
   at::Tensor gamma;
   int64_t channels() const { return gamma.size(0); }
+  bool fused() const { return fused_; }
+
+ private:
+  bool fused_;
 };
 TORCH_MODULE(RMSNorm);
 
 // silu(rms_norm(x)) for x (B,C,T,H,W), returned as (B,C,n+T,H,W) whose first n
 // frames are `history` ((B,C,n,H,W); zeros when undefined): the input of the
 // next causal conv, built with no separate padding copy. On CUDA without
-// autograd this is one fused kernel; otherwise ATen ops (differentiable).
+// autograd this is one fused kernel where `fused` allows it
+// (fused_norm_available); otherwise ATen ops (differentiable). Same result.
 at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n,
-                                const at::Tensor& history = {});
+                                const at::Tensor& history = {}, bool fused = true);
 
 // rms_norm over dim 1 (no SiLU, no padding); gamma of any shape with C entries.
 at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma);
 
 // One streaming chunk: rms_norm_silu_padded(x, gamma, n, history), and
 // `history` becomes the last n frames of the result (the next chunk's past).
-at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history);
+at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history,
+                                  bool fused = true);
 
-// True when the fused CUDA kernel would serve rms_norm_silu_padded for x.
+// True when the fused CUDA kernel can serve rms_norm_silu_padded for x (it
+// does when `fused` is true).
 bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma);
-// Test hook: force the ATen path even where the fused kernel would run.
-void set_fused_norm_enabled(bool enabled);
 
 }  // namespace flat::model

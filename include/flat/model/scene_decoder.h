@@ -22,6 +22,7 @@
 #include "flat/core/config.h"
 #include "flat/model/camera_adapter.h"
 #include "flat/model/decoder3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/output_heads.h"
 #include "flat/model/wan_vae_config.h"
 #include "flat/model/weights.h"
@@ -50,6 +51,9 @@ struct SceneDecoderConfig {
   // Training: recompute the decoder's blocks in the backward instead of keeping
   // their activations (paper, stage 4: gradient checkpointing). Same gradients.
   bool activation_checkpointing = false;
+  // Which kernels run the norms, convs and upsamples (speed only, same
+  // outputs); the modules keep them from construction (kernel_choices.h).
+  KernelChoices kernels;
 
   template <class V>
   void visit(V& v) {
@@ -65,6 +69,7 @@ struct SceneDecoderConfig {
             "streaming: latent frames per step of the low-resolution trunk");
     v.field("activation_checkpointing", activation_checkpointing,
             "training: recompute decoder blocks in the backward (less memory, one more forward)");
+    v.section("kernels", kernels);
   }
 };
 

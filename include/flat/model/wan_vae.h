@@ -15,6 +15,7 @@
 #include "flat/model/causal_conv3d.h"
 #include "flat/model/decoder3d.h"
 #include "flat/model/encoder3d.h"
+#include "flat/model/kernel_choices.h"
 #include "flat/model/wan_vae_config.h"
 
 namespace flat::model {
@@ -39,7 +40,9 @@ int64_t vae_dim_of_file(const std::string& path, const WanVAEConfig& like = {});
 
 class WanVAEImpl : public torch::nn::Module {
  public:
-  explicit WanVAEImpl(const WanVAEConfig& config = {});
+  // kernels: the implementations its norms, convs and upsamples use (the
+  // scene decoder's config holds them: SceneDecoderConfig::kernels).
+  explicit WanVAEImpl(const WanVAEConfig& config = {}, const KernelChoices& kernels = {});
 
   // video (B,3,F,H,W) in [-1,1], F = 1+4k, H and W multiples of 8 ->
   // normalised mu (B,z_dim,1+k,H/8,W/8). Streaming: chunks of 1, 4, 4, ... frames.
