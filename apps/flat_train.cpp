@@ -60,6 +60,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? 0 : 2;
   }
+  flat::cli::restart_with_sleeping_openmp_threads(argv);
   try {
     flat::setup_logging(log_level.empty() ? "info" : log_level);
     if (help_config) {

@@ -20,7 +20,10 @@ int main(int argc, char** argv) {
   });
   app.require_subcommand(1);
   for (const auto& add : flat::bench::registry()) add(app);
-  // The subcommands run in CLI11 callbacks, i.e. inside parse: errors are mapped here.
+  // The subcommands run in CLI11 callbacks, i.e. inside parse, so the restart
+  // comes first (also for --help, which costs a start-up).
+  flat::cli::restart_with_sleeping_openmp_threads(argv);
+  // Errors are mapped here.
   return flat::cli::run([&] {
     try {
       app.parse(argc, argv);

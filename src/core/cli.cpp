@@ -2,6 +2,8 @@
 #include "flat/core/cli.h"
 
 #include <cmath>
+#include <cstdlib>
+#include <unistd.h>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
@@ -90,7 +92,17 @@ int parse(CLI::App& app, int argc, char** argv) {
     // --help and --version are "errors" with code 0; everything else is usage.
     return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
+  restart_with_sleeping_openmp_threads(argv);
   return -1;
+}
+
+void restart_with_sleeping_openmp_threads(char** argv) {
+  if (std::getenv("OMP_WAIT_POLICY") != nullptr || std::getenv("GOMP_SPINCOUNT") != nullptr) return;
+  if (setenv("OMP_WAIT_POLICY", "PASSIVE", /*overwrite=*/0) != 0) return;
+  std::fflush(nullptr);
+  execv("/proc/self/exe", argv);
+  // No restart (no /proc): libgomp's default waiting for this process; the
+  // variable stays set for the processes it starts.
 }
 
 int run(const std::function<int()>& body) {

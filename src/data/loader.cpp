@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <filesystem>
 
+#include <ATen/Parallel.h>
 #include <spdlog/spdlog.h>
 
 #include "flat/core/error.h"
@@ -274,8 +275,31 @@ void Loader::worker() {
 Batch Loader::next() {
   if (config_.workers <= 0) return batch(next_give_++);
   std::unique_lock<std::mutex> lock(mutex_);
-  if (threads_.empty())
-    for (int64_t i = 0; i < config_.workers; ++i) threads_.emplace_back([this] { worker(); });
+  if (threads_.empty()) {
+    // The workers run their tensor work on one intra-op thread each, as
+    // PyTorch's DataLoader workers do: N workers with a full OpenMP team each
+    // would oversubscribe the cores that the training step uses. Their
+    // at::set_num_threads(1) also sets the count of threads that start later,
+    // so once every worker has set its own, this thread's count (unchanged)
+    // is set again as that default.
+    const int own = at::get_num_threads();
+    std::mutex started_mutex;
+    std::condition_variable started_cv;
+    int64_t started = 0;
+    for (int64_t i = 0; i < config_.workers; ++i)
+      threads_.emplace_back([&, this] {
+        at::set_num_threads(1);
+        {
+          std::lock_guard<std::mutex> l(started_mutex);
+          ++started;
+        }
+        started_cv.notify_all();
+        worker();
+      });
+    std::unique_lock<std::mutex> l(started_mutex);
+    started_cv.wait(l, [&] { return started == config_.workers; });
+    at::set_num_threads(own);
+  }
   const int64_t index = next_give_;
   ready_cv_.wait(lock, [&] { return ready_.count(index) || failed_.count(index); });
   ++next_give_;

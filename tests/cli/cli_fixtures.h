@@ -26,7 +26,9 @@ inline ToolResult tool(const std::string& name, const std::vector<std::string>& 
   argv.insert(argv.end(), args.begin(), args.end());
   const std::string log = log_dir + "/" + tag + ".txt";
   ToolResult r;
-  r.rc = run(argv, log, {"OMP_NUM_THREADS=1"});
+  // One thread, and a wait policy chosen: the tools do not restart (see
+  // cli::restart_with_sleeping_openmp_threads; tested on its own).
+  r.rc = run(argv, log, {"OMP_NUM_THREADS=1", "OMP_WAIT_POLICY=PASSIVE"});
   r.output = read_file(log);
   return r;
 }

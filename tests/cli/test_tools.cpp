@@ -176,6 +176,44 @@ TEST_CASE("every tool: --version exits 0, an unknown flag is a usage error (2), 
   CHECK_THAT(tool("flat_bench", {"raster", "--help"}, f.root, "raster_help").output, FLAT_CONTAINS("--workload"));
 }
 
+TEST_CASE("tools restart once with sleeping OpenMP threads, unless the user chose a wait policy", "[cli]") {
+  // libgomp prints the policy it took from the environment as it loads
+  // (OMP_DISPLAY_ENV); GOMP_SPINCOUNT tells its default (300000 spins) from
+  // PASSIVE (0). The three ways in: cli::parse (flat_synth), flat_train's own
+  // parse, flat_bench before its parse. The test's environment must not
+  // decide the policy for the tools.
+  const Fixtures& f = fixtures();
+  std::map<std::string, std::string> saved;
+  for (const char* name : {"OMP_WAIT_POLICY", "GOMP_SPINCOUNT"})
+    if (const char* v = std::getenv(name)) {
+      saved[name] = v;
+      unsetenv(name);
+    }
+  const std::string synth_out = f.root + "/omp_synth";
+  const std::vector<std::vector<std::string>> runs = {
+      {binary("flat_synth"), "--out", synth_out, "--scenes", "1", "--frames", "1", "--size", "16x16", "--overwrite"},
+      {binary("flat_train"), "--help-config"},
+      {binary("flat_bench"), "--version"}};
+  const std::string spin = "GOMP_SPINCOUNT = '";
+  for (const auto& argv : runs) {
+    INFO(argv[0]);
+    const std::string log = f.root + "/omp_env.txt";
+    REQUIRE(run(argv, log, {"OMP_DISPLAY_ENV=VERBOSE", "OMP_NUM_THREADS=1"}) == 0);
+    std::string out = read_file(log);
+    INFO(out.substr(0, 2000));
+    const size_t first = out.find(spin), last = out.rfind(spin);
+    REQUIRE(first != std::string::npos);
+    CHECK(out.compare(first + spin.size(), 7, "300000'") == 0);  // as started: libgomp's default
+    CHECK(last != first);                                          // restarted once...
+    CHECK(out.compare(last + spin.size(), 2, "0'") == 0);          // ...with PASSIVE waiting
+    REQUIRE(run(argv, log, {"OMP_DISPLAY_ENV=VERBOSE", "OMP_NUM_THREADS=1", "OMP_WAIT_POLICY=ACTIVE"}) == 0);
+    out = read_file(log);
+    CHECK(out.find(spin) == out.rfind(spin));  // no restart
+    CHECK_THAT(out, FLAT_CONTAINS("OMP_WAIT_POLICY = 'ACTIVE'"));
+  }
+  for (const auto& [name, value] : saved) setenv(name.c_str(), value.c_str(), 1);
+}
+
 TEST_CASE("bad inputs: exit code and the words of the message, before any work", "[cli]") {
   check_cases({
       // usage errors (2)

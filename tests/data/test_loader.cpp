@@ -4,6 +4,9 @@
 #include <filesystem>
 #include <fstream>
 #include <set>
+#include <thread>
+
+#include <ATen/Parallel.h>
 
 #include "flat/core/error.h"
 #include "flat/data/loader.h"
@@ -320,4 +323,30 @@ TEST_CASE("loader: the camera latents the model reads (RPPC, or the Plucker abla
     c.camera_rays = "rppc";
     CHECK(data::Loader(c).next().camera_latents.min().item<float>() == 1.0f);
   }
+}
+
+TEST_CASE("loader workers leave the caller's intra-op threads, and those of threads started later, as they were",
+          "[data][loader]") {
+  // The workers set one intra-op thread each (at::set_num_threads(1)), which
+  // is also the default of every thread that starts afterwards unless the
+  // loader sets the caller's count back.
+  auto root = make_dataset("loader_threads", 2);
+  int caller = 0, later = 0;
+  std::thread t([&] {
+    const int before = at::get_num_threads();
+    at::set_num_threads(3);
+    auto c = tiny_config(root);
+    c.workers = 2;
+    {
+      data::Loader loader(c);
+      loader.next();
+      caller = at::get_num_threads();
+      std::thread after([&] { later = at::get_num_threads(); });
+      after.join();
+    }
+    at::set_num_threads(before);
+  });
+  t.join();
+  CHECK(caller == 3);
+  CHECK(later == 3);
 }

@@ -54,7 +54,21 @@ std::string stored_dtype_name(const std::string& store);
 
 // Parses argv. Returns -1 to go on; otherwise the exit code to return at once
 // (0 after --help or --version, 2 for a usage error, with CLI11's message).
+// Going on, it first calls restart_with_sleeping_openmp_threads(argv).
 int parse(CLI::App& app, int argc, char** argv);
+
+// OpenMP threads that wait for work should sleep, not spin. libgomp spins
+// ~300,000 times by default before it sleeps; two tools side by side, each
+// with a team of every core, then spin against each other, and ran 20-80x
+// slower on the 16-core GPU machine (issue #30, docs/benchmarks.md "CPU tools
+// side by side"). libgomp reads OMP_WAIT_POLICY once, as it loads, before
+// main(), and a process cannot change it later: so when the environment
+// chooses no policy (neither OMP_WAIT_POLICY nor GOMP_SPINCOUNT is set), this
+// sets OMP_WAIT_POLICY=PASSIVE and restarts the program in place (execv of
+// /proc/self/exe: same pid, same arguments; one more start-up, ~0.6 s). Call
+// it after parsing and before any work; the restarted process finds the
+// variable set and goes on. A user's own setting is kept.
+void restart_with_sleeping_openmp_threads(char** argv);
 
 // Runs a tool's body: its return value, 2 for a UsageError, 1 (and the
 // message through spdlog) for any other exception.
