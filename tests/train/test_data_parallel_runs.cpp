@@ -33,6 +33,7 @@ namespace {
 // tensor) between one process on 1 and on 2 threads, which would hide
 // anything a comparison could show.
 const std::vector<std::string> kBatch2 = {"--set", "data.batch_size=2",  "--set", "distributed.bucket_mb=0.02",
+                                          "--set", "distributed.overlap=true",
                                           "--set", "optim.eps=1",        "--set", "optim.lr=2"};
 
 std::vector<std::string> args(std::vector<std::string> a, const std::vector<std::string>& more) {

@@ -136,7 +136,11 @@ struct DistributedConfig {
   std::string backend = "auto";  // auto: nccl on CUDA, gloo on the CPU (store where gloo is missing)
   double timeout_seconds = 60;   // a collective, or a peer's heartbeat, waited for longer than this fails
   double bucket_mb = 25;         // gradient all-reduce bucket size (PyTorch DDP's default)
-  bool overlap = true;           // start a bucket's all-reduce from autograd hooks while backward runs
+  // Start a bucket's all-reduce from autograd hooks while backward runs. Off by
+  // default: on 2 H100s (NVLink) at stage 1 it cost more than it hid (87.9%
+  // scaling efficiency against 95.9% with the all-reduce after backward,
+  // docs/benchmarks.md); a slower interconnect may differ.
+  bool overlap = false;
   template <class V>
   void visit(V& v) {
     v.field("backend", backend, config::one_of({"auto", "nccl", "gloo", "store"}),
