@@ -6,6 +6,10 @@
 #   bash scripts/bench_concurrency.sh synth [build dir] [scenes] [size]
 #     flat_synth makes the same batch of rooms once alone, then twice at once
 #     (and the outputs must agree);
+#   bash scripts/bench_concurrency.sh latents [build dir] [dim]
+#     flat_latents (random-weight encoder of base width `dim`, default 32, on
+#     the CPU) encodes the same 4 rooms of 17 frames at 96x160 once alone,
+#     then two copies at once;
 #   bash scripts/bench_concurrency.sh train [build dir] [steps]
 #     flat_train (configs/tiny/stage1.yaml on the CPU, from scratch, on 4
 #     synthetic rooms with random-weight dim-8 latents, no validation) runs
@@ -33,6 +37,18 @@ case "$MODE" in
       || { echo "outputs differ between runs"; exit 1; }
     report "flat_synth, $SCENES rooms of 17 frames at $SIZE" "$t0" "$t1" "$t2"
     ;;
+  latents)
+    DIM="${3:-32}"
+    "$BUILD/flat_synth" --out "$T/src" --scenes 4 --frames 17 --size 96x160 --seed 3 --log-level warn
+    latents() {
+      rm -rf "$T/$1"; cp -r "$T/src" "$T/$1"
+      "$BUILD/flat_latents" --scenes "$T/$1" --random-weights --seed 0 --dim "$DIM" --window 17 --device cpu \
+        --log-level error >"$T/latents_$1.log" 2>&1 || { echo "flat_latents $1 failed:"; tail -3 "$T/latents_$1.log"; exit 1; }
+    }
+    t0=$(now); latents alone; t1=$(now)
+    latents a & latents b & wait; t2=$(now)
+    report "flat_latents on cpu, 4 rooms of 17 frames at 96x160, dim $DIM" "$t0" "$t1" "$t2"
+    ;;
   train)
     STEPS="${3:-30}"
     "$BUILD/flat_synth" --out "$T/data" --scenes 4 --frames 17 --size 48x80 --seed 7 --log-level warn
@@ -50,5 +66,5 @@ case "$MODE" in
     train a & train b & wait; t2=$(now)
     report "flat_train on $DEVICE, configs/tiny/stage1.yaml, $STEPS steps" "$t0" "$t1" "$t2"
     ;;
-  *) echo "usage: $0 synth|train [build dir] ..."; exit 2 ;;
+  *) echo "usage: $0 synth|latents|train [build dir] ..."; exit 2 ;;
 esac

@@ -37,6 +37,7 @@ read -r rooms size <<<"${CONC_SYNTH:-16 96x160}"
 for v in "${names[@]}"; do
   echo "== $v"
   timeout 200 bash "$ROOT/scripts/bench_concurrency.sh" synth "$BIN/$v" "$rooms" "$size" 2>&1 | tail -1
+  timeout 200 bash "$ROOT/scripts/bench_concurrency.sh" latents "$BIN/$v" 2>&1 | tail -1
   timeout 200 bash "$ROOT/scripts/bench_concurrency.sh" train "$BIN/$v" "${CONC_TRAIN_STEPS:-40}" 2>&1 | tail -1
   if [ -n "${CONC_GPU_TRAIN:-}" ]; then
     DEVICE=cuda timeout 200 bash "$ROOT/scripts/bench_concurrency.sh" train "$BIN/$v" "${CONC_TRAIN_STEPS:-40}" 2>&1 | tail -1
