@@ -58,6 +58,7 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
     fail("device: " + device.str() + " requested but only " + std::to_string(torch::cuda::device_count()) +
          " CUDA device(s) are visible");
   bf16 = cfg.precision == "bf16" && device.is_cuda();
+  if (device.is_cuda()) at::globalContext().setBenchmarkCuDNN(cfg.cudnn_benchmark);
   // Field by field: a positional list would swap values silently when a field moves.
   schedule.peak = cfg.optim.lr;
   schedule.warmup_steps = cfg.optim.warmup_steps;
