@@ -30,7 +30,10 @@ int main(int argc, char** argv) {
   app.add_option("--stride", o.stride, "keep every n-th frame")->check(CLI::PositiveNumber);
   app.add_option("--max-frames", o.max_frames, "keep at most this many frames (0 = all)")->check(CLI::NonNegativeNumber);
   app.add_flag("--skip-missing", o.skip_missing, "transforms: skip frames whose image file is missing (with a warning)");
+  int threads = 0;
+  flat::cli::add_threads(app, threads);
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::cli::apply_threads(threads);
   return flat::cli::run([&] {
     if (format == "re10k" && frames_dir.empty()) throw flat::cli::UsageError("flat_import re10k needs --frames-dir DIR");
     if (format == "transforms" && !frames_dir.empty())

@@ -22,7 +22,10 @@ int main(int argc, char** argv) {
   flat::cli::add_common(app, "flat_pack", log_level);
   app.add_option("--scenes", roots, "scene folders, or folders holding scene folders")->required();
   app.add_flag("--remove-files", remove, "delete the per-frame image/depth/normal files after packing");
+  int threads = 0;
+  flat::cli::add_threads(app, threads);
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
+  flat::cli::apply_threads(threads);
   flat::PendingLog log;  // in an input folder: appears there only if the run succeeds
   return flat::cli::run([&] {
     std::vector<std::string> dirs;
