@@ -14,6 +14,7 @@ MODE="${1:-bench}"
 BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 PY="$(command -v python3)"
 summary=()
+source "$ROOT/scripts/stage_sizes.sh"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
 t0=$(date +%s)
 cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
@@ -54,12 +55,8 @@ if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_trai
     >"$OUT/train_tiny.log" 2>&1
   summary+=("flat_train tiny (cuda) rc=$?: $(grep -oE 'held-out PSNR.*' "$OUT/train_tiny.log" | tail -1)")
   for stage in ${GPU_TRAIN_STAGES:-1}; do
-    case $stage in
-      1) size=176x320; frames=17; win=17 ;;
-      2) size=176x320; frames=49; win=49 ;;
-      3) size=360x640; frames=49; win=49 ;;
-      4) size=432x768; frames=49; win=49 ;;
-    esac
+    stage_sizes "$stage" || continue
+    win=$frames
     D="$S/stage$stage"
     { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames $frames --size $size --motion mixed &&
       "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $win --device cuda --precision bf16 &&

@@ -50,14 +50,10 @@ EOF
 }
 peaks() { grep -oE "peak GPU memory.*" "$1" | tail -1 | sed 's/.*: //'; }
 
+source "$ROOT/scripts/stage_sizes.sh"
 LPIPS="$WORK/random_lpips.safetensors"
 for stage in ${DP_STAGES:-1}; do
-  case $stage in
-    1) size=176x320; frames=17 ;;
-    2) size=176x320; frames=49 ;;
-    3) size=360x640; frames=49 ;;
-    4) size=432x768; frames=49 ;;
-  esac
+  stage_sizes "$stage" || continue
   D="$WORK/data${stage}_${DP_SCENES:-8}"
   [ -e "$D/.ready" ] || { rm -rf "$D" && "$BUILD/flat_synth" --out "$D" --scenes ${DP_SCENES:-8} --seed $stage --family room --frames $frames --size $size --motion mixed &&
     "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda --precision bf16 &&

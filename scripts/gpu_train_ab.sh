@@ -33,6 +33,7 @@ cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OII
   -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} \
   >"$OUT/configure.log" 2>&1 || { tail -40 "$OUT/configure.log"; exit 1; }
 source "$ROOT/scripts/gpu_sync_mtimes.sh"
+source "$ROOT/scripts/stage_sizes.sh"
 names=(base)
 build_variant() {  # $1: index; $2: extra targets
   local t0; t0=$(date +%s)
@@ -51,13 +52,7 @@ for p in ${AB_PATCHES:-}; do
   build_variant $i ""
 done
 for stage in $STAGES; do
-  case $stage in
-    1) size=176x320; frames=17 ;;
-    2) size=176x320; frames=49 ;;
-    3) size=360x640; frames=49 ;;
-    4) size=432x768; frames=49 ;;
-    *) echo "unknown stage $stage"; exit 1 ;;
-  esac
+  stage_sizes "$stage" || exit 1
   D="$DATA/stage$stage"
   if [ ! -f "$D/.done" ]; then
     rm -rf "$D"
