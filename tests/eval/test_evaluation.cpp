@@ -304,3 +304,37 @@ TEST_CASE("flat_eval: a model with a NaN weight is named at load, not blamed on 
                                                    FLAT_CONTAINS("non-finite"));
   CHECK(!fs::exists(o.out_dir));
 }
+
+TEST_CASE("flat_eval's progress line shows the running mean PSNR, not the last scene's", "[eval]") {
+  const auto dir = test::scratch_dir("eval_progress");
+  const std::string model = (dir / "model.safetensors").string();
+  test::write_tiny_model(model);
+  for (int i = 0; i < 3; ++i) test::write_scene_with_latents((dir / ("set/room_" + std::to_string(i))).string(), 10 + i);
+  eval::EvalRunOptions o;
+  o.model = model;
+  o.datasets = {"S=" + (dir / "set").string()};
+  o.out_dir = (dir / "out").string();
+  o.device = "cpu";
+  o.name = "tiny";
+  o.settings.max_views = 4;
+  o.log_level = "info";  // the progress lines go to eval.log (not a terminal here)
+  eval::run_evaluation(o);
+  const auto results = eval::read_results_json(o.out_dir + "/results.json");
+  REQUIRE(results.scores.size() == 3);
+  double sum = 0;
+  for (const auto& sc : results.scores) {
+    REQUIRE(sc.ok);
+    sum += sc.psnr;
+  }
+  const double mean = sum / 3, last = results.scores.back().psnr;
+  REQUIRE(std::abs(mean - last) > 1e-2 * std::abs(mean));  // the scenes differ enough to tell the two apart
+  // The final progress line (3/3): "... mean psnr=<%.4g> ...".
+  std::ifstream log(o.out_dir + "/eval.log");
+  std::string line, final_line;
+  while (std::getline(log, line))
+    if (line.find("flat_eval") != std::string::npos && line.find("mean psnr=") != std::string::npos) final_line = line;
+  INFO(final_line);
+  REQUIRE(!final_line.empty());
+  const double shown = std::stod(final_line.substr(final_line.find("mean psnr=") + 10));
+  CHECK(std::abs(shown - mean) <= 1e-3 * std::abs(mean));
+}
