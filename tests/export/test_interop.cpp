@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -106,4 +107,39 @@ TEST_CASE("interop: trimesh, assimp and Blender read our opaque mesh GLB, PLY an
   CHECK(rc == 0);
   CHECK(report.find("MISMATCH") == std::string::npos);
   CHECK(report.find("reference PLY  47 vertices, 23 faces") != std::string::npos);
+}
+
+TEST_CASE("interop: check_interop.py started by a python without trimesh runs itself with the venv's",
+          "[.interop][export]") {
+  // A user runs the script with the system python, which lacks trimesh; the
+  // project's venv (scripts/install_deps.sh) has it.
+  const char* home = std::getenv("HOME");
+  const std::string venv = home ? std::string(home) + "/.cache/flat/venv/bin/python3" : "";
+  const std::string system = "/usr/bin/python3";
+  auto dir = flat::test::scratch_dir("interop_python");
+  const auto probe_log = (dir / "probe.txt").string();
+  if (venv.empty() || !std::filesystem::exists(venv) || !std::filesystem::exists(system) ||
+      flat::test::run_program({system, "-c", "import trimesh"}, probe_log, 60) == 0 ||
+      flat::test::run_program({venv, "-c", "import trimesh"}, probe_log, 60) != 0) {
+    REQUIRE_FALSE(interop_required());
+    FLAT_SKIP("needs a system python without trimesh and the venv's with it");
+  }
+  const auto s = flat::test::random_soup(5, torch::kFloat, 23);
+  const auto ply = (dir / "scene.ply").string();
+  flat::exporter::write_triangle_ply(ply, {s.vertices, s.colors, s.opacities, s.sigmas});
+  const auto log = (dir / "check_interop.txt").string();
+  const int rc = flat::test::run_program(
+      {system, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", ply, "-", "5"}, log, 600);
+  const std::string report = flat::test::slurp(log);
+  INFO(report);
+  CHECK(rc == 0);
+  CHECK(report.find("has no trimesh; running with " + venv) != std::string::npos);
+  std::istringstream lines(report);
+  int trimesh_lines = 0;
+  for (std::string line; std::getline(lines, line);)
+    if (line.find("trimesh") != std::string::npos && line.find("running with") == std::string::npos) {
+      ++trimesh_lines;
+      CHECK(line.find("UNAVAILABLE") == std::string::npos);
+    }
+  CHECK(trimesh_lines > 0);
 }
