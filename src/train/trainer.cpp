@@ -626,6 +626,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   Run run(cfg, config_yaml, mode, env);
   run.start_ranks();
   run.start_session();
+  if (const char* s = std::getenv(kSignalInStartupEnv)) std::raise(std::atoi(s));
   run.resume_or_start_fresh();
   run.open_loaders();
   run.open_run_folder();

@@ -207,6 +207,21 @@ TEST_CASE("flat_train: a SIGTERM repeated within a second (coreutils timeout sen
   }
 }
 
+TEST_CASE("flat_train: SIGTERM or SIGHUP during start-up is honoured after one step; resume finishes", "[train]") {
+  for (int sig : {SIGTERM, SIGHUP}) {
+    INFO("signal " << sig);
+    const std::string d = fresh_dir("train_signal_startup").string();
+    const int rc = train({"--config", write_config(d, 8)}, d + "/log1.txt",
+                         {"FLAT_TEST_SIGNAL_IN_STARTUP=" + std::to_string(sig)});
+    INFO(read_file(d + "/log1.txt"));
+    CHECK(rc == 128 + sig);
+    CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
+    CHECK(rows(d + "/run").size() == 1);
+    REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
+    CHECK(losses(d + "/run") == losses(reference_run()));
+  }
+}
+
 TEST_CASE("flat_train: SIGTERM during the step-0 validation is honoured after one step; resume finishes",
           "[train]") {
   const std::string d = fresh_dir("train_sigterm_validation").string();

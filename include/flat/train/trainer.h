@@ -57,6 +57,10 @@ TrainSummary run_training(const TrainConfig& config, const std::string& config_y
 // process SIGKILLs itself inside the validation of that step, before its row
 // is written; "<step>:<signal>" raises that signal instead.
 inline constexpr const char* kSignalInValidationEnv = "FLAT_TEST_SIGNAL_IN_VALIDATION";
+// Test hook: with FLAT_TEST_SIGNAL_IN_STARTUP=<signal> the process raises that
+// signal during start-up, once the model is built and before the checkpoint
+// is looked for (a SIGTERM there is far too short a window to hit from outside).
+inline constexpr const char* kSignalInStartupEnv = "FLAT_TEST_SIGNAL_IN_STARTUP";
 
 // The run folder's saved config (for --resume), with overrides applied.
 TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
