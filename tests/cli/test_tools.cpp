@@ -698,6 +698,35 @@ TEST_CASE("an output path under a file names the path and what is wrong, never a
   CHECK_THAT(render.output, FLAT_CONTAINS(d + "/afile/render"));
   CHECK_THAT(render.output, !FLAT_CONTAINS("unexpected error"));
   CHECK(read_file(d + "/afile") == "x");
+
+  // A place the tool may not write: a read-only folder (root ignores the mode
+  // bits, so as root /sys, where even root may not create a folder).
+  std::string denied = d + "/readonly";
+  fs::create_directories(denied);
+  fs::permissions(denied, fs::perms::owner_read | fs::perms::owner_exec);
+  if (::geteuid() == 0) denied = "/sys";
+  std::error_code ec;
+  if (fs::create_directory(denied + "/flat_probe", ec)) {
+    fs::remove(denied + "/flat_probe");
+    WARN("no unwritable folder to test with here");
+  } else {
+    for (const auto& [name, args] :
+         std::vector<std::pair<std::string, std::vector<std::string>>>{
+             {"synth", {"--out", denied + "/flat_synth_out", "--scenes", "1", "--frames", "5", "--size", "16x24"}},
+             {"render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json", "--out",
+                         denied + "/flat_render_out", "--device", "cpu"}}}) {
+      auto r = tool("flat_" + name, args, d, name + "_denied");
+      INFO(r.output);
+      CHECK(r.rc == 1);
+      CHECK_THAT(r.output, FLAT_CONTAINS(denied + "/flat_" + name + "_out"));
+      const bool says_why = r.output.find("ermission denied") != std::string::npos ||
+                            r.output.find("Operation not permitted") != std::string::npos ||
+                            r.output.find("Read-only file system") != std::string::npos;
+      CHECK(says_why);
+      CHECK_THAT(r.output, !FLAT_CONTAINS("unexpected error"));
+    }
+  }
+  fs::permissions(d + "/readonly", fs::perms::owner_all);
 }
 
 TEST_CASE("never destroy: every tool against an existing folder of user files, refused, failing and succeeding",
