@@ -17,6 +17,7 @@ void add_train(CLI::App& app) {
     std::vector<std::string> overrides;
     int64_t warmup = 3, steps = 10;
     bool random_lpips = false;
+    bool profile = false;
   };
   auto o = std::make_shared<Options>();
   auto* sub = app.add_subcommand("train", "time one training step of a stage config, by part, with peak memory");
@@ -26,6 +27,8 @@ void add_train(CLI::App& app) {
   sub->add_option("--steps", o->steps, "timed steps")->capture_default_str();
   sub->add_flag("--random-lpips", o->random_lpips,
                 "use random LPIPS weights of the right shapes (timing only; the cost does not depend on the values)");
+  sub->add_flag("--profile", o->profile,
+                "after timing, profile one step and one LPIPS run (CUDA): GPU time by phase, kernel class and kernel");
   sub->callback([o] {
     auto overrides = o->overrides;
     if (o->random_lpips) {
@@ -39,7 +42,7 @@ void add_train(CLI::App& app) {
     spdlog::info("flat_bench train: {} at {}x{}, {} input frames, {} target views, batch {}, {}", o->config,
                  cfg.data.height, cfg.data.width, cfg.data.input_frames, cfg.data.target_views, cfg.data.batch_size,
                  cfg.precision);
-    auto r = bench::benchmark_training(cfg, o->warmup, o->steps);
+    auto r = bench::benchmark_training(cfg, o->warmup, o->steps, o->profile);
     std::printf("flat_bench train: %s, %.2f M parameters, %lld triangles rendered per step, %lld timed steps\n%s"
                 "peak memory: %.2f GiB\n",
                 o->config.c_str(), r.parameters_m, static_cast<long long>(r.triangles),

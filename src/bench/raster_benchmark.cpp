@@ -17,9 +17,9 @@
 #include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDACachingAllocator.h>
 #include <spdlog/spdlog.h>
-#include <torch/csrc/autograd/profiler_kineto.h>
 #include <torch/torch.h>
 
+#include "flat/bench/gpu_profile.h"
 #include "flat/bench/raster_workload.h"
 #include "flat/bench/timing.h"
 #include "flat/camera/camera_json.h"
@@ -36,52 +36,33 @@
 namespace flat::bench {
 namespace {
 
-// One GPU activity (kernel, copy or memset) of a profiled step.
-struct GpuSpan {
-  uint64_t start, end;
-  std::string name;
-};
-
-// Short kernel name: the function name without namespaces and arguments.
-std::string short_name(const std::string& name) {
-  std::string n = name;
-  for (size_t a; (a = n.find("(anonymous namespace)::")) != std::string::npos;) n.erase(a, 23);
-  n = n.substr(0, n.find('('));
-  if (n.rfind("void ", 0) == 0) n = n.substr(5);
-  const size_t t = n.find('<');
-  if (t != std::string::npos) n = n.substr(0, t);
-  const size_t c = n.rfind("::");
-  return c == std::string::npos ? n : n.substr(c + 2);
-}
-
 // Where the GPU idles in the step: time with no kernel, copy or memset
 // running on any stream, split at the end of the forward (the last
 // forward compositing kernel), and which activity each idle gap precedes (a gap
 // before a kernel is time the GPU waited for the host to launch it). Gaps
 // are grouped by the activities before and after them.
-void print_gpu_idle(std::vector<GpuSpan> spans) {
+void print_gpu_idle(std::vector<GpuActivity> spans) {
   if (spans.empty()) return;
-  std::sort(spans.begin(), spans.end(), [](const GpuSpan& a, const GpuSpan& b) { return a.start < b.start; });
-  uint64_t fwd_end = spans.front().start;
+  int64_t fwd_end = spans.front().start_ns;
   for (const auto& s : spans)
-    if (s.name.find("raster_forward_kernel") != std::string::npos) fwd_end = std::max(fwd_end, s.end);
+    if (s.name.find("raster_forward_kernel") != std::string::npos) fwd_end = std::max(fwd_end, s.end_ns);
   double idle[2] = {0, 0};
   std::map<std::string, std::pair<double, int>> before;  // next activity -> (idle ms, gaps)
-  uint64_t busy_until = spans.front().end;
+  int64_t busy_until = spans.front().end_ns;
   std::string last_name = spans.front().name;  // the activity that ends last so far
   for (size_t i = 1; i < spans.size(); ++i) {
-    const GpuSpan& s = spans[i];
-    if (s.start > busy_until) {
-      const double gap = (s.start - busy_until) * 1e-6;
-      idle[s.start > fwd_end ? 1 : 0] += gap;
-      auto& b = before[(s.start > fwd_end ? "bwd " : "fwd ") + short_name(last_name) + " > " + short_name(s.name)];
+    const GpuActivity& s = spans[i];
+    if (s.start_ns > busy_until) {
+      const double gap = (s.start_ns - busy_until) * 1e-6;
+      idle[s.start_ns > fwd_end ? 1 : 0] += gap;
+      auto& b = before[(s.start_ns > fwd_end ? "bwd " : "fwd ") + short_kernel_name(last_name) + " > " + short_kernel_name(s.name)];
       b.first += gap;
       b.second += 1;
     }
-    if (s.end > busy_until) last_name = s.name;
-    busy_until = std::max(busy_until, s.end);
+    if (s.end_ns > busy_until) last_name = s.name;
+    busy_until = std::max(busy_until, s.end_ns);
   }
-  const double span_ms = (busy_until - spans.front().start) * 1e-6, fwd_ms = (fwd_end - spans.front().start) * 1e-6;
+  const double span_ms = (busy_until - spans.front().start_ns) * 1e-6, fwd_ms = (fwd_end - spans.front().start_ns) * 1e-6;
   std::printf("GPU timeline: first to last activity %.2f ms (forward %.2f ms), idle %.2f ms in the forward and "
               "%.2f ms after it; idle before:\n",
               span_ms, fwd_ms, idle[0], idle[1]);
@@ -94,45 +75,23 @@ void print_gpu_idle(std::vector<GpuSpan> spans) {
 // One forward+backward step under the libtorch (Kineto) profiler: GPU time per
 // kernel name, summed over the step (where the time goes, without nsys).
 void profile_scene(const RasterWorkload& sc, const render::RasterSettings& settings) {
-  namespace prof = torch::autograd::profiler;
-  using torch::profiler::impl::ActivityType;
   auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
   auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
-  const torch::profiler::impl::ProfilerConfig cfg(torch::profiler::impl::ProfilerState::KINETO);
-  // GPU activities only: recording every host op would slow the host down and
-  // open idle gaps on the GPU that an unprofiled step does not have.
-  const std::set<ActivityType> acts = {ActivityType::CUDA};
-  prof::prepareProfiler(cfg, acts);
-  torch::cuda::synchronize();
-  prof::enableProfiler(cfg, acts);
-  const double t0 = now_ms();
-  auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
-  const double t_fwd_host = now_ms();
-  (r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.normal.sum()).backward();
-  const double t_bwd_host = now_ms();
-  torch::cuda::synchronize();
+  double t0 = 0, t_fwd_host = 0, t_bwd_host = 0;
+  const auto spans = record_gpu_activities([&] {
+    t0 = now_ms();
+    auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
+    t_fwd_host = now_ms();
+    (r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.normal.sum()).backward();
+    t_bwd_host = now_ms();
+  });
   const double t_end = now_ms();
-  const auto result = prof::disableProfiler();
-  std::map<std::string, std::pair<double, int>> per_kernel;  // name -> (ms, launches)
-  double total = 0;
-  std::vector<GpuSpan> spans;
-  for (const auto& e : result->events()) {
-    if (e.deviceType() != c10::DeviceType::CUDA) continue;
-    auto& k = per_kernel[e.name().substr(0, 60)];
-    k.first += e.durationNs() * 1e-6;
-    k.second += 1;
-    total += e.durationNs() * 1e-6;
-    spans.push_back({e.startNs(), e.endNs(), e.name()});
-  }
   std::printf("profile %s: host returned from the forward after %.2f ms, from the backward call after %.2f ms, "
               "GPU done after %.2f ms (with the profiler's overhead)\n",
               sc.name.c_str(), t_fwd_host - t0, t_bwd_host - t0, t_end - t0);
   print_gpu_idle(spans);
-  std::vector<std::pair<double, std::string>> rows;
-  for (const auto& [name, k] : per_kernel) rows.push_back({k.first, name + " x" + std::to_string(k.second)});
-  std::sort(rows.rbegin(), rows.rend());
-  std::printf("profile %s (one fwd+bwd step, GPU ms per kernel, total %.2f):\n", sc.name.c_str(), total);
-  for (size_t i = 0; i < rows.size() && i < 14; ++i) std::printf("  %8.2f  %s\n", rows[i].first, rows[i].second.c_str());
+  print_grouped("profile " + sc.name + " (one fwd+bwd step, per kernel)", spans, 14,
+                [](const std::string& n) { return n.substr(0, 60); });
 }
 
 // Mean and maximum over views of the load counts (one forward).

@@ -1,4 +1,5 @@
 #include "flat/bench/step_benchmark.h"
+#include "flat/bench/gpu_profile.h"
 #include "flat/bench/timing.h"
 
 #include <algorithm>
@@ -9,6 +10,7 @@
 #include <torch/torch.h>
 
 #include "flat/core/device_memory.h"
+#include "flat/core/error.h"
 #include "flat/core/tensor_io.h"
 #include "flat/loss/lpips.h"
 #include "flat/model/weights.h"
@@ -32,6 +34,30 @@ std::string row(const char* name, double ms, double step_ms) {
   char buf[160];
   std::snprintf(buf, sizeof(buf), "| %s | %.1f | %.0f%% |\n", name, ms, step_ms > 0 ? 100 * ms / step_ms : 0.0);
   return buf;
+}
+
+const char* const kPhases[] = {"decoder forward", "rasterizer forward", "losses forward",
+                                "losses + rasterizer backward", "decoder backward", "optimiser and the rest"};
+
+// The GPU kernels of one step by phase: each phase ended with a device
+// synchronisation (StepTimes::phase_end_ns), so a kernel belongs to the first
+// phase that ended after it did.
+void print_step_profile(const std::vector<GpuActivity>& acts, const StepTimes& times) {
+  const double wall[] = {times.decode_forward, times.render_forward, times.loss_forward, times.render_loss_backward,
+                         times.decoder_backward};
+  std::vector<std::vector<GpuActivity>> by_phase(std::size(kPhases));
+  for (const auto& a : acts) {
+    size_t p = 0;
+    while (p < times.phase_end_ns.size() && a.end_ns > times.phase_end_ns[p]) ++p;
+    by_phase[p].push_back(a);
+  }
+  for (size_t p = 0; p < by_phase.size(); ++p) {
+    if (by_phase[p].empty()) continue;
+    std::string title = std::string("profile, ") + kPhases[p];
+    if (p < std::size(wall)) title += " (" + std::to_string(int(wall[p] * 1e3 + 0.5)) + " ms wall, profiled)";
+    print_grouped(title + ", by class", by_phase[p], 12, kernel_class);
+    print_grouped(title + ", by kernel", by_phase[p], 12, [](const std::string& n) { return n.substr(0, 100); });
+  }
 }
 
 }  // namespace
@@ -69,7 +95,9 @@ std::string write_random_lpips_weights(const std::string& path, uint64_t seed) {
   return path;
 }
 
-StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps) {
+StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps, bool profile) {
+  FLAT_CHECK(!profile || cfg.device.rfind("cuda", 0) == 0,
+             "flat_bench train: --profile needs device: cuda (GPU kernel times)");
   torch::manual_seed(uint64_t(cfg.seed));
   TrainingSession session(cfg);
   data::LoaderConfig data_cfg = cfg.data;
@@ -106,6 +134,12 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
     unsynced.push_back(ms_since(t0));
   }
   r.peak_gib = peak_memory_gib(session.device);
+  if (profile) {
+    data::Batch batch = loader.next();
+    StepTimes times;
+    const auto acts = record_gpu_activities([&] { session.step(batch, warmup + 2 * steps, &times); });
+    print_step_profile(acts, times);
+  }
   if (cfg.loss.lambda_perc > 0 && !session.vae_task()) {
     // LPIPS alone on images of the step's size and view count.
     const auto& d = cfg.data;
@@ -126,6 +160,15 @@ StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t
       if (i >= warmup) lp.push_back(ms_since(t0));
     }
     r.lpips_ms = median(lp);
+    if (profile) {
+      const auto acts = record_gpu_activities([&] {
+        AutocastScope autocast(session.bf16, session.device.type());
+        loss::lpips_distance(net, a, b, session.objective->lpips_options()).mean().backward();
+      });
+      print_grouped("profile, LPIPS fwd+bwd alone, by class", acts, 12, kernel_class);
+      print_grouped("profile, LPIPS fwd+bwd alone, by kernel", acts, 16,
+                    [](const std::string& n) { return n.substr(0, 100); });
+    }
   }
   r.steps = steps;
   r.data_ms = median(data);

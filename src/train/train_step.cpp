@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include <ATen/autocast_mode.h>
+#include <c10/util/ApproximateClock.h>
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
@@ -24,6 +25,7 @@ struct PhaseClock {
     if (device.is_cuda()) torch::cuda::synchronize(device.index() < 0 ? 0 : device.index());
     const auto now = Clock::now();
     times->*field += std::chrono::duration<double>(now - start).count();
+    times->phase_end_ns.push_back(int64_t(c10::getTime()));
     start = now;
   }
 };

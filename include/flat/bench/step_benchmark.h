@@ -25,7 +25,10 @@ struct StepBenchmark {
 };
 
 // cfg.data must point at scenes with latents of cfg's window and size.
-StepBenchmark benchmark_training(const train::TrainConfig& cfg, int64_t warmup, int64_t steps);
+// profile (CUDA only): after the timed steps, one more step and one LPIPS
+// fwd+bwd run under the Kineto profiler, and their GPU kernels are printed
+// by phase and by class (bench/gpu_profile.h).
+StepBenchmark benchmark_training(const train::TrainConfig& cfg, int64_t warmup, int64_t steps, bool profile = false);
 
 // Writes an LPIPS weights file of the right shapes with random values (for
 // timing only: the cost does not depend on the values). Returns its path.

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <vector>
 
 #include <ATen/ATen.h>
 
@@ -29,6 +30,9 @@ namespace flat::train {
 struct StepTimes {
   double decode_forward = 0, render_forward = 0, loss_forward = 0;
   double render_loss_backward = 0, decoder_backward = 0;
+  // When each phase ended, on the profiler's clock (c10::getTime), in the
+  // order above: flat_bench train --profile places GPU kernels in phases by it.
+  std::vector<int64_t> phase_end_ns;
 };
 
 struct StepResult {
