@@ -9,6 +9,7 @@
 
 #if FLAT_WITH_CUDA
 #include <ATen/cuda/CUDAContext.h>
+#include <torch/csrc/autograd/custom_function.h>
 
 #include "model/cuda/rms_norm_silu_kernel.h"
 #endif
@@ -65,6 +66,66 @@ bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
 #endif
 }
 
+#if FLAT_WITH_CUDA
+namespace {
+
+// silu(rms_norm(x)) written into frames [n, n+T) of a new (B,C,n+T,H,W)
+// channels-last tensor whose first n frames are zeros: the fused kernel.
+at::Tensor fused_norm_silu_zero_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n) {
+  const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
+  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(at::MemoryFormat::ChannelsLast3d));
+  if (n > 0) out.narrow(2, 0, n).zero_();
+  const at::Tensor g = gamma.to(x.scalar_type()).contiguous();
+  cuda::launch_rms_norm_silu(x.data_ptr(), g.data_ptr(), out.data_ptr(), B, T, H * W, C, n + T, n,
+                             float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16, nullptr, 0,
+                             at::cuda::getCurrentCUDAStream());
+  return out;
+}
+
+// The same as one autograd node with the fused backward kernel (training):
+// two passes over memory forward and three backward, where the ATen form
+// takes about eight each way and a cat for the padding.
+struct FusedNormSiluFunction : public torch::autograd::Function<FusedNormSiluFunction> {
+  static at::Tensor forward(torch::autograd::AutogradContext* ctx, const at::Tensor& x, const at::Tensor& gamma,
+                            int64_t n) {
+    ctx->save_for_backward({x, gamma});
+    ctx->saved_data["n"] = n;
+    return fused_norm_silu_zero_padded(x, gamma, n);
+  }
+
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list grads) {
+    if (!grads[0].defined()) return {at::Tensor(), at::Tensor(), at::Tensor()};
+    const auto saved = ctx->get_saved_variables();
+    const at::Tensor& x = saved[0];
+    const at::Tensor& gamma = saved[1];
+    const int64_t n = ctx->saved_data["n"].toInt();
+    const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
+    const at::Tensor go = grads[0].to(x.scalar_type()).contiguous(at::MemoryFormat::ChannelsLast3d);
+    at::Tensor gx = at::empty_like(x, x.options().memory_format(at::MemoryFormat::ChannelsLast3d));
+    const at::Tensor g = gamma.to(at::kFloat).contiguous();
+    at::Tensor partials = at::empty({cuda::rms_norm_silu_backward_max_blocks(B, T, H * W), C},
+                                    x.options().dtype(at::kFloat));
+    const int64_t rows = cuda::launch_rms_norm_silu_backward(
+        x.data_ptr(), g.data_ptr<float>(), go.data_ptr(), gx.data_ptr(), partials.data_ptr<float>(), B, T, H * W, C,
+        n + T, n, float(std::sqrt(double(C))), x.scalar_type() == at::kBFloat16, at::cuda::getCurrentCUDAStream());
+    at::Tensor gg = partials.narrow(0, 0, rows).sum(0).view(gamma.sizes()).to(gamma.scalar_type());
+    return {gx, gg, at::Tensor()};
+  }
+};
+
+// Whether the training path (autograd on) can use the fused kernels: CUDA,
+// (B,C,T,H,W) in fp32 or bf16 with C within the kernel's reach. x of any
+// layout (it is made channels-last once; the convs keep that layout).
+bool fused_norm_trainable(const at::Tensor& x, const at::Tensor& gamma) {
+  return x.is_cuda() && x.dim() == 5 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
+         at::isFloatingType(gamma.scalar_type()) && gamma.numel() == x.size(1) &&
+         cuda::rms_norm_silu_supported(x.size(1));
+}
+
+}  // namespace
+#endif
+
 namespace {
 
 // rms_norm_silu_padded, and when history_out is given, the last n frames of
@@ -75,6 +136,12 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
   FLAT_CHECK(x.dim() == 5 && x.size(1) == gamma.numel(),
              "RMS_norm+SiLU: expected (B," + std::to_string(gamma.numel()) + ",T,H,W), got " + shape_str(x));
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
+#if FLAT_WITH_CUDA
+  if (fused && history_out == nullptr && !history.defined() && at::GradMode::is_enabled() &&
+      (x.requires_grad() || gamma.requires_grad()) && fused_norm_trainable(x, gamma)) {
+    return FusedNormSiluFunction::apply(x.contiguous(at::MemoryFormat::ChannelsLast3d), gamma, n);
+  }
+#endif
   const auto format = x.suggest_memory_format();
   at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(format));
   if (n > 0) {

@@ -31,9 +31,11 @@ TORCH_MODULE(RMSNorm);
 
 // silu(rms_norm(x)) for x (B,C,T,H,W), returned as (B,C,n+T,H,W) whose first n
 // frames are `history` ((B,C,n,H,W); zeros when undefined): the input of the
-// next causal conv, built with no separate padding copy. On CUDA without
-// autograd this is one fused kernel where `fused` allows it
-// (fused_norm_available); otherwise ATen ops (differentiable). Same result.
+// next causal conv, built with no separate padding copy. On CUDA where
+// `fused` allows it: without autograd one fused kernel (fused_norm_available);
+// with autograd and no history, one autograd node with fused forward and
+// backward kernels (x is made channels-last, and so is the result).
+// Otherwise ATen ops (differentiable). Same result.
 at::Tensor rms_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n,
                                 const at::Tensor& history = {}, bool fused = true);
 

@@ -1,6 +1,6 @@
 // Fused RMS_norm + SiLU over the channels of a channels-last video tensor:
 // y = silu(x * scale / ||x|| * gamma), written straight into the (pre-padded)
-// input of the next causal conv.
+// input of the next causal conv; and its backward (training).
 //
 // A group of L lanes owns a pixel: with 16-byte packs, the fewest lanes that
 // hold a pixel in at most 4 packs each (4 for 96 bf16 channels, 8 for 192, 16
@@ -12,7 +12,9 @@
 // half of the H100's bandwidth.)
 #include <cuda_bf16.h>
 
+#include <algorithm>
 #include <cstdint>
+#include <initializer_list>
 
 #include "rms_norm_silu_kernel.h"
 
@@ -136,7 +138,187 @@ void dispatch(bool vec, const void* x, const void* gamma, void* out, int64_t row
   }
 }
 
+// Backward, per pixel (row) with r = scale / n, n = max(||x||, 1e-12),
+// y = g x r, s = sigmoid(y), a = g * go * s (1 + y (1 - s)):
+//   dx_c = r a_c - [n > 1e-12] (r / n^2) x_c sum_k a_k x_k
+//   dg_c = sum over pixels of (a_c / g_c) x_c r   (= go silu'(y) x_c r)
+// Same lane groups as the forward; a block-uniform grid-stride loop so that
+// the gamma sums stay in registers, then shared memory, then one partial row
+// per block (no global atomics).
+template <class T, int N, int L, int M>
+__global__ void __launch_bounds__(kThreads)
+    rms_norm_silu_backward_kernel(const T* __restrict__ x, const float* __restrict__ gamma,
+                                  const T* __restrict__ grad_out, T* __restrict__ grad_x,
+                                  float* __restrict__ gamma_partials, int64_t rows, int64_t frames, int64_t pixels,
+                                  int64_t channels, int64_t out_frames, int64_t frame_offset, float scale) {
+  using P = Pack<T, N>;
+  __shared__ float gamma_sum[512];
+  for (int c = threadIdx.x; c < channels; c += kThreads) gamma_sum[c] = 0.f;
+  const int lane = threadIdx.x % L;
+  const int packs = int(channels / N);
+  constexpr int kGroups = kThreads / L;
+  float dg[M][N];
+#pragma unroll
+  for (int k = 0; k < M; ++k)
+#pragma unroll
+    for (int e = 0; e < N; ++e) dg[k][e] = 0.f;
+  for (int64_t base = int64_t(blockIdx.x) * kGroups; base < rows; base += int64_t(gridDim.x) * kGroups) {
+    const int64_t r = base + threadIdx.x / L;
+    const bool active = r < rows;  // inactive lanes still join the shuffles
+    const int64_t row = active ? r : 0;
+    const int64_t b = row / (frames * pixels);
+    const P* xs = reinterpret_cast<const P*>(x + row * channels);
+    const P* gos = reinterpret_cast<const P*>(grad_out + (row + (b * (out_frames - frames) + frame_offset) * pixels) * channels);
+    P xh[M], gh[M];
+    float ss = 0.f;
+#pragma unroll
+    for (int k = 0; k < M; ++k) {
+      const int i = lane + k * L;
+      if (active && i < packs) {
+        xh[k] = xs[i];
+        gh[k] = gos[i];
+      }
+    }
+#pragma unroll
+    for (int k = 0; k < M; ++k) {
+      const int i = lane + k * L;
+      if (active && i < packs) {
+#pragma unroll
+        for (int e = 0; e < N; ++e) {
+          const float v = to_float(xh[k].v[e]);
+          ss += v * v;
+        }
+      }
+    }
+#pragma unroll
+    for (int off = L / 2; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
+    const float n = sqrtf(ss);
+    const float inv = scale / fmaxf(n, 1e-12f);
+    float dot = 0.f;  // sum_k a_k x_k
+#pragma unroll
+    for (int k = 0; k < M; ++k) {
+      const int i = lane + k * L;
+      if (active && i < packs) {
+#pragma unroll
+        for (int e = 0; e < N; ++e) {
+          const float xv = to_float(xh[k].v[e]), g = gamma[i * N + e];
+          const float y = g * xv * inv, s = 1.f / (1.f + __expf(-y));
+          const float dy = to_float(gh[k].v[e]) * s * (1.f + y * (1.f - s));  // d/dy of silu
+          dot += g * dy * xv;
+          dg[k][e] += dy * xv * inv;
+        }
+      }
+    }
+#pragma unroll
+    for (int off = L / 2; off > 0; off /= 2) dot += __shfl_xor_sync(0xffffffffu, dot, off);
+    if (!active) continue;
+    const float shrink = n > 1e-12f ? inv / (n * n) * dot : 0.f;
+    P* gxs = reinterpret_cast<P*>(grad_x + row * channels);
+#pragma unroll
+    for (int k = 0; k < M; ++k) {
+      const int i = lane + k * L;
+      if (i < packs) {
+        P o;
+#pragma unroll
+        for (int e = 0; e < N; ++e) {
+          const float xv = to_float(xh[k].v[e]), g = gamma[i * N + e];
+          const float y = g * xv * inv, s = 1.f / (1.f + __expf(-y));
+          const float dy = to_float(gh[k].v[e]) * s * (1.f + y * (1.f - s));
+          o.v[e] = from_float<T>(inv * g * dy - shrink * xv);
+        }
+        gxs[i] = o;
+      }
+    }
+  }
+  __syncthreads();
+#pragma unroll
+  for (int k = 0; k < M; ++k) {
+    const int i = lane + k * L;
+    if (i < packs)
+#pragma unroll
+      for (int e = 0; e < N; ++e) atomicAdd(&gamma_sum[i * N + e], dg[k][e]);
+  }
+  __syncthreads();
+  for (int c = threadIdx.x; c < channels; c += kThreads) gamma_partials[int64_t(blockIdx.x) * channels + c] = gamma_sum[c];
+}
+
+constexpr int64_t kBackwardBlocksMax = 2048;
+
+template <int L>
+int64_t backward_blocks(int64_t rows) {
+  return std::min<int64_t>((rows * L + kThreads - 1) / kThreads, kBackwardBlocksMax);
+}
+
+// The lanes per pixel launch picks (the same choice as dispatch's).
+template <class T>
+int lanes_for(bool vec, int64_t channels) {
+  constexpr int N = 16 / sizeof(T);
+  const int64_t packs = channels / N;
+  if (vec && packs <= 4 * kVecPacks) return 4;
+  if (vec && packs <= 8 * kVecPacks) return 8;
+  if (vec && packs <= 16 * kVecPacks) return 16;
+  return 32;
+}
+
+template <class T, int N, int L, int M>
+int64_t launch_backward(const void* x, const float* gamma, const void* grad_out, void* grad_x, float* partials,
+                     int64_t rows, int64_t frames, int64_t pixels, int64_t channels, int64_t out_frames,
+                     int64_t frame_offset, float scale, cudaStream_t stream) {
+  const int64_t blocks = backward_blocks<L>(rows);
+  rms_norm_silu_backward_kernel<T, N, L, M><<<blocks, kThreads, 0, stream>>>(
+      static_cast<const T*>(x), gamma, static_cast<const T*>(grad_out), static_cast<T*>(grad_x), partials, rows,
+      frames, pixels, channels, out_frames, frame_offset, scale);
+  return blocks;
+}
+
+template <class T>
+int64_t dispatch_backward(bool vec, const void* x, const float* gamma, const void* grad_out, void* grad_x,
+                       float* partials, int64_t rows, int64_t frames, int64_t pixels, int64_t channels,
+                       int64_t out_frames, int64_t frame_offset, float scale, cudaStream_t stream) {
+  constexpr int N = 16 / sizeof(T);
+  switch (lanes_for<T>(vec, channels)) {
+    case 4:
+      return launch_backward<T, N, 4, kVecPacks>(x, gamma, grad_out, grad_x, partials, rows, frames, pixels,
+                                                 channels, out_frames, frame_offset, scale, stream);
+    case 8:
+      return launch_backward<T, N, 8, kVecPacks>(x, gamma, grad_out, grad_x, partials, rows, frames, pixels,
+                                                 channels, out_frames, frame_offset, scale, stream);
+    case 16:
+      return launch_backward<T, N, 16, kVecPacks>(x, gamma, grad_out, grad_x, partials, rows, frames, pixels,
+                                                  channels, out_frames, frame_offset, scale, stream);
+    default:
+      return launch_backward<T, 1, 32, kScalarPacks>(x, gamma, grad_out, grad_x, partials, rows, frames, pixels,
+                                                     channels, out_frames, frame_offset, scale, stream);
+  }
+}
+
+bool vector_access(int64_t channels, bool is_bf16, std::initializer_list<const void*> pointers) {
+  if (channels % (is_bf16 ? 8 : 4) != 0) return false;
+  for (const void* p : pointers)
+    if (p != nullptr && reinterpret_cast<uintptr_t>(p) % 16 != 0) return false;
+  return true;
+}
+
 }  // namespace
+
+int64_t rms_norm_silu_backward_max_blocks(int64_t batch, int64_t frames, int64_t pixels) {
+  return backward_blocks<32>(batch * frames * pixels);  // the most lanes per pixel: the most blocks
+}
+
+int64_t launch_rms_norm_silu_backward(const void* x, const float* gamma, const void* grad_out, void* grad_x,
+                                   float* gamma_partials, int64_t batch, int64_t frames, int64_t pixels,
+                                   int64_t channels, int64_t out_frames, int64_t frame_offset, float scale,
+                                   bool is_bf16, cudaStream_t stream) {
+  const int64_t rows = batch * frames * pixels;
+  if (rows == 0) return 0;
+  const bool vec = vector_access(channels, is_bf16, {x, grad_out, grad_x});
+  if (is_bf16) {
+    return dispatch_backward<__nv_bfloat16>(vec, x, gamma, grad_out, grad_x, gamma_partials, rows, frames, pixels, channels,
+                                     out_frames, frame_offset, scale, stream);
+  }
+  return dispatch_backward<float>(vec, x, gamma, grad_out, grad_x, gamma_partials, rows, frames, pixels, channels,
+                                  out_frames, frame_offset, scale, stream);
+}
 
 bool rms_norm_silu_supported(int64_t channels) { return channels <= 32 * kScalarPacks; }
 
