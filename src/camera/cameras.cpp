@@ -1,5 +1,6 @@
 #include "flat/camera/cameras.h"
 
+#include "core/small_matmul.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 
@@ -39,7 +40,7 @@ at::Tensor world_to_camera(const at::Tensor& c2w) {
   auto Rt = R.transpose(-1, -2);
   auto out = at::zeros_like(c2w);
   out.narrow(-2, 0, 3).narrow(-1, 0, 3).copy_(Rt);
-  out.narrow(-2, 0, 3).narrow(-1, 3, 1).copy_(-at::matmul(Rt, t));
+  out.narrow(-2, 0, 3).narrow(-1, 3, 1).copy_(-small_matmul(Rt, t));  // fp32 under autocast too
   out.select(-2, 3).select(-1, 3).fill_(1);
   return out;
 }

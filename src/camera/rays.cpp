@@ -1,5 +1,6 @@
 #include "flat/camera/rays.h"
 
+#include "core/small_matmul.h"
 #include "flat/core/error.h"
 
 namespace flat::camera {
@@ -17,7 +18,8 @@ Rays pixel_rays(const Cameras& cameras, int64_t height, int64_t width) {
   auto y = ((v.view({1, height, 1}) - cy) / fy).expand({V, height, width});
   auto dir_cam = at::stack({x, y, at::ones_like(x)}, -1);              // (V,H,W,3)
   auto R = cameras.c2w.narrow(1, 0, 3).narrow(2, 0, 3);                // (V,3,3)
-  auto dir = at::einsum("vij,vhwj->vhwi", {R, dir_cam});
+  // R d per pixel; small_matmul, not einsum (whose bmm autocast casts to bf16).
+  auto dir = small_matmul(R.view({V, 1, 1, 3, 3}), dir_cam.unsqueeze(-1)).squeeze(-1);
   dir = dir / dir.norm(2, -1, true);
   auto origin = cameras.c2w.narrow(1, 0, 3).select(2, 3).view({V, 1, 1, 3}).expand({V, height, width, 3});
   return {origin.contiguous(), dir.contiguous()};

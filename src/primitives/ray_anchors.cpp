@@ -4,6 +4,7 @@
 #include <cmath>
 #include <vector>
 
+#include "core/small_matmul.h"
 #include "flat/camera/rays.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
@@ -106,7 +107,8 @@ RayAnchors ray_anchors(const at::Tensor& raw, int64_t channels, const camera::Ca
   FLAT_CHECK(cams.size() == B * T, what + ": expected B*T = " + std::to_string(B * T) +
                                        " cameras (frame-major per batch), got " + std::to_string(cams.size()));
   const int64_t N = T * H2 * W2;
-  // Geometry in fp32 (fp64 for fp64 input) whatever the model's precision.
+  // Geometry in fp32 (fp64 for fp64 input) whatever the model's precision, and
+  // whatever autocast is on: the products are small_matmul, never at::matmul.
   const auto dtype = raw.scalar_type() == at::kDouble ? at::kDouble : at::kFloat;
   const auto opts = raw.options().dtype(dtype);
 
@@ -119,9 +121,9 @@ RayAnchors ray_anchors(const at::Tensor& raw, int64_t channels, const camera::Ca
   R = R.expand({B, T, H2 * W2, 3, 3}).reshape({B, N, 3, 3});
   auto K = camera::pixel_intrinsics(cams.intrinsics.to(opts), image_height, image_width).view({B, T, 1, 4});
   K = K.expand({B, T, H2 * W2, 4}).reshape({B, N, 4});
-  auto d_cam = at::matmul(R.transpose(-1, -2), a.directions.unsqueeze(-1)).squeeze(-1);
+  auto d_cam = small_matmul(R.transpose(-1, -2), a.directions.unsqueeze(-1)).squeeze(-1);
   auto [F_cam, per_pixel] = ray_frame_and_footprint(d_cam, K);
-  a.frames = at::matmul(R, F_cam);  // ray frame in world space, columns e1, e2, d
+  a.frames = small_matmul(R, F_cam);  // ray frame in world space, columns e1, e2, d
   a.per_pixel = per_pixel;
   // (B,C,T,H2,W2) -> (B,N,C), token order (t, i, j)
   a.tokens = raw.to(dtype).permute({0, 2, 3, 4, 1}).reshape({B, N, channels});

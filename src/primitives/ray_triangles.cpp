@@ -1,6 +1,8 @@
 // Ray-centred triangle parameterisation (paper, Method, "Decoding Triangles")
 // and its two ablations (paper, Table "Ablation studies": "3 Offsets" and
-// "Global" rotation). Pure ATen: autograd differentiates every step.
+// "Global" rotation). Pure ATen: autograd differentiates every step. The
+// per-triangle products are small_matmul (core/small_matmul.h): fp32 under the
+// training step's bf16 autocast, and no batched GEMM launches.
 //
 // Per token (b, t, i, j) with anchor ray o + s d through the centre of the 2x2
 // block (2i..2i+1, 2j..2j+1) of frame t (camera c = b*T + t):
@@ -33,6 +35,7 @@
 //                    x-y plane, whatever the ray).
 #include <cmath>
 
+#include "core/small_matmul.h"
 #include "flat/camera/rays.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
@@ -94,7 +97,7 @@ TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams,
     auto L10 = l.select(-1, 1);
     auto L11 = shifted_softplus(l.select(-1, 2), cfg.shape_min, 1.0);
     auto L = at::stack({L00, at::zeros_like(L00), L10, L11}, -1).unflatten(-1, {2, 2});
-    P = s.unsqueeze(-1) * at::matmul(L, Q);
+    P = s.unsqueeze(-1) * small_matmul(L, Q);
   }
 
   // Orientation F' (B,N,3,3).
@@ -108,12 +111,12 @@ TriangleSoup build_triangles(const at::Tensor& raw, const camera::Cameras& cams,
     auto tilt_x = cfg.max_tilt * at::tanh(a.select(-1, 0));
     auto tilt_y = cfg.max_tilt * at::tanh(a.select(-1, 1));
     auto spin = a.select(-1, 2);
-    auto R_res = at::matmul(at::matmul(axis_rotation(tilt_x, 0), axis_rotation(tilt_y, 1)), axis_rotation(spin, 2));
-    Fr = at::matmul(F, R_res);
+    auto R_res = small_matmul(small_matmul(axis_rotation(tilt_x, 0), axis_rotation(tilt_y, 1)), axis_rotation(spin, 2));
+    Fr = small_matmul(F, R_res);
   }
 
   // v_k = c + F'[:, 0:2] p_k  -> (B,N,3 vertices,3 coords)
-  auto V = centre.unsqueeze(-1) + at::matmul(Fr.narrow(-1, 0, 2), P);  // (B,N,3,3) columns = vertices
+  auto V = centre.unsqueeze(-1) + small_matmul(Fr.narrow(-1, 0, 2), P);  // (B,N,3,3) columns = vertices
   TriangleSoup soup;
   soup.vertices = V.transpose(-1, -2).contiguous();
   soup.colors = activate_colour(group(ch.colour, ch.colour_count), cfg).contiguous();

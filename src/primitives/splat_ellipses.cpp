@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "core/small_matmul.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "primitives/ray_anchors.h"
@@ -21,7 +22,7 @@ TriangleSoup splat_ellipses(const GaussianSoup& g, int64_t segments) {
   auto axes = R.gather(2, order.unsqueeze(1).expand({n, 3, 2})) * s.unsqueeze(1);  // (N,3,2)
   auto angles = at::arange(segments + 1, opts) * (2.0 * M_PI / double(segments));
   auto ring = at::stack({at::cos(angles), at::sin(angles)}, 0);        // (2,S+1)
-  auto rim = g.means.unsqueeze(-1) + at::matmul(axes, ring);           // (N,3,S+1)
+  auto rim = g.means.unsqueeze(-1) + small_matmul(axes, ring);         // (N,3,S+1)
   auto a = rim.narrow(2, 0, segments), b = rim.narrow(2, 1, segments);  // (N,3,S)
   auto c = g.means.unsqueeze(-1).expand_as(a);
   TriangleSoup t;

@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "flat/camera/rays.h"
+#include "flat/core/autocast_scope.h"
 #include "flat/core/error.h"
 #include "flat/model/output_heads.h"
 #include "flat/primitives/head_channels.h"
@@ -182,4 +183,25 @@ TEST_CASE("splat_ellipses: fans on the 1.5-sigma ellipse of the two largest axes
   auto s = splat_ellipses(g2, 6).vertices.select(1, 1);  // (6,3): the rotated x axis is world y
   CHECK(s.select(1, 2).abs().max().item<double>() < 1e-6);
   CHECK(((s.select(1, 1) / 4.5).pow(2) + (s.select(1, 0) / 1.5).pow(2) - 1).abs().max().item<double>() < 1e-5);
+}
+
+TEST_CASE("bf16 autocast leaves the Gaussians' means and rotations in fp32", "[primitives]") {
+  // As the triangles (test_ray_triangles.cpp): the anchor rays and frames are
+  // fp32 geometry even inside the training step's bf16 autocast.
+  auto cams = make_cameras(B * T);
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(29);
+  TriangleParamConfig cfg;
+  auto raw = at::randn({B, gaussian_channels(3).total, T, H / 2, W / 2}, gen, at::kFloat);
+  auto plain = build_gaussians(raw, cams, H, W, cfg, 3);
+  GaussianSoup mixed;
+  {
+    flat::AutocastScope autocast(true, at::kCPU);
+    REQUIRE(at::matmul(at::ones({2, 2}), at::ones({2, 2})).scalar_type() == at::kBFloat16);
+    mixed = build_gaussians(raw, cams, H, W, cfg, 3);
+  }
+  const double em = flat::test::rel_error(mixed.means, plain.means);
+  const double er = flat::test::rel_error(mixed.rotations, plain.rotations);
+  INFO("relative error under autocast: means " << em << ", rotations " << er);
+  CHECK(em < 1e-5);
+  CHECK(er < 1e-5);
 }

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "flat/camera/rays.h"
+#include "flat/core/autocast_scope.h"
 #include "flat/primitives/ray_triangles.h"
 #include "primitive_cameras.h"
 #include "test_support.h"
@@ -284,4 +285,30 @@ TEST_CASE("half-precision head outputs build fp32 triangles", "[primitives]") {
   CHECK(flat::test::rel_error(soup.vertices, build_triangles(raw.detach().to(at::kFloat), cams, H, W, cfg).vertices) < 1e-6);
   soup.vertices.sum().backward();
   CHECK(raw.grad().scalar_type() == at::kBFloat16);
+}
+
+TEST_CASE("bf16 autocast leaves the triangle geometry in fp32", "[primitives]") {
+  // Training runs the builder inside bf16 autocast (flat::AutocastScope); the
+  // geometry must still be fp32: an at::matmul there would be cast to bf16
+  // (~3 significant digits, vertices off by ~1e-2 relative).
+  auto cams = make_cameras(B * T);
+  auto g = at::make_generator<at::CPUGeneratorImpl>(23);
+  for (const char* param : {"ray_centred", "three_offsets", "global_rotation"}) {
+    TriangleParamConfig cfg;
+    cfg.parameterisation = param;
+    auto raw = at::randn({B, cfg.channels().total, T, H / 2, W / 2}, g, at::kFloat);
+    auto plain = build_triangles(raw, cams, H, W, cfg);
+    TriangleSoup mixed;
+    {
+      flat::AutocastScope autocast(true, at::kCPU);
+      auto x = at::ones({2, 2});
+      REQUIRE(at::matmul(x, x).scalar_type() == at::kBFloat16);  // the scope really casts matmul
+      mixed = build_triangles(raw, cams, H, W, cfg);
+    }
+    INFO(param);
+    CHECK(mixed.vertices.scalar_type() == at::kFloat);
+    const double err = flat::test::rel_error(mixed.vertices, plain.vertices);
+    INFO("vertex relative error under autocast " << err);
+    CHECK(err < 1e-5);
+  }
 }
