@@ -52,13 +52,11 @@ at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma) {
   return x * inverse_norm(x).to(x.scalar_type()) * gamma_like(gamma, x);
 }
 
-bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
+bool fused_norm_eligible(const at::Tensor& x, const at::Tensor& gamma) {
 #if FLAT_WITH_CUDA
-  const bool grad = at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad());
-  const bool dtype_ok = (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
-                        gamma.scalar_type() == x.scalar_type();
-  return x.is_cuda() && !grad && dtype_ok && x.dim() == 5 &&
-         x.is_contiguous(at::MemoryFormat::ChannelsLast3d) && cuda::rms_norm_silu_supported(x.size(1));
+  return x.is_cuda() && x.dim() == 5 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
+         at::isFloatingType(gamma.scalar_type()) && gamma.numel() == x.size(1) &&
+         cuda::rms_norm_silu_supported(x.size(1));
 #else
   (void)x;
   (void)gamma;
@@ -66,19 +64,40 @@ bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
 #endif
 }
 
+bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma) {
+  const bool grad = at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad());
+  return !grad && fused_norm_eligible(x, gamma);
+}
+
 #if FLAT_WITH_CUDA
 namespace {
 
 // silu(rms_norm(x)) written into frames [n, n+T) of a new (B,C,n+T,H,W)
-// channels-last tensor whose first n frames are zeros: the fused kernel.
-at::Tensor fused_norm_silu_zero_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n) {
+// channels-last tensor whose first n frames are `history` (zeros when
+// undefined): the fused kernel, for a channels-last x. When history_out is
+// given it receives the last n frames (written by the kernel as a second
+// destination when T >= n, so no copy of them afterwards).
+at::Tensor fused_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history,
+                                  at::Tensor* history_out) {
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
-  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(at::MemoryFormat::ChannelsLast3d));
-  if (n > 0) out.narrow(2, 0, n).zero_();
+  const auto cl = at::MemoryFormat::ChannelsLast3d;
+  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(cl));
+  if (n > 0) {
+    if (history.defined()) {
+      FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
+                                           shape_str(history));
+      out.narrow(2, 0, n).copy_(history);
+    } else {
+      out.narrow(2, 0, n).zero_();
+    }
+  }
+  at::Tensor next;
+  if (history_out != nullptr && n > 0 && T >= n) next = at::empty({B, C, n, H, W}, x.options().memory_format(cl));
   const at::Tensor g = gamma.to(x.scalar_type()).contiguous();
   cuda::launch_rms_norm_silu(x.data_ptr(), g.data_ptr(), out.data_ptr(), B, T, H * W, C, n + T, n,
-                             float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16, nullptr, 0,
-                             at::cuda::getCurrentCUDAStream());
+                             float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16,
+                             next.defined() ? next.data_ptr() : nullptr, n, at::cuda::getCurrentCUDAStream());
+  if (history_out != nullptr) *history_out = next.defined() ? next : out.narrow(2, T, n).clone();
   return out;
 }
 
@@ -90,7 +109,7 @@ struct FusedNormSiluFunction : public torch::autograd::Function<FusedNormSiluFun
                             int64_t n) {
     ctx->save_for_backward({x, gamma});
     ctx->saved_data["n"] = n;
-    return fused_norm_silu_zero_padded(x, gamma, n);
+    return fused_norm_silu_padded(x, gamma, n, {}, nullptr);
   }
 
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
@@ -114,36 +133,44 @@ struct FusedNormSiluFunction : public torch::autograd::Function<FusedNormSiluFun
   }
 };
 
-// Whether the training path (autograd on) can use the fused kernels: CUDA,
-// (B,C,T,H,W) in fp32 or bf16 with C within the kernel's reach. x of any
-// layout (it is made channels-last once; the convs keep that layout).
-bool fused_norm_trainable(const at::Tensor& x, const at::Tensor& gamma) {
-  return x.is_cuda() && x.dim() == 5 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kBFloat16) &&
-         at::isFloatingType(gamma.scalar_type()) && gamma.numel() == x.size(1) &&
-         cuda::rms_norm_silu_supported(x.size(1));
-}
-
 }  // namespace
 #endif
 
 namespace {
 
 // rms_norm_silu_padded, and when history_out is given, the last n frames of
-// the result as the layer's next streaming history (written by the fused
-// kernel as a second destination, so no copy of them afterwards).
+// the result as the layer's next streaming history.
 at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_t n, const at::Tensor& history,
                             at::Tensor* history_out, bool fused) {
   FLAT_CHECK(x.dim() == 5 && x.size(1) == gamma.numel(),
              "RMS_norm+SiLU: expected (B," + std::to_string(gamma.numel()) + ",T,H,W), got " + shape_str(x));
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
 #if FLAT_WITH_CUDA
-  if (fused && history_out == nullptr && !history.defined() && at::GradMode::is_enabled() &&
-      (x.requires_grad() || gamma.requires_grad()) && fused_norm_trainable(x, gamma)) {
-    return FusedNormSiluFunction::apply(x.contiguous(at::MemoryFormat::ChannelsLast3d), gamma, n);
+  if (fused && fused_norm_eligible(x, gamma)) {
+    // One layout for the kernels: x is made channels-last once (a no-op
+    // after the first norm: the convs keep the layout).
+    const at::Tensor xc = x.contiguous(at::MemoryFormat::ChannelsLast3d);
+    if (fused_norm_available(x, gamma)) return fused_norm_silu_padded(xc, gamma, n, history, history_out);
+    if (history_out == nullptr && !history.defined()) return FusedNormSiluFunction::apply(xc, gamma, n);
   }
+#else
+  (void)fused;
 #endif
-  const auto format = x.suggest_memory_format();
-  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(format));
+  // ATen ops (the CPU, and what the kernels do not take).
+  at::Tensor y = x * inverse_norm(x).to(x.scalar_type());
+  y.mul_(gamma_like(gamma, x));
+  auto keep_history = [&](const at::Tensor& result) {
+    if (history_out != nullptr) *history_out = result.narrow(2, result.size(2) - n, n).clone();
+    return result;
+  };
+  if (at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad())) {
+    // Differentiable: build the padded tensor with cat (autograd tracks it).
+    at::Tensor act = at::silu(y);
+    if (n == 0) return act;
+    at::Tensor past = history.defined() ? history : at::zeros({B, C, n, H, W}, x.options());
+    return keep_history(at::cat({past, act}, 2));
+  }
+  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(x.suggest_memory_format()));
   if (n > 0) {
     if (history.defined()) {
       FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
@@ -153,37 +180,7 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
       out.narrow(2, 0, n).zero_();
     }
   }
-  auto keep_history = [&](const at::Tensor& result) {
-    if (history_out != nullptr) *history_out = result.narrow(2, result.size(2) - n, n).clone();
-    return result;
-  };
   at::Tensor body = out.narrow(2, n, T);
-#if FLAT_WITH_CUDA
-  if (fused && fused_norm_available(x, gamma) && out.is_contiguous(at::MemoryFormat::ChannelsLast3d)) {
-    at::Tensor g = gamma.contiguous();
-    at::Tensor next;
-    if (history_out != nullptr && n > 0 && T >= n) next = at::empty({B, C, n, H, W}, x.options().memory_format(format));
-    cuda::launch_rms_norm_silu(x.data_ptr(), g.data_ptr(), out.data_ptr(), B, T, H * W, C, n + T, n,
-                               float(std::sqrt(double(C))), /*silu=*/true, x.scalar_type() == at::kBFloat16,
-                               next.defined() ? next.data_ptr() : nullptr, n, at::cuda::getCurrentCUDAStream());
-    if (next.defined()) {
-      *history_out = next;
-      return out;
-    }
-    return keep_history(out);
-  }
-#else
-  (void)fused;
-#endif
-  at::Tensor y = x * inverse_norm(x).to(x.scalar_type());
-  y.mul_(gamma_like(gamma, x));
-  if (at::GradMode::is_enabled() && (x.requires_grad() || gamma.requires_grad())) {
-    // Differentiable: build the padded tensor with cat (autograd tracks it).
-    at::Tensor act = at::silu(y);
-    if (n == 0) return act;
-    at::Tensor past = history.defined() ? history : at::zeros({B, C, n, H, W}, x.options());
-    return keep_history(at::cat({past, act}, 2));
-  }
   at::silu_out(body, y);
   return keep_history(out);
 }

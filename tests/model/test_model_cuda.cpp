@@ -28,6 +28,15 @@ TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
       CHECK(flat::test::rel_error(fused, aten) < (dtype == torch::kFloat ? 1e-5 : 1e-2));
     }
   }
+  // The forward of a checkpointed block in training: no autograd, an NCDHW
+  // bf16 input and an fp32 gamma (a parameter under autocast) still take the
+  // kernel (its result is channels-last; the ATen path's keeps NCDHW).
+  auto x = torch::randn({2, 96, 3, 5, 7}, torch::kCUDA).to(torch::kBFloat16);
+  auto gamma = torch::rand({96, 1, 1, 1}, torch::kCUDA) + 0.5;
+  REQUIRE(fused_norm_available(x, gamma));
+  auto fused = rms_norm_silu_padded(x, gamma, 2, {}, /*fused=*/true);
+  CHECK(fused.is_contiguous(at::MemoryFormat::ChannelsLast3d));
+  CHECK(flat::test::rel_error(fused, rms_norm_silu_padded(x.to(torch::kFloat), gamma, 2, {}, false)) < 1e-2);
   // Wider than the kernel takes: the ATen path serves it.
   auto wide = torch::randn({1, 1000, 2, 3, 3}, torch::kCUDA).contiguous(at::MemoryFormat::ChannelsLast3d);
   CHECK_FALSE(fused_norm_available(wide, torch::ones({1000, 1, 1, 1}, torch::kCUDA)));

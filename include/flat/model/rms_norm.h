@@ -47,8 +47,13 @@ at::Tensor rms_norm(const at::Tensor& x, const at::Tensor& gamma);
 at::Tensor rms_norm_silu_streamed(const at::Tensor& x, const at::Tensor& gamma, int64_t n, at::Tensor& history,
                                   bool fused = true);
 
-// True when the fused CUDA kernel can serve rms_norm_silu_padded for x (it
-// does when `fused` is true).
+// True when the fused CUDA kernels take x and gamma: a CUDA (B,C,T,H,W)
+// tensor in fp32 or bf16 of any layout (it is made channels-last), C within
+// the kernel's reach, gamma of any float dtype (cast to x's).
+bool fused_norm_eligible(const at::Tensor& x, const at::Tensor& gamma);
+
+// True when the fused forward kernel alone serves rms_norm_silu_padded for x
+// (eligible and no autograd; it does when `fused` is true).
 bool fused_norm_available(const at::Tensor& x, const at::Tensor& gamma);
 
 }  // namespace flat::model
