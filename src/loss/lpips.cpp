@@ -11,6 +11,7 @@
 #include "flat/core/safetensors.h"
 #include "flat/core/shape.h"
 #include "flat/core/tensor_io.h"
+#include "loss/lpips_tap_distance.h"
 
 namespace flat::loss {
 namespace {
@@ -128,8 +129,7 @@ std::vector<at::Tensor> LpipsImpl::taps(const at::Tensor& x, bool bf16) {
   for (size_t c = 0; c < w.size(); ++c) {
     h = at::conv2d(h, w[c].weight, w[c].bias, 1, 1).relu_();
     if (!kVgg[c].tap_after) continue;
-    auto f = h.to(dtype);
-    out.push_back(f / (f.square().sum(1, true).sqrt() + 1e-10));
+    out.push_back(h);  // raw: distance() normalises them (lpips_tap_distance)
     if (out.size() < 5) h = at::max_pool2d(h, {2, 2}, {2, 2});
   }
   return out;
@@ -140,8 +140,7 @@ at::Tensor LpipsImpl::distance(const std::vector<at::Tensor>& fa, const std::vec
   c10::impl::ExcludeDispatchKeyGuard no_autocast(c10::autocast_dispatch_keyset);  // as in taps()
   at::Tensor total;
   for (size_t k = 0; k < 5; ++k) {
-    auto per_channel = (fa[k] - fb[k]).square().mean({2, 3});  // (V,C)
-    auto d = at::matmul(per_channel, lins_[k]->weight.reshape({-1}).to(per_channel.dtype()));
+    auto d = lpips_tap_distance(fa[k], fb[k], lins_[k]->weight);
     total = total.defined() ? total + d : d;
   }
   return total;

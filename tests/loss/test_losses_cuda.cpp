@@ -9,6 +9,7 @@
 #include "flat/loss/photometric.h"
 #include "flat/loss/regularisers_2dgs.h"
 #include "flat/loss/ssim.h"
+#include "loss/lpips_tap_distance.h"
 #include "test_support.h"
 
 using namespace flat;
@@ -110,4 +111,66 @@ TEST_CASE("LPIPS on CUDA equals the CPU value and gradient (random weights)", "[
   INFO("lpips cpu " << values[0] << " cuda " << values[1]);
   CHECK(test::rel_error(values[1], values[0]) < 1e-4);
   CHECK(test::rel_error(grads[1], grads[0]) < 1e-3);
+}
+
+TEST_CASE("LPIPS tap on CUDA (fused bf16 kernels): value and gradients equal the fp64 ATen path", "[loss][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  torch::manual_seed(5);
+  // VGG's tap widths: 2, 4, 8 and 16 lanes per pixel; 5x7 pixels per view,
+  // so blocks straddle views.
+  for (int64_t c : {64, 128, 256, 512}) {
+    for (bool grad_b : {false, true}) {
+      auto a0 = torch::relu(torch::randn({3, c, 5, 7})).to(torch::kBFloat16);
+      auto b0 = torch::relu(torch::randn({3, c, 5, 7}) + 0.3 * a0.to(torch::kFloat)).to(torch::kBFloat16);
+      auto w = torch::rand({1, c, 1, 1}) / double(c);
+      auto go = torch::rand({3}) + 0.5;  // d loss / d d_v
+      auto ar = a0.to(torch::kDouble).requires_grad_(true), br = b0.to(torch::kDouble).requires_grad_(grad_b);
+      auto ref = loss::lpips_tap_distance(ar, br, w.to(torch::kDouble));
+      (ref * go.to(torch::kDouble)).sum().backward();
+
+      const auto cl = at::MemoryFormat::ChannelsLast;
+      auto a = a0.cuda().contiguous(cl).requires_grad_(true), b = b0.cuda().contiguous(cl).requires_grad_(grad_b);
+      REQUIRE(loss::lpips_tap_fused(a, b));
+      auto d = loss::lpips_tap_distance(a, b, w.cuda());
+      INFO("C = " << c << " grad_b " << grad_b << " fused " << d.cpu() << " reference " << ref);
+      CHECK(d.scalar_type() == torch::kFloat);
+      (d * go.cuda()).sum().backward();
+      CHECK(test::rel_error(d, ref) < 1e-5);  // fp32 maths on the same bf16 inputs
+      CHECK(test::rel_error(a.grad(), ar.grad()) < 1e-2);  // bf16 gradients
+      if (grad_b) CHECK(test::rel_error(b.grad(), br.grad()) < 1e-2);
+      else CHECK_FALSE(b.grad().defined());
+    }
+  }
+  // NCHW or fp32 features take the ATen path.
+  auto f = torch::rand({1, 64, 4, 4}, torch::kCUDA).to(torch::kBFloat16);
+  CHECK_FALSE(loss::lpips_tap_fused(f, f));
+  auto fcl = torch::rand({1, 64, 4, 4}, torch::kCUDA).contiguous(at::MemoryFormat::ChannelsLast);
+  CHECK_FALSE(loss::lpips_tap_fused(fcl, fcl));
+}
+
+TEST_CASE("LPIPS in bf16 on CUDA (fused taps) is near the fp32 CPU value and gradient", "[loss][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  torch::manual_seed(4);
+  loss::Lpips cpu_net;
+  loss::Lpips gpu_net;
+  {
+    torch::NoGradGuard guard;
+    auto src = cpu_net->parameters();
+    auto dst = gpu_net->parameters();
+    for (size_t i = 0; i < src.size(); ++i) dst[i].copy_(src[i]);
+  }
+  gpu_net->to(at::kCUDA);
+  auto m = make_images(3, 32, 48);
+  auto a = m.rgb.to(at::kFloat).requires_grad_(true);
+  auto ref = loss::lpips_distance(cpu_net, a, m.target.to(at::kFloat), {.max_size = 0, .chunk = 2});
+  ref.sum().backward();
+  for (bool checkpoint : {false, true}) {
+    auto ag = m.rgb.to(at::kCUDA, at::kFloat).requires_grad_(true);
+    auto d = loss::lpips_distance(gpu_net, ag, m.target.to(at::kCUDA, at::kFloat),
+                                  {.max_size = 0, .chunk = 2, .checkpoint = checkpoint, .bf16 = true});
+    d.sum().backward();
+    INFO("checkpoint " << checkpoint << " bf16 cuda " << d.cpu() << " fp32 cpu " << ref);
+    CHECK(test::rel_error(d, ref) < 3e-2);
+    CHECK(test::rel_error(ag.grad(), a.grad()) < 1e-1);
+  }
 }

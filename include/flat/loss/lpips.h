@@ -56,14 +56,16 @@ class LpipsImpl : public torch::nn::Module {
   // (the parameters' dtype), both batches through the network at once.
   at::Tensor forward(const at::Tensor& a, const at::Tensor& b);
 
-  // The five channel-normalised tap features of images x (V,3,H,W) in [0,1].
-  // Convolutions in the parameters' dtype, or with bf16 in a bf16 copy of the
-  // weights (channels-last on CUDA, made once); the tap maths in the
-  // parameters' dtype. The caller's autocast state does not apply.
+  // The five tap features (after relu1_2 .. relu5_3, not yet normalised) of
+  // images x (V,3,H,W) in [0,1]. Convolutions in the parameters' dtype, or
+  // with bf16 in a bf16 copy of the weights (channels-last on CUDA, made
+  // once). The caller's autocast state does not apply.
   std::vector<at::Tensor> taps(const at::Tensor& x, bool bf16);
-  // d = sum_k w_k . mean_hw (fa_k - fb_k)^2: (V). The 1x1 lin conv and the
-  // spatial mean commute (both linear), so the mean is taken first. In the
-  // taps' dtype, whatever the caller's autocast state.
+  // d = sum_k w_k . mean_hw (unit(fa_k) - unit(fb_k))^2: (V), unit(f) = f over
+  // its channel norm (+1e-10) at each pixel. The 1x1 lin conv and the spatial
+  // mean commute (both linear), so the mean is taken first. In fp32 at least
+  // (fused kernels for bf16 CUDA taps: lpips_tap_distance), whatever the
+  // caller's autocast state.
   at::Tensor distance(const std::vector<at::Tensor>& fa, const std::vector<at::Tensor>& fb);
 
  private:
