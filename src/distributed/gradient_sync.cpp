@@ -13,7 +13,7 @@ void broadcast_tensors(ProcessGroup& group, const std::vector<at::Tensor>& tenso
 }
 
 GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options)
-    : group_(group), params_(std::move(params)) {
+    : group_(group), params_(std::move(params)), bf16_wire_(options.bf16_wire) {
   FLAT_CHECK(options.bucket_bytes > 0, "gradient sync: bucket_bytes must be positive");
   // Reverse order: backward produces the last layers' gradients first.
   for (int64_t i = static_cast<int64_t>(params_.size()) - 1; i >= 0; --i) {
@@ -51,7 +51,8 @@ void GradientSync::start_bucket(size_t b) {
   const Bucket& bucket = buckets_[b];
   const at::Tensor& first = params_[bucket.params.front()];
   const int64_t n = static_cast<int64_t>(bucket.params.size());
-  at::Tensor flat = at::empty({bucket.numel + n}, first.options());
+  const bool bf16 = bf16_wire_ && at::isFloatingType(first.scalar_type());
+  at::Tensor flat = at::empty({bucket.numel + n}, bf16 ? first.options().dtype(at::kBFloat16) : first.options());
   int64_t offset = 0;
   for (int64_t k = 0; k < n; ++k) {
     const at::Tensor& p = params_[bucket.params[k]];

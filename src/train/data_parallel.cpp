@@ -22,6 +22,7 @@ DataParallel::DataParallel(const DistributedConfig& config, const distributed::D
   FLAT_CHECK(backend_ == "nccl" || !device.is_cuda(),
              "distributed.backend: " + backend_ + " on CUDA would move every gradient through the host; use nccl (or auto)");
   sync_options_.bucket_bytes = std::max<int64_t>(1, int64_t(config.bucket_mb * double(1 << 20)));
+  sync_options_.bf16_wire = config.grad_dtype == "bf16";
   const auto timeout = std::chrono::milliseconds(int64_t(std::ceil(config.timeout_seconds * 1000)));
   group_ = distributed::init_process_group(env, backend_, timeout, /*watch_peers=*/true);
 }

@@ -73,6 +73,25 @@ TEST_CASE("gradient sync: a gradient missing on some ranks is averaged with zero
   CHECK_FALSE(c.grad().defined());
 }
 
+TEST_CASE("gradient sync: bf16 on the wire sends bf16 buckets and writes fp32 means near the exact ones",
+          "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t * 3; });  // the other rank sent 3x ours
+  at::Tensor a = param(1000), b = param(5);
+  a.mutable_grad() = torch::linspace(-1, 1, 1000);
+  b.mutable_grad() = torch::full({5}, 1.f / 3.f);
+  GradientSyncOptions options;
+  options.bf16_wire = true;
+  GradientSync sync(group, {a, b}, options);
+  sync.all_reduce_gradients();
+  CHECK(group.dtypes == std::vector<at::ScalarType>{at::kBFloat16});
+  CHECK(a.grad().scalar_type() == at::kFloat);
+  // Mean of g and 3g: 2g, to bf16's ~3 significant digits, not exactly.
+  const auto exact = torch::linspace(-1, 1, 1000) * 2;
+  CHECK(flat::test::rel_error(a.grad(), exact) < 1e-2);
+  CHECK_FALSE(torch::equal(a.grad(), exact));
+  CHECK(torch::allclose(b.grad(), torch::full({5}, 2.f / 3.f), 1e-2));
+}
+
 TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[distributed]") {
   ScriptedGroup group([](const at::Tensor& t) { return t; });
   torch::nn::Linear lin(3, 2);

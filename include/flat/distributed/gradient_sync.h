@@ -33,6 +33,10 @@ void broadcast_tensors(ProcessGroup& group, const std::vector<at::Tensor>& tenso
 
 struct GradientSyncOptions {
   int64_t bucket_bytes = 25ll << 20;  // PyTorch DDP's default bucket size
+  // Send float gradients as bf16 (half the bytes; PyTorch DDP's
+  // bf16_compress_hook): each bucket is cast to bf16 for the all-reduce, and
+  // the mean cast back into the gradients (about 3 significant digits).
+  bool bf16_wire = false;
 };
 
 class GradientSync {
@@ -68,6 +72,7 @@ class GradientSync {
   std::vector<at::Tensor> params_;
   std::vector<Bucket> buckets_;
   std::vector<Pending> pending_;
+  bool bf16_wire_ = false;
 };
 
 }  // namespace flat::distributed

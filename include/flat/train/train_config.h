@@ -141,6 +141,9 @@ struct DistributedConfig {
   // scaling efficiency against 95.9% with the all-reduce after backward,
   // docs/benchmarks.md); a slower interconnect may differ.
   bool overlap = false;
+  // The gradients' dtype on the wire: fp32 (exact means) or bf16 (half the
+  // bytes; ~3 significant digits of the mean, as DDP's bf16 compression hook).
+  std::string grad_dtype = "fp32";
   template <class V>
   void visit(V& v) {
     v.field("backend", backend, config::one_of({"auto", "nccl", "gloo", "store"}),
@@ -149,6 +152,8 @@ struct DistributedConfig {
             "a collective or a silent peer fails after this long, naming the rank");
     v.field("bucket_mb", bucket_mb, config::positive(), "gradient all-reduce bucket size (MB)");
     v.field("overlap", overlap, "all-reduce gradient buckets during backward (false: after it)");
+    v.field("grad_dtype", grad_dtype, config::one_of({"fp32", "bf16"}),
+            "gradients' dtype in the all-reduce: fp32 (exact) | bf16 (half the bytes, ~3 significant digits)");
   }
 };
 
