@@ -84,15 +84,19 @@ void GradientSync::finish_bucket(size_t b) {
   const Bucket& bucket = buckets_[b];
   const int64_t n = static_cast<int64_t>(bucket.params.size());
   at::Tensor flat = pending.flat;
-  const at::Tensor counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
-  const auto* count = counts.data_ptr<float>();
+  // The presence counts are read on the host (a device sync) only where this
+  // rank lacks a gradient: a gradient it has was counted, so it gets the mean.
+  bool all_local = true;
+  for (int64_t k = 0; k < n; ++k) all_local = all_local && params_[bucket.params[k]].grad().defined();
+  at::Tensor counts;
+  if (!all_local) counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
   flat.narrow(0, 0, bucket.numel).div_(static_cast<double>(group_.world_size()));
   int64_t offset = 0;
   for (int64_t k = 0; k < n; ++k) {
     at::Tensor p = params_[bucket.params[k]];
     at::Tensor mean = flat.narrow(0, offset, p.numel()).view(p.sizes());
     offset += p.numel();
-    if (count[k] == 0) continue;  // no rank had a gradient: leave it undefined everywhere
+    if (!all_local && counts.data_ptr<float>()[k] == 0) continue;  // no rank had one: undefined everywhere
     if (p.grad().defined()) {
       p.mutable_grad().copy_(mean);
     } else {
