@@ -29,6 +29,22 @@ at::Tensor gamma_like(const at::Tensor& gamma, const at::Tensor& x) {
   shape[1] = gamma.numel();
   return gamma.reshape(shape);
 }
+
+// A (B,C,n+T,H,W) tensor for the result of x (B,C,T,H,W) whose first n
+// frames are `history` (zeros when undefined); frames n.. are left to fill.
+at::Tensor padded_output(const at::Tensor& x, int64_t n, const at::Tensor& history, at::MemoryFormat format) {
+  at::Tensor out = at::empty({x.size(0), x.size(1), n + x.size(2), x.size(3), x.size(4)}, x.options().memory_format(format));
+  if (n > 0) {
+    if (history.defined()) {
+      FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
+                                           shape_str(history));
+      out.narrow(2, 0, n).copy_(history);
+    } else {
+      out.narrow(2, 0, n).zero_();
+    }
+  }
+  return out;
+}
 }  // namespace
 
 RMSNormImpl::RMSNormImpl(int64_t channels, bool images, bool fused) : fused_(fused) {
@@ -81,16 +97,7 @@ at::Tensor fused_norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, 
                                   at::Tensor* history_out) {
   const int64_t B = x.size(0), C = x.size(1), T = x.size(2), H = x.size(3), W = x.size(4);
   const auto cl = at::MemoryFormat::ChannelsLast3d;
-  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(cl));
-  if (n > 0) {
-    if (history.defined()) {
-      FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
-                                           shape_str(history));
-      out.narrow(2, 0, n).copy_(history);
-    } else {
-      out.narrow(2, 0, n).zero_();
-    }
-  }
+  at::Tensor out = padded_output(x, n, history, cl);
   at::Tensor next;
   if (history_out != nullptr && n > 0 && T >= n) next = at::empty({B, C, n, H, W}, x.options().memory_format(cl));
   const at::Tensor g = gamma.to(x.scalar_type()).contiguous();
@@ -170,16 +177,7 @@ at::Tensor norm_silu_padded(const at::Tensor& x, const at::Tensor& gamma, int64_
     at::Tensor past = history.defined() ? history : at::zeros({B, C, n, H, W}, x.options());
     return keep_history(at::cat({past, act}, 2));
   }
-  at::Tensor out = at::empty({B, C, n + T, H, W}, x.options().memory_format(x.suggest_memory_format()));
-  if (n > 0) {
-    if (history.defined()) {
-      FLAT_CHECK(history.size(2) == n, "RMS_norm+SiLU: history must hold " + std::to_string(n) + " frames, got " +
-                                           shape_str(history));
-      out.narrow(2, 0, n).copy_(history);
-    } else {
-      out.narrow(2, 0, n).zero_();
-    }
-  }
+  at::Tensor out = padded_output(x, n, history, x.suggest_memory_format());
   at::Tensor body = out.narrow(2, n, T);
   at::silu_out(body, y);
   return keep_history(out);

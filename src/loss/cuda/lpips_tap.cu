@@ -10,6 +10,7 @@
 #include <cuda_bf16.h>
 
 #include <cstdint>
+#include <type_traits>
 
 #include "lpips_tap_kernel.h"
 
@@ -163,6 +164,17 @@ int lanes_for(int64_t channels) {
 
 int64_t blocks_for(int64_t rows, int lanes) { return (rows * lanes + kThreads - 1) / kThreads; }
 
+// Calls f(std::integral_constant<int, L>) with the lanes per pixel of lanes_for.
+template <class F>
+void with_lanes(int64_t channels, F&& f) {
+  switch (lanes_for(channels)) {
+    case 2: return f(std::integral_constant<int, 2>{});
+    case 4: return f(std::integral_constant<int, 4>{});
+    case 8: return f(std::integral_constant<int, 8>{});
+    default: return f(std::integral_constant<int, 16>{});
+  }
+}
+
 }  // namespace
 
 bool lpips_tap_supported(int64_t channels) {
@@ -172,44 +184,24 @@ bool lpips_tap_supported(int64_t channels) {
 void launch_lpips_tap_forward(const void* a, const void* b, const float* w, float* pixel_out, int64_t rows,
                               int64_t channels, cudaStream_t stream) {
   if (rows == 0) return;
-  const auto* pa = static_cast<const __nv_bfloat16*>(a);
-  const auto* pb = static_cast<const __nv_bfloat16*>(b);
-  const int c = int(channels);
-  switch (lanes_for(channels)) {
-    case 2:
-      return lpips_tap_forward_kernel<2><<<blocks_for(rows, 2), kThreads, 0, stream>>>(pa, pb, w, pixel_out, rows, c);
-    case 4:
-      return lpips_tap_forward_kernel<4><<<blocks_for(rows, 4), kThreads, 0, stream>>>(pa, pb, w, pixel_out, rows, c);
-    case 8:
-      return lpips_tap_forward_kernel<8><<<blocks_for(rows, 8), kThreads, 0, stream>>>(pa, pb, w, pixel_out, rows, c);
-    default:
-      return lpips_tap_forward_kernel<16><<<blocks_for(rows, 16), kThreads, 0, stream>>>(pa, pb, w, pixel_out, rows, c);
-  }
+  with_lanes(channels, [&](auto lanes) {
+    constexpr int L = decltype(lanes)::value;
+    lpips_tap_forward_kernel<L><<<blocks_for(rows, L), kThreads, 0, stream>>>(
+        static_cast<const __nv_bfloat16*>(a), static_cast<const __nv_bfloat16*>(b), w, pixel_out, rows, int(channels));
+  });
 }
 
 void launch_lpips_tap_backward(const void* a, const void* b, const float* w, const float* scale, void* grad_a,
                                void* grad_b, int64_t rows, int64_t pixels_per_view, int64_t channels,
                                cudaStream_t stream) {
   if (rows == 0) return;
-  const auto* pa = static_cast<const __nv_bfloat16*>(a);
-  const auto* pb = static_cast<const __nv_bfloat16*>(b);
-  auto* ga = static_cast<__nv_bfloat16*>(grad_a);
-  auto* gb = static_cast<__nv_bfloat16*>(grad_b);
-  const int c = int(channels);
-  switch (lanes_for(channels)) {
-    case 2:
-      return lpips_tap_backward_kernel<2><<<blocks_for(rows, 2), kThreads, 0, stream>>>(pa, pb, w, scale, ga, gb, rows,
-                                                                                         pixels_per_view, c);
-    case 4:
-      return lpips_tap_backward_kernel<4><<<blocks_for(rows, 4), kThreads, 0, stream>>>(pa, pb, w, scale, ga, gb, rows,
-                                                                                         pixels_per_view, c);
-    case 8:
-      return lpips_tap_backward_kernel<8><<<blocks_for(rows, 8), kThreads, 0, stream>>>(pa, pb, w, scale, ga, gb, rows,
-                                                                                         pixels_per_view, c);
-    default:
-      return lpips_tap_backward_kernel<16><<<blocks_for(rows, 16), kThreads, 0, stream>>>(
-          pa, pb, w, scale, ga, gb, rows, pixels_per_view, c);
-  }
+  with_lanes(channels, [&](auto lanes) {
+    constexpr int L = decltype(lanes)::value;
+    lpips_tap_backward_kernel<L><<<blocks_for(rows, L), kThreads, 0, stream>>>(
+        static_cast<const __nv_bfloat16*>(a), static_cast<const __nv_bfloat16*>(b), w, scale,
+        static_cast<__nv_bfloat16*>(grad_a), static_cast<__nv_bfloat16*>(grad_b), rows, pixels_per_view,
+        int(channels));
+  });
 }
 
 }  // namespace flat::loss::cuda
