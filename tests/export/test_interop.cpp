@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -145,4 +146,56 @@ TEST_CASE("interop: check_interop.py started by a python without trimesh runs it
       CHECK(line.find("UNAVAILABLE") == std::string::npos);
     }
   CHECK(trimesh_lines > 0);
+}
+
+TEST_CASE("interop: docs/inference.md's check_interop example runs as written on a flat_infer folder",
+          "[.interop][export]") {
+  // The example once hard-coded one model's triangle count (7,896), so a
+  // reader who copied it got a MISMATCH for any other model. It must take the
+  // count from the folder's summary.json, as written in the docs.
+  const std::string docs = flat::test::slurp(std::string(FLAT_SOURCE_DIR) + "/docs/inference.md");
+  const size_t at = docs.find("python3 scripts/check_interop.py runs/tiny/infer/room0/");
+  REQUIRE(at != std::string::npos);
+  std::string command;
+  for (size_t pos = at;;) {  // the line and its backslash continuations
+    const size_t end = docs.find('\n', pos);
+    std::string line = docs.substr(pos, end - pos);
+    const bool more = !line.empty() && line.back() == '\\';
+    if (more) line.pop_back();
+    command += line + " ";
+    if (!more || end == std::string::npos) break;
+    pos = end + 1;
+  }
+  INFO("the docs' command: " << command);
+  CHECK(command.find("triangles_kept") != std::string::npos);
+  CHECK(command.find("7896") == std::string::npos);
+
+  // A flat_infer output folder at the docs' path with 13 triangles; the
+  // command runs from a folder laid out like the repository (scripts/, runs/).
+  auto root = flat::test::scratch_dir("interop_docs_example");
+  std::filesystem::create_directory_symlink(std::string(FLAT_SOURCE_DIR) + "/scripts", root / "scripts");
+  const auto out = root / "runs/tiny/infer/room0";
+  std::filesystem::create_directories(out);
+  const int64_t n = 13;
+  auto s = flat::test::random_soup(n, torch::kFloat, 31);
+  const flat::primitives::TriangleSoup soup{s.vertices, s.colors, s.opacities, s.sigmas};
+  flat::exporter::write_triangle_ply((out / "scene.ply").string(), soup);
+  if (!flat::exporter::glb_export_available()) {
+    REQUIRE_FALSE(interop_required());
+    FLAT_SKIP("built without GLB export");
+  }
+  flat::exporter::write_triangle_glb((out / "scene.glb").string(), soup);
+  {
+    std::ofstream summary(out / "summary.json");
+    summary << "{\"triangles_decoded\": " << n << ", \"triangles_kept\": " << n << "}\n";
+  }
+  const auto log = (root / "example.txt").string();
+  const int rc = flat::test::run_program(
+      {"/bin/bash", "-c", "cd '" + root.string() + "' && " + command}, log, 900);
+  const std::string report = flat::test::slurp(log);
+  INFO(report);
+  if (rc != 0 && !interop_required() && report.find("UNAVAILABLE") != std::string::npos)
+    FLAT_SKIP("a reader is missing here (--require-all); CI has them all");
+  CHECK(rc == 0);
+  CHECK(report.find("MISMATCH") == std::string::npos);
 }
