@@ -174,6 +174,7 @@ InferSummary run_inference(const InferOptions& o) {
                                o.render_chunk, video, range, "render input views");
     s.input_views = r.views;
     s.input_uncovered = r.uncovered;
+    s.input_depth_range = r.depth_range;
     if (o.renders) s.outputs.push_back("renders/");
     if (video) s.outputs.push_back("videos/");
     if (video) write_video(r, out.file("videos/input.mp4"), o.fps);
@@ -183,6 +184,7 @@ InferSummary run_inference(const InferOptions& o) {
                                  video, display_depth_range(scene, novel), "render novel views");
       s.novel_views = n.views;
       s.novel_uncovered = n.uncovered;
+      s.novel_depth_range = n.depth_range;
       // Novel views that look where no input frame did show black there: say so.
       if (n.uncovered > r.uncovered + 0.01)
         s.notes.push_back(fmt::format("novel views leave {:.1f}% of their pixels uncovered (input views: {:.1f}%): the "
@@ -225,6 +227,9 @@ InferSummary run_inference(const InferOptions& o) {
                       {"novel_views", s.novel_views},
                       {"novel_trajectory", o.novel.preset},
                       {"uncovered_pixels", {{"input", s.input_uncovered}, {"novel", s.novel_uncovered}}},
+                      {"depth_display_range_m",
+                       {{"input", {s.input_depth_range.first, s.input_depth_range.second}},
+                        {"novel", {s.novel_depth_range.first, s.novel_depth_range.second}}}},
                       {"render_size", {H, W}},
                       {"seconds", {{"decode", s.decode_seconds}, {"export", s.export_seconds},
                                    {"render", s.render_seconds}, {"total", s.total_seconds}}},

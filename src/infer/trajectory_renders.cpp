@@ -59,6 +59,7 @@ TrajectoryRenders render_trajectory(pipeline::ScenePipeline& pipeline, const pri
   const auto t0 = std::chrono::steady_clock::now();
   const auto device = scene.opacities().device();
   TrajectoryRenders out;
+  out.depth_range = depth_range;
   out.views = cams.size();
   std::vector<at::Tensor> frames;
   double alpha_sum = 0, uncovered = 0;

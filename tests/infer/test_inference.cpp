@@ -305,6 +305,24 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
   }
 }
 
+TEST_CASE("flat_infer: a dolly's novel views get their own depth range (they come closer than the input views)",
+          "[infer]") {
+  auto s = setup("infer_dolly_depth");
+  auto o = options(s, "out");
+  o.glb = false;
+  o.novel.preset = "dolly";
+  const auto summary = infer::run_inference(o);
+  INFO("input " << summary.input_depth_range.first << ".." << summary.input_depth_range.second << " m, novel "
+                << summary.novel_depth_range.first << ".." << summary.novel_depth_range.second << " m");
+  CHECK(summary.input_depth_range.first > 0);
+  CHECK(summary.input_depth_range.first < summary.input_depth_range.second);
+  // The dolly's closest views see the scene nearer than any input view did:
+  // with the input views' range their depth would saturate (all bright).
+  CHECK(summary.novel_depth_range.first < summary.input_depth_range.first - 0.01);
+  auto j = nlohmann::json::parse(read_text(fs::path(o.out_dir) / "summary.json"));
+  CHECK(j.at("depth_display_range_m").at("novel").at(0).get<double>() == Approx(summary.novel_depth_range.first));
+}
+
 TEST_CASE("depth display range covers every camera of a trajectory: a dolly's closest views do not saturate",
           "[infer]") {
   // 200 triangles at depths 4..6 in front of the origin, the cameras looking down +z.

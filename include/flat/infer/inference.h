@@ -52,6 +52,8 @@ struct InferSummary {
   double decode_seconds = 0, export_seconds = 0, render_seconds = 0, total_seconds = 0;
   double decode_peak_gib = 0, render_peak_gib = 0;  // CUDA peak memory (0 on the CPU)
   double input_uncovered = 0, novel_uncovered = 0;  // share of rendered pixels with alpha < 0.5
+  // The depth renders' display range (metres, near to far) of each trajectory.
+  std::pair<double, double> input_depth_range{0, 0}, novel_depth_range{0, 0};
   std::vector<std::string> outputs;                // what was written, relative to out_dir
   std::vector<std::string> notes;                  // what was skipped and why
 };

@@ -21,6 +21,7 @@ struct TrajectoryRenders {
   double seconds = 0;
   double mean_alpha = 0;       // coverage over all views
   double uncovered = 0;        // share of pixels with alpha < 0.5 (the scene does not reach there)
+  std::pair<double, double> depth_range{0, 0};  // metres shown as depth, near (bright) to far
   at::Tensor video_frames;     // (V,3,H,3W) uint8: rgb | depth | normals side by side (when asked)
 };
 
