@@ -3,6 +3,7 @@
 #include "flat/camera/ray_embeddings.h"
 #include "flat/core/autocast_scope.h"
 #include "flat/core/error.h"
+#include "primitives/primitive_cameras.h"
 #include "test_support.h"
 
 using namespace flat::camera;
@@ -83,19 +84,7 @@ TEST_CASE("camera checks name the problem", "[camera]") {
 TEST_CASE("bf16 autocast leaves pixel rays and world-to-camera in fp32", "[camera]") {
   // The rays feed the triangle geometry inside the training step's bf16
   // autocast; an einsum / matmul there would be cast to bf16 (~3 digits).
-  const int64_t V = 3;
-  auto g = at::make_generator<at::CPUGeneratorImpl>(31);
-  auto q = at::randn({V, 4}, g, at::kDouble);
-  q = q / q.norm(2, -1, true);
-  auto w = q.select(1, 0), x = q.select(1, 1), y = q.select(1, 2), z = q.select(1, 3);
-  auto R = at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}, -1).view({V, 3, 3});
-  auto c2w = at::eye(4, at::kDouble).repeat({V, 1, 1});
-  c2w.narrow(1, 0, 3).narrow(2, 0, 3).copy_(R);
-  c2w.narrow(1, 0, 3).select(2, 3).copy_(3 * at::randn({V, 3}, g, at::kDouble));
-  auto K = at::tensor({0.8, 1.1, 0.48, 0.52}, at::kDouble).repeat({V, 1});
-  Cameras cams{K.to(at::kFloat), c2w.to(at::kFloat)};
+  const Cameras cams = flat::test::make_cameras(3);  // varied rotations, positions, intrinsics
   auto plain = pixel_rays(cams, 6, 8);
   auto plain_w2c = world_to_camera(cams.c2w);
   Rays mixed;
@@ -113,7 +102,8 @@ TEST_CASE("bf16 autocast leaves pixel rays and world-to-camera in fp32", "[camer
   CHECK(ed < 1e-5);
   CHECK(ew < 1e-5);
   // and both against the fp64 reference
-  auto ref = pixel_rays(Cameras{K, c2w}, 6, 8);
+  const Cameras fp64 = flat::test::make_cameras(3, at::kDouble);
+  auto ref = pixel_rays(fp64, 6, 8);
   CHECK(flat::test::rel_error(mixed.directions, ref.directions) < 1e-5);
-  CHECK(flat::test::rel_error(mixed_w2c, world_to_camera(c2w)) < 1e-5);
+  CHECK(flat::test::rel_error(mixed_w2c, world_to_camera(fp64.c2w)) < 1e-5);
 }
