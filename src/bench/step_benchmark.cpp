@@ -45,6 +45,13 @@ const char* const kPhases[] = {"decoder forward", "rasterizer forward", "losses 
 void print_step_profile(const std::vector<GpuActivity>& acts, const StepTimes& times) {
   const double wall[] = {times.decode_forward, times.render_forward, times.loss_forward, times.render_loss_backward,
                          times.decoder_backward};
+  if (times.phase_end_ns.size() != std::size(wall)) {
+    // A step without the five phases (the VAE task, or one stopped by a
+    // non-finite loss): the whole step as one group.
+    print_grouped("profile, whole step, by class", acts, 12, kernel_class);
+    print_grouped("profile, whole step, by kernel", acts, 16, [](const std::string& n) { return n.substr(0, 100); });
+    return;
+  }
   std::vector<std::vector<GpuActivity>> by_phase(std::size(kPhases));
   for (const auto& a : acts) {
     size_t p = 0;

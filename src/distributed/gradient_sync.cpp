@@ -100,7 +100,7 @@ void GradientSync::finish_bucket(size_t b) {
     if (p.grad().defined()) {
       p.mutable_grad().copy_(mean);
     } else {
-      p.mutable_grad() = mean.clone();
+      p.mutable_grad() = mean.to(p.scalar_type(), /*non_blocking=*/false, /*copy=*/true);  // a bf16 wire mean too
     }
   }
 }

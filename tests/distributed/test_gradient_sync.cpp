@@ -90,6 +90,18 @@ TEST_CASE("gradient sync: bf16 on the wire sends bf16 buckets and writes fp32 me
   CHECK(flat::test::rel_error(a.grad(), exact) < 1e-2);
   CHECK_FALSE(torch::equal(a.grad(), exact));
   CHECK(torch::allclose(b.grad(), torch::full({5}, 2.f / 3.f), 1e-2));
+
+  // A parameter this rank left without a gradient gets the other rank's mean
+  // in its own dtype (an fp32 .grad, never the bf16 of the wire).
+  at::Tensor c = param(4);
+  ScriptedGroup other([](const at::Tensor&) {  // the peer: gradient 2 for c, and its presence count
+    return torch::tensor({2.f, 2.f, 2.f, 2.f, 1.f}).to(at::kBFloat16);
+  });
+  GradientSync sync_c(other, {c}, options);
+  sync_c.all_reduce_gradients();
+  REQUIRE(c.grad().defined());
+  CHECK(c.grad().scalar_type() == at::kFloat);
+  CHECK(torch::equal(c.grad(), torch::ones({4})));
 }
 
 TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[distributed]") {
