@@ -8,6 +8,28 @@
 
 using namespace flat::model;
 
+namespace {
+
+// cuDNN's convs default to TF32: off for exact fp32 comparisons, restored after.
+struct NoTf32 {
+  bool was = at::globalContext().allowTF32CuDNN();
+  NoTf32() { at::globalContext().setAllowTF32CuDNN(false); }
+  ~NoTf32() { at::globalContext().setAllowTF32CuDNN(was); }
+};
+
+// A small (dim 16) scene decoder on the CPU, and a CUDA copy of its weights.
+std::pair<SceneDecoder, SceneDecoder> cpu_and_cuda_decoders() {
+  SceneDecoderConfig config;
+  config.vae.dim = 16;
+  SceneDecoder cpu(config);
+  SceneDecoder gpu(config);
+  load_state(*gpu, state_tensors(*cpu), {}, "cpu copy");
+  gpu->to(torch::kCUDA);
+  return {cpu, gpu};
+}
+
+}  // namespace
+
 TEST_CASE("CUDA fused RMS_norm + SiLU equals the ATen path", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::NoGradGuard no_grad;
@@ -64,15 +86,8 @@ TEST_CASE("CUDA streamed RMS_norm + SiLU hands on its last frames as history", "
 TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::manual_seed(11);
-  // Exact fp32 on the GPU (cuDNN convs default to TF32).
-  const bool tf32_cudnn = at::globalContext().allowTF32CuDNN();
-  at::globalContext().setAllowTF32CuDNN(false);
-  SceneDecoderConfig config;
-  config.vae.dim = 16;
-  SceneDecoder cpu(config);
-  SceneDecoder gpu(config);
-  load_state(*gpu, state_tensors(*cpu), {}, "cpu copy");
-  gpu->to(torch::kCUDA);
+  const NoTf32 exact;
+  auto [cpu, gpu] = cpu_and_cuda_decoders();
   to_channels_last_3d(*gpu);
   torch::NoGradGuard no_grad;
   auto latent = torch::randn({1, 16, 3, 4, 6});
@@ -83,7 +98,6 @@ TEST_CASE("CUDA channels-last scene decoder equals the CPU (fp32)", "[model][cud
     INFO("streaming " << streaming);
     CHECK(flat::test::rel_error(out, ref) < 1e-4);
   }
-  at::globalContext().setAllowTF32CuDNN(tf32_cudnn);
   // bf16 runs and stays close.
   gpu->to(torch::kBFloat16);
   auto bf = gpu->forward(latent.cuda().to(torch::kBFloat16), cams.cuda().to(torch::kBFloat16)).to(torch::kFloat).cpu();
@@ -136,14 +150,8 @@ TEST_CASE("CUDA fused RMS_norm + SiLU under autograd: output and gradients equal
 TEST_CASE("CUDA scene decoder gradients (training path, fused norms) equal the CPU's (fp32)", "[model][cuda]") {
   FLAT_REQUIRE_CUDA();
   torch::manual_seed(12);
-  const bool tf32_cudnn = at::globalContext().allowTF32CuDNN();
-  at::globalContext().setAllowTF32CuDNN(false);
-  SceneDecoderConfig config;
-  config.vae.dim = 16;
-  SceneDecoder cpu(config);
-  SceneDecoder gpu(config);
-  load_state(*gpu, state_tensors(*cpu), {}, "cpu copy");
-  gpu->to(torch::kCUDA);
+  const NoTf32 exact;
+  auto [cpu, gpu] = cpu_and_cuda_decoders();
   auto latent = torch::randn({1, 16, 3, 4, 6});
   auto cams = torch::randn({1, 32, 3, 4, 6});
   auto ref = cpu->forward(latent, cams);
@@ -164,5 +172,4 @@ TEST_CASE("CUDA scene decoder gradients (training path, fused norms) equal the C
     ++compared;
   }
   CHECK(compared > 50);
-  at::globalContext().setAllowTF32CuDNN(tf32_cudnn);
 }
