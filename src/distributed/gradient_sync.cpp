@@ -1,5 +1,7 @@
 #include "flat/distributed/gradient_sync.h"
 
+#include <c10/util/strides.h>
+
 #include "flat/core/error.h"
 
 namespace flat::distributed {
@@ -28,9 +30,42 @@ GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, 
     }
     if (!fits) buckets_.emplace_back();
     buckets_.back().params.push_back(i);
+    buckets_.back().offsets.push_back(buckets_.back().numel);
     buckets_.back().numel += p.numel();
   }
   pending_.resize(buckets_.size());
+  // The buckets live as long as this object: the gradients are views into them.
+  at::NoGradGuard no_grad;
+  views_.resize(params_.size());
+  present_.assign(params_.size(), 0);
+  for (const Bucket& bucket : buckets_) {
+    const at::Tensor& first = params_[bucket.params.front()];
+    const int64_t n = static_cast<int64_t>(bucket.params.size());
+    flat_.push_back(at::zeros({bucket.numel + n}, first.options()));
+    for (int64_t k = 0; k < n; ++k) {
+      const at::Tensor& p = params_[bucket.params[k]];
+      // The parameter's own layout (a channels-last conv weight gets a
+      // channels-last gradient), so the optimiser's fused loops still apply.
+      const c10::DimVector strides =
+          p.is_non_overlapping_and_dense() ? c10::DimVector(p.strides()) : c10::contiguous_strides(p.sizes());
+      // An alias of the bucket's storage, not an autograd view: optimisers
+      // may detach_() a .grad (libtorch's zero_grad does), which a view forbids.
+      views_[bucket.params[k]] =
+          at::empty({0}, first.options()).set_(flat_.back().storage(), bucket.offsets[k], p.sizes(), strides);
+    }
+  }
+}
+
+bool GradientSync::is_bound(int64_t param) const {
+  const at::Tensor& g = params_[param].grad();
+  return g.defined() && g.unsafeGetTensorImpl() == views_[param].unsafeGetTensorImpl();
+}
+
+void GradientSync::bind_gradients() {
+  at::NoGradGuard no_grad;
+  for (auto& f : flat_) f.zero_();
+  for (size_t i = 0; i < params_.size(); ++i) params_[i].mutable_grad() = views_[i];
+  std::fill(present_.begin(), present_.end(), 0);
 }
 
 void GradientSync::all_reduce_gradients() {
@@ -49,30 +84,37 @@ void GradientSync::start_bucket(size_t b) {
   FLAT_CHECK(!started(b), "gradient sync: bucket " + std::to_string(b) + " started twice");
   at::NoGradGuard no_grad;
   const Bucket& bucket = buckets_[b];
-  const at::Tensor& first = params_[bucket.params.front()];
   const int64_t n = static_cast<int64_t>(bucket.params.size());
-  const bool bf16 = bf16_wire_ && at::isFloatingType(first.scalar_type());
-  at::Tensor flat = at::empty({bucket.numel + n}, bf16 ? first.options().dtype(at::kBFloat16) : first.options());
-  int64_t offset = 0;
+  at::Tensor flat = flat_[b];
+  Pending& pending = pending_[b];
+  pending = Pending{};
+  std::vector<int64_t> absent;
   for (int64_t k = 0; k < n; ++k) {
-    const at::Tensor& p = params_[bucket.params[k]];
-    at::Tensor slot = flat.narrow(0, offset, p.numel());
-    const at::Tensor& g = p.grad();
-    if (g.defined()) {
-      FLAT_CHECK(g.sizes() == p.sizes(), "gradient sync: a gradient's shape differs from its parameter's");
-      slot.copy_(g.reshape(-1));
-    } else {
-      slot.zero_();
+    const int64_t i = bucket.params[k];
+    const at::Tensor& g = params_[i].grad();
+    if (is_bound(i)) {
+      // Backward accumulated into the bucket itself; without a gradient the slot holds bind's zeros.
+      if (!present_[size_t(i)]) absent.push_back(k);
+      continue;
     }
-    offset += p.numel();
+    pending.all_bound = false;
+    if (g.defined()) {
+      FLAT_CHECK(g.sizes() == params_[i].sizes(), "gradient sync: a gradient's shape differs from its parameter's");
+      views_[size_t(i)].copy_(g);  // in the slot's layout, which finish_bucket reads the mean back with
+    } else {
+      views_[size_t(i)].zero_();
+      absent.push_back(k);
+    }
   }
-  // The presence counts in one copy (a fill per parameter would be one kernel each on a GPU).
-  std::vector<float> present(size_t(n), 0.f);
-  for (int64_t k = 0; k < n; ++k) present[size_t(k)] = params_[bucket.params[k]].grad().defined() ? 1.f : 0.f;
-  flat.narrow(0, bucket.numel, n).copy_(at::tensor(present));
-  Pending& p = pending_[b];
-  p.flat = flat;
-  p.work = group_.allreduce_sum_async(p.flat);
+  // The presence counts: one fill, plus one zero per absent parameter (rare:
+  // a parameter unused on this rank), never a host-to-device copy, which
+  // would wait for the device.
+  at::Tensor counts = flat.narrow(0, bucket.numel, n);
+  counts.fill_(1);
+  for (int64_t k : absent) counts.narrow(0, k, 1).zero_();
+  pending.all_present = absent.empty();
+  pending.wire = bf16_wire_ && at::isFloatingType(flat.scalar_type()) ? flat.to(at::kBFloat16) : flat;
+  pending.work = group_.allreduce_sum_async(pending.wire);
 }
 
 void GradientSync::finish_bucket(size_t b) {
@@ -83,24 +125,23 @@ void GradientSync::finish_bucket(size_t b) {
   pending.work->wait();
   const Bucket& bucket = buckets_[b];
   const int64_t n = static_cast<int64_t>(bucket.params.size());
-  at::Tensor flat = pending.flat;
+  at::Tensor flat = flat_[b];
+  if (!pending.wire.is_same(flat)) flat.copy_(pending.wire);  // the bf16 wire's sums, back in the bucket's dtype
+  flat.narrow(0, 0, bucket.numel).div_(static_cast<double>(group_.world_size()));
+  if (pending.all_present && pending.all_bound) return;  // the means are in the gradients already
   // The presence counts are read on the host (a device sync) only where this
   // rank lacks a gradient: a gradient it has was counted, so it gets the mean.
-  bool all_local = true;
-  for (int64_t k = 0; k < n; ++k) all_local = all_local && params_[bucket.params[k]].grad().defined();
   at::Tensor counts;
-  if (!all_local) counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
-  flat.narrow(0, 0, bucket.numel).div_(static_cast<double>(group_.world_size()));
-  int64_t offset = 0;
+  if (!pending.all_present) counts = flat.narrow(0, bucket.numel, n).to(at::kCPU, at::kFloat);
   for (int64_t k = 0; k < n; ++k) {
-    at::Tensor p = params_[bucket.params[k]];
-    at::Tensor mean = flat.narrow(0, offset, p.numel()).view(p.sizes());
-    offset += p.numel();
-    if (!all_local && counts.data_ptr<float>()[k] == 0) continue;  // no rank had one: undefined everywhere
-    if (p.grad().defined()) {
-      p.mutable_grad().copy_(mean);
-    } else {
-      p.mutable_grad() = mean.to(p.scalar_type(), /*non_blocking=*/false, /*copy=*/true);  // a bf16 wire mean too
+    const int64_t i = bucket.params[k];
+    at::Tensor p = params_[i];
+    if (counts.defined() && counts.data_ptr<float>()[k] == 0) {
+      p.mutable_grad() = at::Tensor();  // no rank had one: undefined everywhere
+    } else if (!p.grad().defined()) {
+      p.mutable_grad() = views_[i];  // the mean of the ranks that had one, in the parameter's dtype
+    } else if (!is_bound(i)) {
+      p.mutable_grad().copy_(views_[i]);
     }
   }
 }

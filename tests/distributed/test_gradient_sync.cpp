@@ -104,6 +104,17 @@ TEST_CASE("gradient sync: bf16 on the wire sends bf16 buckets and writes fp32 me
   CHECK(torch::equal(c.grad(), torch::ones({4})));
 }
 
+TEST_CASE("gradient sync: a caller's own .grad of another layout than its channels-last parameter gets the mean",
+          "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t * 3; });  // the mean is 2x ours
+  at::Tensor w = torch::zeros({2, 3, 2, 2, 2}).contiguous(at::MemoryFormat::ChannelsLast3d).requires_grad_(true);
+  const at::Tensor g = torch::arange(48, torch::kFloat).view({2, 3, 2, 2, 2});  // contiguous, not w's layout
+  w.mutable_grad() = g.clone();
+  GradientSync sync(group, {w});
+  sync.all_reduce_gradients();
+  CHECK(torch::equal(w.grad(), g * 2));
+}
+
 TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[distributed]") {
   ScriptedGroup group([](const at::Tensor& t) { return t; });
   torch::nn::Linear lin(3, 2);
@@ -165,4 +176,42 @@ TEST_CASE("overlapped reducer: with overlap off, everything is reduced at finish
   reducer.finish();
   CHECK(group.sizes.size() == reducer.sync().buckets().size());
   CHECK(reducer.started_in_backward() == 0);
+}
+
+TEST_CASE("overlapped reducer: gradients are views into the buckets, in the parameters' layout, zeroed every step",
+          "[distributed]") {
+  // The other rank sent twice ours: the mean is 1.5x this rank's gradient.
+  ScriptedGroup group([](const at::Tensor& t) { return t * 2; });
+  torch::manual_seed(1);
+  // A channels-last 5-D weight (the decoder's conv weights on the GPU), a
+  // vector, and a parameter no rank uses.
+  at::Tensor w = torch::randn({4, 3, 2, 2, 2}).contiguous(at::MemoryFormat::ChannelsLast3d).requires_grad_(true);
+  at::Tensor v = torch::randn({3}).requires_grad_(true);
+  at::Tensor unused = torch::zeros({2}).requires_grad_(true);
+  const at::Tensor x = torch::randn({1, 3, 2, 2, 2});
+  auto loss_of = [&] { return ((w * x).sum({1, 2, 3, 4}).sum() * v).sum() + (w * w).sum(); };
+  const auto expected = torch::autograd::grad({loss_of()}, {w, v});
+  for (const bool overlap : {false, true}) {
+    CAPTURE(overlap);
+    OverlappedReducer reducer(group, {unused, w, v}, GradientSyncOptions{}, overlap);  // one bucket
+    REQUIRE(reducer.sync().buckets().size() == 1);
+    for (int step = 0; step < 2; ++step) {
+      CAPTURE(step);
+      for (auto* p : {&w, &v, &unused}) p->mutable_grad() = at::Tensor();  // the optimiser's zero_grad
+      reducer.prepare();
+      loss_of().backward();
+      reducer.finish();
+      // Backward wrote into the bucket itself: both gradients share its storage
+      // (a copy back into separate .grad tensors, as before, would not).
+      REQUIRE(w.grad().defined());
+      REQUIRE(v.grad().defined());
+      CHECK(w.grad().storage().is_alias_of(v.grad().storage()));
+      CHECK(w.grad().strides() == w.strides());
+      CHECK(w.grad().is_contiguous(at::MemoryFormat::ChannelsLast3d));
+      // The means of this step alone: the bucket was zeroed in between.
+      CHECK(torch::allclose(w.grad(), expected[0] * 1.5));
+      CHECK(torch::allclose(v.grad(), expected[1] * 1.5));
+      CHECK_FALSE(unused.grad().defined());
+    }
+  }
 }

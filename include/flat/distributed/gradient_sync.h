@@ -4,18 +4,25 @@
 //
 // The parameters are grouped into buckets of about bucket_bytes of one dtype
 // and device each, in reverse parameter order (about the order backward
-// produces them); a bucket is one flat tensor and one all-reduce.
-// start_bucket(b) copies the bucket's gradients in and starts its all-reduce
-// without waiting; finish_bucket(b) waits and writes the means back.
-// OverlappedReducer (overlapped_reducer.h) starts buckets from autograd hooks
-// while backward still runs.
+// produces them); a bucket is one flat tensor, kept for the whole run, and one
+// all-reduce. start_bucket(b) starts the bucket's all-reduce without waiting;
+// finish_bucket(b) waits and divides by the ranks.
+//
+// bind_gradients() (before backward) makes every .grad a zeroed view into its
+// bucket (DDP's gradient_as_bucket_view): backward accumulates straight into
+// what the all-reduce sends, and the mean lands in the .grad, so a step costs
+// a handful of kernels per bucket, not a copy in and out per parameter (those
+// launches, after backward on an idle GPU, were most of the 2-GPU overhead).
+// A .grad that is not its bucket's view (never bound, or replaced by the
+// caller) is copied in and the mean copied back, as before.
 //
 // A parameter without a gradient on a rank (unused in its forward)
 // contributes zeros, so every rank still makes the same collectives. Each
 // bucket carries one presence count per parameter: a parameter that had a
 // gradient on no rank keeps an undefined gradient everywhere (as in one
 // process, where the optimiser then skips it); otherwise every rank gets the
-// mean, zeros included.
+// mean, zeros included. A bound view is always defined, so its presence is
+// what mark_present says (OverlappedReducer's autograd hooks call it).
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -44,13 +51,20 @@ class GradientSync {
   struct Bucket {
     std::vector<int64_t> params;  // indices into the parameter list
     int64_t numel = 0;            // gradient values (the flat tensor adds one count per parameter)
+    std::vector<int64_t> offsets;  // where each parameter's values start in the flat tensor
   };
 
   // `params`: the trainable parameters, in the same order on every rank.
   GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options = {});
 
+  // Before backward: zeroes the buckets and makes each parameter's .grad its
+  // view into them, with the parameter's strides (a bf16 wire then casts the
+  // whole bucket in one kernel). Forgets earlier mark_present calls.
+  void bind_gradients();
+  // The bound .grad of `param` received a gradient in this backward.
+  void mark_present(int64_t param) { present_.at(size_t(param)) = 1; }
   // After backward: every bucket started in order, then every one finished
-  // (the all-reduces of later buckets overlap the copies of earlier ones).
+  // (the all-reduces of later buckets overlap the start of earlier ones).
   void all_reduce_gradients();
   void reduce_bucket(size_t b);  // start_bucket(b), finish_bucket(b)
 
@@ -65,13 +79,20 @@ class GradientSync {
 
  private:
   struct Pending {
-    at::Tensor flat;  // [gradients..., presence counts]
+    at::Tensor wire;  // what the all-reduce sends: the bucket, or its bf16 copy
     std::unique_ptr<Work> work;
+    bool all_present = true;  // every parameter had a gradient here
+    bool all_bound = true;    // and each one is its bucket view: nothing to copy back
   };
+  // Whether `param`'s .grad is its own bucket view (the very tensor bind_gradients set).
+  bool is_bound(int64_t param) const;
   ProcessGroup& group_;
   std::vector<at::Tensor> params_;
   std::vector<Bucket> buckets_;
   std::vector<Pending> pending_;
+  std::vector<at::Tensor> flat_;  // per bucket: [gradients..., presence counts], the parameters' dtype
+  std::vector<at::Tensor> views_;  // per parameter: its slot in flat_, with the parameter's strides
+  std::vector<char> present_;     // per parameter: mark_present since bind_gradients
   bool bf16_wire_ = false;
 };
 

@@ -12,8 +12,10 @@
 // for the ones before it), so the ranks issue the same collectives in the
 // same order whatever order their hooks fire in.
 //
-// With overlap off the hooks are not installed and finish() is
-// GradientSync::all_reduce_gradients after backward.
+// prepare() binds every .grad to its bucket (GradientSync::bind_gradients),
+// so backward accumulates into the buckets; the hooks also tell which
+// parameters received a gradient. With overlap off they only do that, and
+// finish() is GradientSync::all_reduce_gradients after backward.
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -38,7 +40,8 @@ class OverlappedReducer {
   OverlappedReducer(const OverlappedReducer&) = delete;
   OverlappedReducer& operator=(const OverlappedReducer&) = delete;
 
-  // Before the forward of a step: the hooks act only between prepare() and finish().
+  // Before the forward of a step, after the optimiser dropped the gradients:
+  // binds them to the buckets; the hooks act only between prepare() and finish().
   void prepare();
   // After backward (or when this rank skipped it): every parameter's gradient
   // is the mean over the ranks (none where no rank had one).
