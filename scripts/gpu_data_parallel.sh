@@ -48,6 +48,20 @@ s = [r["step_seconds"] for r in rows if r["step"] >= int(sys.argv[2])]
 print(f"{statistics.median(s):.4f}")
 EOF
 }
+# The 1-GPU steps' spread: what the slower of two ranks costs when each draws
+# its own sample (the median over all pairs of max(t_i, t_j) against the median),
+# an estimate of the data-parallel overhead that uneven data alone explains.
+pair_max() {
+  python3 - "$1/metrics/train.jsonl" "$SKIP" <<'EOF'
+import itertools, json, statistics, sys
+rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
+s = sorted(r["step_seconds"] for r in rows if r["step"] >= int(sys.argv[2]))
+m = statistics.median(s)
+pm = statistics.median(max(a, b) for a, b in itertools.combinations(s, 2))
+print(f"1-GPU step spread: p10 {1e3*s[len(s)//10]:.1f} ms, median {1e3*m:.1f} ms, p90 {1e3*s[9*len(s)//10]:.1f} ms; "
+      f"median of the slower of two: {1e3*pm:.1f} ms (uneven data alone: {100*m/pm:.1f}% at 2 GPUs)")
+EOF
+}
 peaks() { grep -oE "peak GPU memory.*" "$1" | tail -1 | sed 's/.*: //'; }
 
 source "$ROOT/scripts/stage_sizes.sh"
@@ -82,6 +96,7 @@ for stage in ${DP_STAGES:-1}; do
     [ -n "$t" ] && sps[$n]=$(python3 -c "print(f'{$n/$t:.3f}')")
     eff=""; [ -n "${sps[1]:-}" ] && [ -n "${sps[$n]:-}" ] && eff=$(python3 -c "print(f'{100*${sps[$n]}/($n*${sps[1]}):.1f}%')")
     say "$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_s${stage}_w$n$TAG.log")"
+    [ "$n" = 1 ] && [ -n "$t" ] && say "  $(pair_max "$WORK/s${stage}_w1")"
   done
   if [ "$W" -gt 1 ] && [[ " $PARTS " == *" equivalence "* ]]; then
     [[ " $PARTS " == *" scaling "* ]] || train s${stage}_w$W $W $W 10
@@ -89,9 +104,13 @@ for stage in ${DP_STAGES:-1}; do
     train s${stage}_one_b 1 $W 10
     python3 - "$WORK/s${stage}_one_a" "$WORK/s${stage}_one_b" "$WORK/s${stage}_w$W" "$W" <<'EOF' | tee -a "$SUM"
 import json, sys
-def losses(d):
-    return {json.loads(l)["step"]: json.loads(l)["loss"] for l in open(d + "/metrics/train.jsonl") if l.strip()}
+def losses(d, key="loss"):
+    return {json.loads(l)["step"]: json.loads(l)[key] for l in open(d + "/metrics/train.jsonl") if l.strip()}
 a, b, w = (losses(d) for d in sys.argv[1:4])
+# Step 0 starts from the same weights on the same batch: its gradient norm
+# compares the averaged gradient itself, before the runs drift apart.
+ga, gb, gw = (losses(d, "grad_norm")[0] for d in sys.argv[1:4])
+print(f"step 0 gradient norm: 1 GPU {ga:.6e} / {gb:.6e}, {sys.argv[4]} GPUs {gw:.6e}; rel. gaps a-b {abs(ga-gb)/ga:.1e}, a-W {abs(ga-gw)/ga:.1e}")
 print(f"losses of the first steps, global batch {sys.argv[4]}: 1 GPU (run a), 1 GPU (run b), {sys.argv[4]} GPUs; rel. gaps")
 for s in sorted(a)[:10]:
     if s in b and s in w:
@@ -121,5 +140,7 @@ EOF
     say "resume --nproc $W rc=$?: $(grep -oE 'resume: .*' "$OUT/dp_${name}_resume$TAG.log" | head -1); $(grep -oE "finished: .*" "$OUT/dp_${name}_resume$TAG.log" | tail -1)"
   fi
   unset sps
+  # Every run's metrics, for a closer look.
+  (cd "$WORK" && tar czf "$OUT/dp_metrics_$stage$TAG.tgz" $(ls -d s${stage}_*/metrics 2>/dev/null))
 done
 say "== end"
