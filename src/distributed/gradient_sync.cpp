@@ -1,5 +1,7 @@
 #include "flat/distributed/gradient_sync.h"
 
+#include <algorithm>
+
 #include <c10/util/strides.h>
 
 #include "flat/core/error.h"
@@ -14,9 +16,27 @@ void broadcast_tensors(ProcessGroup& group, const std::vector<at::Tensor>& tenso
   }
 }
 
+namespace {
+
+// Slots start on 16 bytes: the optimisers' vectorised loops need aligned
+// tensors, and a 3-value bias would otherwise misalign every slot after it.
+int64_t aligned(int64_t offset, int64_t element_size) {
+  const int64_t step = std::max<int64_t>(1, 16 / element_size);
+  return (offset + step - 1) / step * step;
+}
+
+}  // namespace
+
 GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options)
     : group_(group), params_(std::move(params)), bf16_wire_(options.bf16_wire) {
   FLAT_CHECK(options.bucket_bytes > 0, "gradient sync: bucket_bytes must be positive");
+  // A parameter listed twice (tied weights) would get two slots, one of them
+  // never written by backward and read while its all-reduce may still run.
+  for (size_t i = 0; i < params_.size(); ++i)
+    for (size_t j = 0; j < i; ++j)
+      FLAT_CHECK(!params_[i].defined() || !params_[j].defined() || !params_[i].is_same(params_[j]),
+                 "gradient sync: parameters " + std::to_string(j) + " and " + std::to_string(i) +
+                     " are the same tensor; list each once");
   // Reverse order: backward produces the last layers' gradients first.
   for (int64_t i = static_cast<int64_t>(params_.size()) - 1; i >= 0; --i) {
     const at::Tensor& p = params_[i];
@@ -26,18 +46,19 @@ GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, 
       const Bucket& b = buckets_.back();
       const at::Tensor& first = params_[b.params.front()];
       fits = first.scalar_type() == p.scalar_type() && first.device() == p.device() &&
-             (b.numel + p.numel()) * static_cast<int64_t>(p.element_size()) <= options.bucket_bytes;
+             (aligned(b.numel, p.element_size()) + p.numel()) * int64_t(p.element_size()) <= options.bucket_bytes;
     }
     if (!fits) buckets_.emplace_back();
-    buckets_.back().params.push_back(i);
-    buckets_.back().offsets.push_back(buckets_.back().numel);
-    buckets_.back().numel += p.numel();
+    Bucket& b = buckets_.back();
+    b.params.push_back(i);
+    b.offsets.push_back(aligned(b.numel, p.element_size()));
+    b.numel = b.offsets.back() + p.numel();
   }
   pending_.resize(buckets_.size());
   // The buckets live as long as this object: the gradients are views into them.
   at::NoGradGuard no_grad;
   views_.resize(params_.size());
-  present_.assign(params_.size(), 0);
+  bound_version_.assign(params_.size(), 0);
   for (const Bucket& bucket : buckets_) {
     const at::Tensor& first = params_[bucket.params.front()];
     const int64_t n = static_cast<int64_t>(bucket.params.size());
@@ -63,9 +84,14 @@ bool GradientSync::is_bound(int64_t param) const {
 
 void GradientSync::bind_gradients() {
   at::NoGradGuard no_grad;
-  for (auto& f : flat_) f.zero_();
-  for (size_t i = 0; i < params_.size(); ++i) params_[i].mutable_grad() = views_[i];
-  std::fill(present_.begin(), present_.end(), 0);
+  for (size_t b = 0; b < buckets_.size(); ++b) {
+    FLAT_CHECK(!started(b), "gradient sync: bind_gradients while bucket " + std::to_string(b) + " is in flight");
+    flat_[b].zero_();  // padding included
+  }
+  for (size_t i = 0; i < params_.size(); ++i) {
+    params_[i].mutable_grad() = views_[i];
+    bound_version_[i] = views_[i]._version();
+  }
 }
 
 void GradientSync::all_reduce_gradients() {
@@ -93,8 +119,9 @@ void GradientSync::start_bucket(size_t b) {
     const int64_t i = bucket.params[k];
     const at::Tensor& g = params_[i].grad();
     if (is_bound(i)) {
-      // Backward accumulated into the bucket itself; without a gradient the slot holds bind's zeros.
-      if (!present_[size_t(i)]) absent.push_back(k);
+      // Backward accumulated into the bucket itself (an in-place add, which
+      // moves the alias's version); untouched, the slot holds bind's zeros.
+      if (views_[size_t(i)]._version() == bound_version_[size_t(i)]) absent.push_back(k);
       continue;
     }
     pending.all_bound = false;

@@ -31,8 +31,7 @@ OverlappedReducer::OverlappedReducer(ProcessGroup& group, std::vector<at::Tensor
   ready_.assign(ps.size(), 0);
   for (size_t b = 0; b < sync_.buckets().size(); ++b)
     for (int64_t i : sync_.buckets()[b].params) bucket_of_[size_t(i)] = int64_t(b);
-  // The hooks are installed with overlap off too: a gradient bound to its
-  // bucket is always defined, so they are what says it was produced.
+  if (!overlap_) return;
   for (size_t i = 0; i < ps.size(); ++i) {
     FLAT_CHECK(ps[i].is_leaf() && ps[i].requires_grad(),
                "overlapped reducer: parameter " + std::to_string(i) + " is not a leaf that requires grad");
@@ -41,6 +40,7 @@ OverlappedReducer::OverlappedReducer(ProcessGroup& group, std::vector<at::Tensor
 }
 
 OverlappedReducer::~OverlappedReducer() {
+  if (!overlap_) return;
   for (const auto& p : sync_.params()) torch::autograd::impl::set_post_acc_grad_hooks(p, nullptr);
 }
 
@@ -52,7 +52,7 @@ void OverlappedReducer::prepare() {
   next_start_ = 0;
   started_in_backward_ = 0;
   error_.clear();
-  armed_ = true;
+  armed_ = overlap_;
 }
 
 void OverlappedReducer::mark_ready(int64_t param) {
@@ -70,8 +70,7 @@ void OverlappedReducer::mark_ready(int64_t param) {
     return;
   }
   ready_[size_t(param)] = 1;
-  sync_.mark_present(param);
-  if (--waiting_[size_t(b)] == 0 && overlap_) start_ready_buckets();
+  if (--waiting_[size_t(b)] == 0) start_ready_buckets();
 }
 
 void OverlappedReducer::start_ready_buckets() {

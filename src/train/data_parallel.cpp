@@ -40,6 +40,7 @@ int64_t DataParallel::broadcast(int64_t value) {
 }
 
 void DataParallel::reduce_gradients_of(std::vector<at::Tensor> params) {
+  reducer_.reset();  // its destructor removes the hooks: before the new reducer installs its own
   reducer_ = std::make_unique<distributed::OverlappedReducer>(*group_, std::move(params), sync_options_, overlap_);
 }
 

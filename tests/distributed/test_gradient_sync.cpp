@@ -62,8 +62,11 @@ TEST_CASE("gradient sync: a gradient missing on some ranks is averaged with zero
   at::Tensor a = param(3), b = param(2), c = param(2);
   a.mutable_grad() = torch::tensor({1.f, 2.f, 3.f});
   // The other rank: a gradient of ones for a and b, none for c. Layout of the
-  // one bucket (reverse order): c, b, a, then the counts of c, b, a.
-  ScriptedGroup group([](const at::Tensor&) { return torch::tensor({0.f, 0.f, 1.f, 1.f, 1.f, 1.f, 1.f, 0.f, 1.f, 1.f}); });
+  // one bucket (reverse order, slots on 16 bytes): c at 0, b at 4, a at 8,
+  // then the counts of c, b, a.
+  ScriptedGroup group([](const at::Tensor&) {
+    return torch::tensor({0.f, 0.f, 0.f, 0.f, 1.f, 1.f, 0.f, 0.f, 1.f, 1.f, 1.f, 0.f, 1.f, 1.f});
+  });
   GradientSync sync(group, {a, b, c});
   REQUIRE(sync.buckets().size() == 1);
   sync.all_reduce_gradients();
@@ -113,6 +116,73 @@ TEST_CASE("gradient sync: a caller's own .grad of another layout than its channe
   GradientSync sync(group, {w});
   sync.all_reduce_gradients();
   CHECK(torch::equal(w.grad(), g * 2));
+}
+
+TEST_CASE("gradient sync: slots start on 16 bytes; a parameter listed twice is refused", "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t.clone(); });
+  // Reverse order: 3 floats at 0, then 5 floats at 4 (not 3), then 1 double at 0 of its own bucket.
+  std::vector<at::Tensor> params = {param(1, at::kDouble), param(5), param(3)};
+  GradientSync sync(group, params);
+  REQUIRE(sync.buckets().size() == 2);
+  CHECK(sync.buckets()[0].offsets == std::vector<int64_t>{0, 4});
+  CHECK(sync.buckets()[0].numel == 9);
+  params[2].mutable_grad() = torch::full({3}, 2.f);
+  params[1].mutable_grad() = torch::full({5}, 3.f);
+  params[0].mutable_grad() = torch::full({1}, 4.0, torch::kDouble);
+  sync.all_reduce_gradients();
+  CHECK(torch::equal(params[2].grad(), torch::full({3}, 2.f)));
+  CHECK(torch::equal(params[1].grad(), torch::full({5}, 3.f)));
+  CHECK(torch::equal(params[0].grad(), torch::full({1}, 4.0, torch::kDouble)));
+
+  at::Tensor tied = param(4);
+  CHECK_THROWS_WITH(GradientSync(group, {tied, param(2), tied}), FLAT_CONTAINS("parameters 0 and 2 are the same tensor"));
+}
+
+TEST_CASE("overlapped reducer: a rank that skipped backward gets the others' mean, bf16 wire included",
+          "[distributed]") {
+  // The peer had gradient 4 for a and none for b (its counts: 1 for a, 0 for b).
+  // Bucket layout (reverse order): b (2 values, padded to 4), a (3), then the counts of b, a.
+  for (const bool bf16 : {false, true}) {
+    CAPTURE(bf16);
+    at::Tensor a = param(3), b = param(2);
+    ScriptedGroup group([&](const at::Tensor& t) {
+      auto peer = torch::tensor({0.f, 0.f, 0.f, 0.f, 4.f, 4.f, 4.f, 0.f, 1.f});
+      return peer.to(t.scalar_type());
+    });
+    GradientSyncOptions options;
+    options.bf16_wire = bf16;
+    OverlappedReducer reducer(group, {a, b}, options, /*overlap=*/false);
+    reducer.prepare();
+    // No backward here (a non-finite loss on this rank).
+    reducer.finish();
+    CHECK(group.dtypes == std::vector<at::ScalarType>{bf16 ? at::kBFloat16 : at::kFloat});
+    REQUIRE(a.grad().defined());
+    CHECK(a.grad().scalar_type() == at::kFloat);
+    CHECK(torch::equal(a.grad(), torch::full({3}, 2.f)));
+    CHECK_FALSE(b.grad().defined());
+  }
+}
+
+TEST_CASE("overlapped reducer: with a bf16 wire the bound gradients get the means, near the exact ones",
+          "[distributed]") {
+  ScriptedGroup group([](const at::Tensor& t) { return t * 3; });  // the mean is 2x ours
+  torch::manual_seed(2);
+  torch::nn::Linear lin(6, 5);
+  const at::Tensor x = torch::randn({4, 6});
+  auto loss_of = [&] { return lin->forward(x).pow(2).sum(); };
+  const auto expected = torch::autograd::grad({loss_of()}, {lin->weight, lin->bias});
+  GradientSyncOptions options;
+  options.bf16_wire = true;
+  OverlappedReducer reducer(group, lin->parameters(), options);
+  for (auto& p : lin->parameters()) p.mutable_grad() = at::Tensor();
+  reducer.prepare();
+  loss_of().backward();
+  reducer.finish();
+  CHECK(group.dtypes == std::vector<at::ScalarType>{at::kBFloat16});
+  CHECK(lin->weight.grad().storage().is_alias_of(lin->bias.grad().storage()));  // still the bucket
+  CHECK(lin->weight.grad().scalar_type() == at::kFloat);
+  CHECK(flat::test::rel_error(lin->weight.grad(), expected[0] * 2) < 1e-2);
+  CHECK(flat::test::rel_error(lin->bias.grad(), expected[1] * 2) < 1e-2);
 }
 
 TEST_CASE("gradient sync: broadcast_tensors writes the tensors in place", "[distributed]") {

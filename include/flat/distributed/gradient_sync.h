@@ -8,21 +8,22 @@
 // all-reduce. start_bucket(b) starts the bucket's all-reduce without waiting;
 // finish_bucket(b) waits and divides by the ranks.
 //
-// bind_gradients() (before backward) makes every .grad a zeroed view into its
-// bucket (DDP's gradient_as_bucket_view): backward accumulates straight into
-// what the all-reduce sends, and the mean lands in the .grad, so a step costs
-// a handful of kernels per bucket, not a copy in and out per parameter (those
-// launches, after backward on an idle GPU, were most of the 2-GPU overhead).
-// A .grad that is not its bucket's view (never bound, or replaced by the
-// caller) is copied in and the mean copied back, as before.
+// bind_gradients() (before backward) makes every .grad a zeroed alias of its
+// slot in the bucket (DDP's gradient_as_bucket_view): backward accumulates
+// straight into what the all-reduce sends, and the mean lands in the .grad, so
+// a step costs a handful of kernels per bucket, not a copy in and out per
+// parameter (those launches, after backward on an idle GPU, were most of the
+// 2-GPU overhead). A .grad that is not its bucket alias (never bound, or
+// replaced by the caller) is copied in and the mean copied back.
 //
 // A parameter without a gradient on a rank (unused in its forward)
 // contributes zeros, so every rank still makes the same collectives. Each
 // bucket carries one presence count per parameter: a parameter that had a
 // gradient on no rank keeps an undefined gradient everywhere (as in one
 // process, where the optimiser then skips it); otherwise every rank gets the
-// mean, zeros included. A bound view is always defined, so its presence is
-// what mark_present says (OverlappedReducer's autograd hooks call it).
+// mean, zeros included. A bound alias is always defined: it counts as present
+// when something wrote to it since bind_gradients (its version counter moved;
+// AccumulateGrad adds into it in place).
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -50,21 +51,19 @@ class GradientSync {
  public:
   struct Bucket {
     std::vector<int64_t> params;  // indices into the parameter list
-    int64_t numel = 0;            // gradient values (the flat tensor adds one count per parameter)
-    std::vector<int64_t> offsets;  // where each parameter's values start in the flat tensor
+    int64_t numel = 0;             // gradient values and alignment padding (then one count per parameter)
+    std::vector<int64_t> offsets;  // where each parameter's values start, 16-byte aligned
   };
 
   // `params`: the trainable parameters, in the same order on every rank.
   GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, GradientSyncOptions options = {});
 
-  // Before backward: zeroes the buckets and makes each parameter's .grad its
-  // view into them, with the parameter's strides (a bf16 wire then casts the
-  // whole bucket in one kernel). Forgets earlier mark_present calls.
+  // Before backward, with no bucket in flight: zeroes the buckets and makes
+  // each parameter's .grad an alias of its slot, with the parameter's strides
+  // (a bf16 wire then casts the whole bucket in one kernel).
   void bind_gradients();
-  // The bound .grad of `param` received a gradient in this backward.
-  void mark_present(int64_t param) { present_.at(size_t(param)) = 1; }
   // After backward: every bucket started in order, then every one finished
-  // (the all-reduces of later buckets overlap the start of earlier ones).
+  // (the all-reduces of earlier buckets overlap the starting of later ones).
   void all_reduce_gradients();
   void reduce_bucket(size_t b);  // start_bucket(b), finish_bucket(b)
 
@@ -91,8 +90,8 @@ class GradientSync {
   std::vector<Bucket> buckets_;
   std::vector<Pending> pending_;
   std::vector<at::Tensor> flat_;  // per bucket: [gradients..., presence counts], the parameters' dtype
-  std::vector<at::Tensor> views_;  // per parameter: its slot in flat_, with the parameter's strides
-  std::vector<char> present_;     // per parameter: mark_present since bind_gradients
+  std::vector<at::Tensor> views_;      // per parameter: its slot in flat_ (an alias), with the parameter's strides
+  std::vector<int64_t> bound_version_;  // per parameter: its alias's version when bind_gradients set it
   bool bf16_wire_ = false;
 };
 

@@ -13,9 +13,8 @@
 // same order whatever order their hooks fire in.
 //
 // prepare() binds every .grad to its bucket (GradientSync::bind_gradients),
-// so backward accumulates into the buckets; the hooks also tell which
-// parameters received a gradient. With overlap off they only do that, and
-// finish() is GradientSync::all_reduce_gradients after backward.
+// so backward accumulates into the buckets. With overlap off the hooks are not
+// installed and finish() is GradientSync::all_reduce_gradients after backward.
 #pragma once
 #include <cstdint>
 #include <memory>
