@@ -16,7 +16,8 @@
 #   3. (stage 1 only) a W-rank run with rank 1 SIGKILLed mid-run: seconds until
 #      the launcher exits and its message; then --resume on all ranks.
 # Knobs: DP_STAGES, DP_NPROCS, DP_STEPS, DP_SKIP, DP_SCENES (synthetic rooms,
-# default 8), DP_PARTS (default "scaling equivalence kill"), DP_SETS (extra
+# default 8), DP_ROUNDS (scaling repeated, 1 and W GPUs interleaved, then the
+# efficiency of the mean steps), DP_PARTS (default "scaling equivalence kill"), DP_SETS (extra
 # flat_train overrides for every run, e.g. "precision=fp32"), DP_TAG (log name suffix).
 # Everything goes to $OUT (dp_*.log, dp_summary.txt, and each run's metrics in
 # dp_metrics_<stage><tag>.tgz). The scaling part also prints the 1-GPU steps'
@@ -31,6 +32,8 @@ NGPU=$(nvidia-smi -L | wc -l)
 NPROCS="${DP_NPROCS:-1 $NGPU}"
 STEPS="${DP_STEPS:-30}"
 SKIP="${DP_SKIP:-5}"
+EQ_STEPS="${DP_EQ_STEPS:-10}"  # steps of each equivalence run (fp32 without TF32 is slow)
+ROUNDS="${DP_ROUNDS:-1}"      # scaling runs repeated, 1 and W GPUs interleaved
 W="${NPROCS##* }"               # the largest count: the equivalence and kill runs
 WORK="${DP_WORK:-/tmp/flat_dp}"; mkdir -p "$WORK"   # the data of an earlier call are reused
 PARTS="${DP_PARTS:-scaling equivalence kill}"
@@ -91,21 +94,37 @@ for stage in ${DP_STAGES:-1}; do
       >"$OUT/dp_${name}$TAG.log" 2>&1
   }
   say "-- stage $stage ($size, $frames frames${DP_SETS:+, $DP_SETS})"
-  declare -A sps=()
-  [[ " $PARTS " == *" scaling "* ]] && say "scaling: $STEPS steps, median step time after step $SKIP"
+  declare -A sps=() all=()
+  [[ " $PARTS " == *" scaling "* ]] && say "scaling: $STEPS steps, median step time after step $SKIP, $ROUNDS round(s)"
+  for r in $(seq 1 "$ROUNDS"); do
   for n in $NPROCS; do
-    [[ " $PARTS " == *" scaling "* ]] || break
-    train s${stage}_w$n $n $n $STEPS; rc=$?
-    t=$(median_step "$WORK/s${stage}_w$n" 2>/dev/null)
-    [ -n "$t" ] && sps[$n]=$(python3 -c "print(f'{$n/$t:.3f}')")
+    [[ " $PARTS " == *" scaling "* ]] || break 2
+    name=s${stage}_w$n; [ "$r" -gt 1 ] && name=${name}_r$r
+    train $name $n $n $STEPS; rc=$?
+    t=$(median_step "$WORK/$name" 2>/dev/null)
+    sps[$n]=""; [ -n "$t" ] && sps[$n]=$(python3 -c "print(f'{$n/$t:.3f}')") && all[$n]="${all[$n]:-} $t"
     eff=""; [ -n "${sps[1]:-}" ] && [ -n "${sps[$n]:-}" ] && eff=$(python3 -c "print(f'{100*${sps[$n]}/($n*${sps[1]}):.1f}%')")
-    say "$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_s${stage}_w$n$TAG.log")"
-    [ "$n" = 1 ] && [ -n "$t" ] && say "  $(pair_max "$WORK/s${stage}_w1")"
+    prefix=""; [ "$ROUNDS" -gt 1 ] && prefix="round $r: "
+    say "$prefix$n GPU(s), batch $n (1 per GPU) rc=$rc: step ${t:-?} s, ${sps[$n]:-?} samples/s, ${sps[$n]:+$(python3 -c "print(f'{${sps[$n]}/$n:.3f}')")} it/s per GPU, scaling efficiency ${eff:-n/a}, peak GiB per rank: $(peaks "$OUT/dp_$name$TAG.log")"
+    [ "$n" = 1 ] && [ -n "$t" ] && say "  $(pair_max "$WORK/$name")"
   done
+  done
+  # Over the rounds (each run's 1-GPU reference interleaved with it): the
+  # efficiency of the mean step times, against the spread of the rounds.
+  if [ "$ROUNDS" -gt 1 ] && [ -n "${all[1]:-}" ]; then
+    for n in $NPROCS; do
+      [ "$n" = 1 ] || [ -z "${all[$n]:-}" ] && continue
+      say "pooled over $ROUNDS rounds: $(python3 -c "
+import statistics as st
+one = [float(x) for x in '${all[1]}'.split()]; many = [float(x) for x in '${all[$n]}'.split()]
+per = ', '.join(f'{100*a/b:.1f}%' for a, b in zip(one, many))
+print(f'1 GPU {1e3*st.mean(one):.1f} ms, $n GPUs {1e3*st.mean(many):.1f} ms: scaling efficiency {100*st.mean(one)/st.mean(many):.1f}% (rounds: {per})')")"
+    done
+  fi
   if [ "$W" -gt 1 ] && [[ " $PARTS " == *" equivalence "* ]]; then
-    [[ " $PARTS " == *" scaling "* ]] || train s${stage}_w$W $W $W 10
-    train s${stage}_one_a 1 $W 10
-    train s${stage}_one_b 1 $W 10
+    [[ " $PARTS " == *" scaling "* ]] || train s${stage}_w$W $W $W $EQ_STEPS
+    train s${stage}_one_a 1 $W $EQ_STEPS
+    train s${stage}_one_b 1 $W $EQ_STEPS
     python3 - "$WORK/s${stage}_one_a" "$WORK/s${stage}_one_b" "$WORK/s${stage}_w$W" "$W" <<'EOF' | tee -a "$SUM"
 import json, sys
 def losses(d, key="loss"):
