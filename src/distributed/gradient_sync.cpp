@@ -55,7 +55,7 @@ GradientSync::GradientSync(ProcessGroup& group, std::vector<at::Tensor> params, 
     b.numel = b.offsets.back() + p.numel();
   }
   pending_.resize(buckets_.size());
-  // The buckets live as long as this object: the gradients are views into them.
+  // The buckets live as long as this object: the gradients are aliases of them.
   at::NoGradGuard no_grad;
   views_.resize(params_.size());
   bound_version_.assign(params_.size(), 0);
