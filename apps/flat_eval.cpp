@@ -37,6 +37,8 @@ int main(int argc, char** argv) {
   app.add_option("--max-views", o.settings.max_views, "at most this many views per scene, evenly spaced (0 = all)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  app.add_option("--latent-set", o.settings.latent_set,
+                 "which latent set of each scene, HxW_fF (e.g. 176x320_f17; default: each scene's only set)");
   app.add_option("--window", o.settings.window, "which latent window of each scene decodes it")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();

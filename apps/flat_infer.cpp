@@ -27,6 +27,8 @@ int main(int argc, char** argv) {
   app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors")->required();
   app.add_option("--scene", o.input.scene_dir, "scene folder with precomputed latents (flat_latents)");
   app.add_option("--window", o.input.window, "which latent window of --scene")->capture_default_str();
+  app.add_option("--latent-set", o.input.latent_set,
+                 "which latent set of --scene, HxW_fF (e.g. 176x320_f17; default: the scene's only set)");
   app.add_option("--latents", o.input.latents_file, "latent file: 'video' (16,T',h,w) [+ 'camera' (32,T',h,w)]");
   app.add_option("--cameras", o.input.cameras_file, "the latents' trajectory: cameras JSON with 1+4(T'-1) cameras");
   app.add_option("--vae", o.input.vae_weights, "Wan VAE weights, to encode camera latents the latent file lacks");

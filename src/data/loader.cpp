@@ -42,6 +42,58 @@ std::vector<std::string> scene_dirs(const std::string& root) {
   return dirs;
 }
 
+// Frames a scene needs: one latent window (its frames are the window), else one sampled window.
+int64_t frames_needed(const LoaderConfig& c) { return c.latents ? c.input_frames : window_span(c.views()); }
+
+// "17+ frames, latent set 176x320_f17 (17-frame windows at 176x320)"
+std::string stage_needs(const LoaderConfig& c) {
+  return std::to_string(frames_needed(c)) + "+ frames" +
+         (c.latents ? ", latent set " + latent_set_key(c.height, c.width, c.input_frames) + " (" +
+                          std::to_string(c.input_frames) + "-frame windows at " + std::to_string(c.height) + "x" +
+                          std::to_string(c.width) + ")"
+                    : "");
+}
+
+void log_dataset_report(const DatasetReport& r, const LoaderConfig& c) {
+  spdlog::info("loader: dataset '{}' (weight {}): {} of {} scenes used, {} with depth, {} with normals", r.root,
+               r.weight, r.used, r.found, r.with_depth, r.with_normals);
+  if (r.short_scenes)
+    spdlog::info("loader: dataset '{}': {} scenes left out: fewer than the {} frames one window of this stage spans",
+                 r.root, r.short_scenes, frames_needed(c));
+  if (r.missing_set) {
+    std::string held;
+    for (const auto& [sets, n] : r.other_sets) held += (held.empty() ? "" : "; ") + std::to_string(n) + " hold " + sets;
+    spdlog::warn("loader: dataset '{}': {} scenes left out: no latent set {} (this stage's {}-frame windows at {}x{}); "
+                 "{} (e.g. {}; flat_latents --size {}x{} --window {} makes it)",
+                 r.root, r.missing_set, latent_set_key(c.height, c.width, c.input_frames), c.input_frames, c.height,
+                 c.width, held, r.example_missing, c.height, c.width, c.input_frames);
+  }
+  if (r.bad) spdlog::warn("loader: dataset '{}': {} scenes left out: unreadable (skip_bad_scenes)", r.root, r.bad);
+}
+
+// A mixture that silently loses a dataset trains on another distribution: with
+// incomplete_datasets: fail that stops the run, naming every dataset at fault.
+void check_dataset_reports(const std::vector<DatasetReport>& reports, const LoaderConfig& c) {
+  std::string lost;
+  for (const auto& r : reports) {
+    if (r.weight > 0 && r.used == 0)
+      lost += "\n  dataset '" + r.root + "' (weight " + std::to_string(r.weight) + "): no usable scene of " +
+              std::to_string(r.found) + " (" + std::to_string(r.short_scenes) + " too short, " +
+              std::to_string(r.missing_set) + " without the latent set, " + std::to_string(r.bad) + " unreadable)";
+    else if (r.missing_set && c.incomplete_datasets == "fail")
+      lost += "\n  dataset '" + r.root + "': " + std::to_string(r.missing_set) + " of " + std::to_string(r.found) +
+              " scenes lack the latent set (e.g. " + r.example_missing + ")";
+  }
+  if (lost.empty()) return;
+  const std::string what = "loader: the stage needs " + stage_needs(c) + ":" + lost;
+  if (c.incomplete_datasets == "fail")
+    fail(what + "\n(data.incomplete_datasets: fail; flat_latents --size " + std::to_string(c.height) + "x" +
+         std::to_string(c.width) + " --window " + std::to_string(c.input_frames) +
+         " makes the set, or set data.incomplete_datasets: warn to train on what is there)");
+  spdlog::warn("{}\nThe mixture changes: the other datasets' weights are renormalised "
+               "(data.incomplete_datasets: fail stops instead)", what);
+}
+
 std::mt19937_64 sample_rng(int64_t seed, int64_t index, int64_t attempt) {
   std::seed_seq seq{uint32_t(uint64_t(seed)), uint32_t(uint64_t(seed) >> 32), uint32_t(uint64_t(index)),
                     uint32_t(uint64_t(index) >> 32), uint32_t(attempt)};
@@ -63,44 +115,54 @@ Loader::Loader(LoaderConfig config, int64_t start_batch, int64_t rank, int64_t w
              "loader: rank " + std::to_string(rank) + " of world size " + std::to_string(world_size) + " is invalid");
   FLAT_CHECK(start_batch >= 0, "loader: start batch " + std::to_string(start_batch) + " is negative");
   next_claim_ = next_give_ = start_batch;
-  int64_t unusable = 0;
   for (const auto& src : config_.datasets) {
     Dataset d;
     d.root = src.root;
     d.weight = src.weight;
+    DatasetReport r;
+    r.root = src.root;
+    r.weight = src.weight;
     for (const auto& dir : scene_dirs(src.root)) {
+      ++r.found;
       std::shared_ptr<Scene> scene;
       try {
         scene = std::make_shared<Scene>(read_scene(dir, true));
       } catch (const Error& e) {
         if (!config_.skip_bad_scenes) throw;
         mark_bad(dir, e.what());
+        ++r.bad;
         continue;
       }
-      // Scenes that cannot give a sample of this stage are left out (not errors).
-      bool usable = scene->size() >= window_span(config_.views());
+      // Scenes that cannot give a sample of this stage are left out and counted by reason.
+      if (scene->size() < frames_needed(config_)) {
+        ++r.short_scenes;
+        continue;
+      }
       if (config_.latents) {
-        usable = scene->latents.present() && scene->latents.height == config_.height &&
-                 scene->latents.width == config_.width &&
-                 std::any_of(scene->latents.windows.begin(), scene->latents.windows.end(),
-                             [&](const LatentWindow& w) { return w.count == config_.input_frames; });
+        // The set of this stage's size and window; the scene's other sets are not read.
+        if (!find_latent_set(*scene, config_.height, config_.width, config_.input_frames)) {
+          ++r.missing_set;
+          ++r.other_sets[latent_set_list(*scene)];
+          if (r.example_missing.empty()) r.example_missing = dir;
+          continue;
+        }
+        select_latent_set(*scene, config_.height, config_.width, config_.input_frames);
       }
-      if (!usable) {
-        ++unusable;
-        continue;
-      }
+      r.with_depth += scene->has_depth;
+      r.with_normals += scene->has_normals;
       d.scenes.push_back(scene);
     }
-    if (d.scenes.empty()) spdlog::warn("loader: dataset '{}' has no usable scenes", src.root);
-    spdlog::info("loader: dataset '{}': {} scenes, weight {}", src.root, d.scenes.size(), src.weight);
+    r.used = int64_t(d.scenes.size());
+    log_dataset_report(r, config_);
+    reports_.push_back(r);
     datasets_.push_back(std::move(d));
   }
-  if (unusable)
-    spdlog::warn("loader: {} scenes left out (fewer than {} frames{})", unusable, window_span(config_.views()),
-                 config_.latents ? ", or no latents of this window and size" : "");
+  check_dataset_reports(reports_, config_);
   double total = 0;
   for (const auto& d : datasets_) total += d.scenes.empty() ? 0 : d.weight;
-  if (total <= 0) fail("loader: no usable scenes in any dataset with a positive weight");
+  if (total <= 0)
+    fail("loader: no usable scenes in any dataset with a positive weight (the stage asks for " +
+         stage_needs(config_) + "; see the per-dataset lines above)");
   double acc = 0;
   for (const auto& d : datasets_) {
     acc += d.scenes.empty() ? 0 : d.weight / total;
@@ -116,6 +178,18 @@ Loader::~Loader() {
   space_cv_.notify_all();
   ready_cv_.notify_all();
   for (auto& t : threads_) t.join();
+}
+
+int64_t Loader::scenes_with_depth() const {
+  int64_t n = 0;
+  for (const auto& r : reports_) n += r.with_depth;
+  return n;
+}
+
+int64_t Loader::scenes_with_normals() const {
+  int64_t n = 0;
+  for (const auto& r : reports_) n += r.with_normals;
+  return n;
 }
 
 int64_t Loader::scene_count() const {

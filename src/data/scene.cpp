@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <tuple>
 
 #include <nlohmann/json.hpp>
 
@@ -15,6 +16,68 @@ namespace flat::data {
 
 using nlohmann::json;
 namespace fs = std::filesystem;
+
+std::string latent_set_key(int64_t height, int64_t width, int64_t frames) {
+  return std::to_string(height) + "x" + std::to_string(width) + "_f" + std::to_string(frames);
+}
+
+std::string latent_set_key(const LatentInfo& set) { return latent_set_key(set.height, set.width, set.frames()); }
+
+const LatentInfo* find_latent_set(const Scene& scene, int64_t height, int64_t width, int64_t frames) {
+  for (const auto& set : scene.latent_sets)
+    if (set.height == height && set.width == width && set.frames() == frames) return &set;
+  return nullptr;
+}
+
+std::string latent_set_list(const Scene& scene) {
+  std::string out;
+  for (const auto& set : scene.latent_sets) out += (out.empty() ? "" : ", ") + latent_set_key(set);
+  return out.empty() ? "none" : out;
+}
+
+void select_latent_set(Scene& scene, int64_t height, int64_t width, int64_t frames) {
+  const LatentInfo* set = find_latent_set(scene, height, width, frames);
+  if (!set)
+    fail(scene.json_path() + ": scene '" + scene.name + "' has no latent set " + latent_set_key(height, width, frames) +
+         " (" + std::to_string(frames) + "-frame windows at " + std::to_string(height) + "x" + std::to_string(width) +
+         "); it holds: " + latent_set_list(scene) + " (flat_latents --size " + std::to_string(height) + "x" +
+         std::to_string(width) + " --window " + std::to_string(frames) + " makes it)");
+  scene.latents = *set;
+}
+
+void parse_latent_set_key(const std::string& key, int64_t& height, int64_t& width, int64_t& frames,
+                          const std::string& what) {
+  long long h = 0, w = 0, f = 0;
+  char tail = 0;
+  if (std::sscanf(key.c_str(), "%lldx%lld_f%lld%c", &h, &w, &f, &tail) != 3 || h <= 0 || w <= 0 || f <= 0)
+    fail(what + ": a latent set is named HEIGHTxWIDTH_fFRAMES (e.g. 176x320_f17), got '" + key + "'");
+  height = h;
+  width = w;
+  frames = f;
+}
+
+void choose_latent_set(Scene& scene, const std::string& key) {
+  if (!key.empty()) {
+    int64_t h = 0, w = 0, f = 0;
+    parse_latent_set_key(key, h, w, f, "--latent-set");
+    select_latent_set(scene, h, w, f);
+    return;
+  }
+  if (scene.latent_sets.size() > 1 && !scene.latents.present())
+    fail(scene.json_path() + ": scene '" + scene.name + "' holds several latent sets (" + latent_set_list(scene) +
+         "): choose one with --latent-set");
+}
+
+void put_latent_set(Scene& scene, const LatentInfo& set) {
+  const std::string key = latent_set_key(set);
+  auto& sets = scene.latent_sets;
+  sets.erase(std::remove_if(sets.begin(), sets.end(), [&](const LatentInfo& s) { return latent_set_key(s) == key; }),
+             sets.end());
+  sets.push_back(set);
+  std::sort(sets.begin(), sets.end(), [](const LatentInfo& a, const LatentInfo& b) {
+    return std::make_tuple(a.height, a.width, a.frames()) < std::make_tuple(b.height, b.width, b.frames());
+  });
+}
 
 std::string frame_stem(int64_t index) {
   char buf[32];
@@ -115,8 +178,9 @@ Scene read_scene(const std::string& dir, bool check_files) {
     fail(file + ": 'format' must be \"flat-scene\"");
   if (!doc.contains("version") || !doc["version"].is_number_integer())
     fail(file + ": missing integer 'version'");
-  if (doc["version"].get<int>() != kSceneFormatVersion)
-    fail(file + ": unsupported scene format version " + doc["version"].dump() + " (this build reads version " +
+  const int version = doc["version"].get<int>();
+  if (version != 1 && version != kSceneFormatVersion)
+    fail(file + ": unsupported scene format version " + doc["version"].dump() + " (this build reads versions 1 to " +
          std::to_string(kSceneFormatVersion) + ")");
   scene.name = optional_string(doc, "name", file);
   if (scene.name.empty()) scene.name = fs::path(scene.dir).filename().string();
@@ -129,6 +193,8 @@ Scene read_scene(const std::string& dir, bool check_files) {
   scene.width = integer(doc, "width", file);
   scene.height = integer(doc, "height", file);
   scene.packed = optional_string(doc, "packed", file);
+  scene.depth_source = optional_string(doc, "depth_source", file);
+  scene.normals_source = optional_string(doc, "normals_source", file);
   if (!doc.contains("frames") || !doc["frames"].is_array() || doc["frames"].empty())
     fail(file + ": 'frames' must be a non-empty array");
   const auto& frames = doc["frames"];
@@ -155,7 +221,20 @@ Scene read_scene(const std::string& dir, bool check_files) {
     if (doc.contains(key) && !doc[key].is_boolean()) fail(file + ": '" + key + "' must be true or false");
   if (doc.value("packed_depth", false)) scene.has_depth = true;
   if (doc.value("packed_normals", false)) scene.has_normals = true;
-  if (doc.contains("latents") && !doc["latents"].is_null()) scene.latents = parse_latents(doc["latents"], file + ": latents");
+  // Version 1: one set under "latents"; version 2: a list under "latent_sets".
+  if (version == 1 && doc.contains("latents") && !doc["latents"].is_null())
+    scene.latent_sets.push_back(parse_latents(doc["latents"], file + ": latents"));
+  if (version >= 2 && doc.contains("latent_sets")) {
+    if (!doc["latent_sets"].is_array()) fail(file + ": 'latent_sets' must be an array");
+    for (size_t i = 0; i < doc["latent_sets"].size(); ++i) {
+      const std::string where = file + ": latent_sets[" + std::to_string(i) + "]";
+      LatentInfo set = parse_latents(doc["latent_sets"][i], where);
+      if (find_latent_set(scene, set.height, set.width, set.frames()))
+        fail(where + ": a second set " + latent_set_key(set) + " (one set per size and window)");
+      put_latent_set(scene, set);
+    }
+  }
+  if (scene.latent_sets.size() == 1) scene.latents = scene.latent_sets[0];
   validate_scene(scene, check_files);
   return scene;
 }
@@ -188,9 +267,8 @@ void validate_scene(const Scene& scene, bool check_files) {
       if (!f.normals.empty()) exists(f.normals, where + ": normals");
     }
   }
-  if (scene.latents.present()) {
-    const auto& l = scene.latents;
-    const std::string where = file + ": latents";
+  for (const auto& l : scene.latent_sets) {
+    const std::string where = file + ": latent set " + latent_set_key(l);
     exists(l.file, where);
     FLAT_CHECK(l.height > 0 && l.width > 0 && l.height % 8 == 0 && l.width % 8 == 0,
                where + ": 'height' and 'width' must be positive multiples of 8 (the VAE downsamples by 8)");
@@ -198,6 +276,8 @@ void validate_scene(const Scene& scene, bool check_files) {
       const auto& w = l.windows[i];
       const std::string ww = where + ".windows[" + std::to_string(i) + "]";
       FLAT_CHECK(w.count >= 1 && (w.count - 1) % 4 == 0, ww + ": 'count' must be 1+4k frames, got " + std::to_string(w.count));
+      FLAT_CHECK(w.count == l.frames(), ww + ": 'count' " + std::to_string(w.count) + " differs from the set's " +
+                                            std::to_string(l.frames()) + " (a set holds windows of one length)");
       FLAT_CHECK(w.start >= 0 && w.start + w.count <= scene.size(),
                  ww + ": frames [" + std::to_string(w.start) + ", " + std::to_string(w.start + w.count) +
                      ") outside the scene's " + std::to_string(scene.size()) + " frames");
@@ -215,6 +295,8 @@ void write_scene_json(const Scene& scene) {
   doc["metric_scale"] = scene.metric_scale;
   doc["width"] = scene.width;
   doc["height"] = scene.height;
+  if (!scene.depth_source.empty()) doc["depth_source"] = scene.depth_source;
+  if (!scene.normals_source.empty()) doc["normals_source"] = scene.normals_source;
   if (!scene.packed.empty()) {
     doc["packed"] = scene.packed;
     doc["packed_depth"] = scene.has_depth;
@@ -229,7 +311,18 @@ void write_scene_json(const Scene& scene) {
     if (f.timestamp >= 0) e["timestamp"] = f.timestamp;
     doc["frames"].push_back(std::move(e));
   }
-  if (scene.latents.present()) doc["latents"] = latents_json(scene.latents);
+  // scene.latents set by hand (not yet among the sets) is written as a set too.
+  std::vector<LatentInfo> sets = scene.latent_sets;
+  if (scene.latents.present() && !find_latent_set(scene, scene.latents.height, scene.latents.width,
+                                                   scene.latents.frames())) {
+    Scene with = scene;
+    put_latent_set(with, scene.latents);
+    sets = with.latent_sets;
+  }
+  if (!sets.empty()) {
+    doc["latent_sets"] = json::array();
+    for (const auto& set : sets) doc["latent_sets"].push_back(latents_json(set));
+  }
   fs::create_directories(scene.dir);
   write_file_atomic(scene.json_path(), doc.dump(1) + "\n");
 }

@@ -11,6 +11,10 @@
 
 namespace flat::data {
 
+std::string latent_set_file(int64_t height, int64_t width, int64_t frames) {
+  return "latents_" + latent_set_key(height, width, frames) + ".safetensors";
+}
+
 namespace {
 
 void check_window(const at::Tensor& t, int64_t channels, const LatentInfo& info, const LatentWindow& w,
@@ -29,7 +33,8 @@ StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std
                                                          " window entries");
   FLAT_CHECK(info.encoder == "pretrained" || info.encoder == "random",
              "write_scene_latents: encoder must be pretrained or random");
-  info.file = kLatentsFile;
+  FLAT_CHECK(!info.windows.empty(), scene.json_path() + ": a latent set needs at least one window");
+  info.file = latent_set_file(info.height, info.width, info.frames());
   info.plucker = !latents.empty() && latents[0].camera_plucker.defined();
   TensorMap tensors;
   std::string windows;
@@ -64,11 +69,21 @@ StagedLatents stage_scene_latents(const Scene& scene, LatentInfo info, const std
 }
 
 void commit_scene_latents(Scene& scene, const StagedLatents& staged) {
+  // The file a set of this key had before (a version-1 scene's latents.safetensors)
+  // goes once scene.json no longer names it; other sets' files are not touched.
+  const LatentInfo* old = find_latent_set(scene, staged.info.height, staged.info.width, staged.info.frames());
+  const std::string old_file = old && old->file != staged.info.file ? old->file : "";
   std::error_code ec;
   std::filesystem::rename(staged.path, scene.path(staged.info.file), ec);
   FLAT_CHECK(!ec, staged.path + ": cannot move into place as " + scene.path(staged.info.file) + ": " + ec.message());
+  put_latent_set(scene, staged.info);
   scene.latents = staged.info;
   write_scene_json(scene);
+  if (!old_file.empty()) {
+    bool still_named = false;
+    for (const auto& set : scene.latent_sets) still_named |= set.file == old_file;
+    if (!still_named) std::filesystem::remove(scene.path(old_file), ec);
+  }
 }
 
 void discard_staged_latents(const StagedLatents& staged) {
@@ -79,9 +94,12 @@ void discard_staged_latents(const StagedLatents& staged) {
 int remove_stale_staged_latents(const Scene& scene) {
   int removed = 0;
   std::error_code ec;
-  const std::string prefix = std::string(kLatentsFile) + ".staged-";
-  for (const auto& e : std::filesystem::directory_iterator(scene.dir, ec))
-    if (e.path().filename().string().rfind(prefix, 0) == 0 && std::filesystem::remove(e.path(), ec)) ++removed;
+  for (const auto& e : std::filesystem::directory_iterator(scene.dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("latents", 0) == 0 && name.find(".safetensors.staged-") != std::string::npos &&
+        std::filesystem::remove(e.path(), ec))
+      ++removed;
+  }
   return removed;
 }
 
@@ -102,7 +120,10 @@ at::Tensor read_latent(const safetensors::MappedFile& file, const std::string& k
 
 WindowLatents read_window_latents(const Scene& scene, size_t window, const std::string& camera_rays) {
   const auto& info = scene.latents;
-  FLAT_CHECK(info.present(), scene.json_path() + ": scene '" + scene.name + "' has no latents");
+  FLAT_CHECK(info.present(), scene.json_path() + ": scene '" + scene.name + "' has " +
+                                 (scene.latent_sets.empty() ? "no latents"
+                                                            : "several latent sets (" + latent_set_list(scene) +
+                                                                  ") and none was chosen"));
   FLAT_CHECK(window < info.windows.size(), scene.json_path() + ": latent window " + std::to_string(window) +
                                                " out of range (" + std::to_string(info.windows.size()) + ")");
   const std::string path = scene.path(info.file);

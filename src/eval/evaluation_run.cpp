@@ -166,6 +166,7 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     for (size_t i = 0; i < scenes.size(); ++i) {
       try {
         auto scene = data::read_scene(scenes[i].dir, /*check_files=*/true);
+        data::choose_latent_set(scene, o.settings.latent_set);
         FrameSums sums_of_scene;
         add_frame_sums(sums_of_scene, scene, settings_run);  // whole or not at all
         frame_sums[scenes[i].dataset].add(sums_of_scene);
@@ -201,6 +202,7 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
     if (!reused) {
       try {
         auto scene = loaded[index] ? *loaded[index] : data::read_scene(ref.dir, /*check_files=*/true);
+        if (!loaded[index]) data::choose_latent_set(scene, o.settings.latent_set);
         BaselineInputs inputs;
         inputs.swap_with = partner_of(index);
         if (loaded[index]) inputs.frame_sums = &frame_sums[ref.dataset];

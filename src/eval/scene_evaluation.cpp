@@ -16,7 +16,7 @@ namespace flat::eval {
 std::string EvalSettings::fingerprint() const {
   return "views=" + views + " max_views=" + std::to_string(max_views) + " window=" + std::to_string(window) +
          " size=" + std::to_string(height) + "x" + std::to_string(width) + " ssim=" + ssim_convention_name(ssim) +
-         " normal_alpha=" + std::to_string(normal_alpha);
+         " normal_alpha=" + std::to_string(normal_alpha) + (latent_set.empty() ? "" : " latent_set=" + latent_set);
 }
 
 std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettings& s) {

@@ -21,6 +21,7 @@ int64_t frames_of(int64_t latent_frames) { return 1 + 4 * (latent_frames - 1); }
 
 InferInput from_scene(const InputSpec& spec) {
   auto scene = data::read_scene(spec.scene_dir, /*check_files=*/false);
+  data::choose_latent_set(scene, spec.latent_set);
   FLAT_CHECK(scene.latents.present(), scene.json_path() + ": the scene has no precomputed latents (run flat_latents)");
   const int64_t n = int64_t(scene.latents.windows.size());
   FLAT_CHECK(spec.window >= 0 && spec.window < n, scene.json_path() + ": --window " + std::to_string(spec.window) +

@@ -239,6 +239,7 @@ InferSummary run_inference(const InferOptions& o) {
   if (!o.input.scene_dir.empty()) {
     j["scene_dir"] = std::filesystem::absolute(o.input.scene_dir).string();
     j["window"] = o.input.window;
+    if (!o.input.latent_set.empty()) j["latent_set"] = o.input.latent_set;
   }
   s.outputs.push_back("summary.json");
   s.outputs.push_back("infer.log");

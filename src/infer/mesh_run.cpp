@@ -42,6 +42,7 @@ struct Source {
   primitives::TriangleSoup soup;
   std::string scene_dir;
   int64_t window = -1;
+  std::string latent_set;  // "" = the scene's only set
 };
 
 // The soup, and the scene window it came from (flat_infer's summary.json).
@@ -65,12 +66,14 @@ Source read_source(const MeshRunOptions& o) {
              " scene; flat_mesh refines and meshes triangle scenes only");
       if (j.contains("scene_dir")) s.scene_dir = j["scene_dir"].get<std::string>();
       if (j.contains("window")) s.window = j["window"].get<int64_t>();
+      if (j.contains("latent_set")) s.latent_set = j["latent_set"].get<std::string>();
     }
   }
   s.soup = exporter::read_triangle_ply(ply);
   FLAT_CHECK(s.soup.vertices.size(0) > 0, ply + ": the soup has no triangles");
   if (!o.scene_dir.empty()) s.scene_dir = o.scene_dir;
   if (o.window >= 0) s.window = o.window;
+  if (!o.latent_set.empty()) s.latent_set = o.latent_set;
   FLAT_CHECK(!s.scene_dir.empty(), "--scene: which scene folder holds the frames to fit? (" + o.from +
                                        " does not name one: flat_infer records it only for scene-folder input)");
   if (s.window < 0) s.window = 0;
@@ -210,7 +213,8 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
   refine_options.raster.check();
 
   const auto source = read_source(o);
-  const auto scene = data::read_scene(source.scene_dir);
+  auto scene = data::read_scene(source.scene_dir);
+  data::choose_latent_set(scene, source.latent_set);
   StagedDir out(o.out_dir, o.overwrite);
   setup_logging(o.log_level, out.file("mesh.log"));
   spdlog::info("flat_mesh: {} triangles from {}; fitting scene {} window {}; writing into {} (appears when finished)",
@@ -239,7 +243,8 @@ MeshRunSummary run_mesh(const MeshRunOptions& o) {
   {
     std::vector<at::Tensor> others;
     for (const auto& dir : o.baseline_scenes) {
-      const auto other = data::read_scene(dir);
+      auto other = data::read_scene(dir);
+      data::choose_latent_set(other, source.latent_set);
       if (fs::equivalent(other.dir, scene.dir)) continue;
       auto t = load_targets(other, source.window, false, false);
       FLAT_CHECK(t.size() == all.size() && t.height() == all.height() && t.width() == all.width(),

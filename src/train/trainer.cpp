@@ -17,6 +17,7 @@
 #include <torch/torch.h>
 
 #include "flat/core/device_memory.h"
+#include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
 #include "flat/core/log.h"
@@ -26,6 +27,7 @@
 #include "flat/optim/adamw.h"
 #include "flat/train/checkpoint.h"
 #include "flat/train/data_parallel.h"
+#include "flat/train/data_report.h"
 #include "flat/train/lr_schedule.h"
 #include "flat/train/metrics_log.h"
 #include "flat/train/train_step.h"
@@ -231,6 +233,7 @@ class Run {
   std::optional<data::Loader> train_loader_;
   std::unique_ptr<data::Loader> val_loader_;  // none without validation.datasets
   std::string random_latents_;  // which scenes hold random-encoder latents; empty: none
+  std::string data_report_;     // data_report.json: what each loader used and left out
   at::Tensor dataset_mean_;     // the training set's mean image (scene task with validation)
   std::unique_ptr<MetricsLog> metrics_;  // rank 0
   std::optional<Progress> progress_;     // rank 0, while steps remain
@@ -318,18 +321,14 @@ void Run::resume_or_start_fresh() {
 
 // ---- data --------------------------------------------------------------------
 void Run::open_loaders() {
-  // data.batch_size is the global batch: rank r of W loads B/W of each, the
-  // samples (b*W + r)*B/W ... of the stream, so the W shares together are the
-  // batch one process would load (loader.h).
+  // data.batch_size is per rank (as torchrun/DDP users expect, and as the
+  // paper's 8 GPUs each hold one sample): rank r of W loads B samples,
+  // (b*W + r)*B ..., so the W shares of a step are the batch one process with
+  // B*W would load (loader.h) and the effective batch is B*W.
   train_data_ = cfg_.data;
   train_data_.camera_rays = cfg_.pipeline.model.camera_rays;  // the camera latents the model reads
-  if (dp_) {
-    FLAT_CHECK(cfg_.data.batch_size % env_.world_size == 0,
-               "data.batch_size " + std::to_string(cfg_.data.batch_size) + " is the global batch and must be a "
-               "multiple of the " + std::to_string(env_.world_size) + " ranks");
-    train_data_.batch_size = cfg_.data.batch_size / env_.world_size;
-  }
   train_loader_.emplace(train_data_, state_.step, env_.rank, env_.world_size);
+  if (cfg_.task == "scene") check_geometry_targets(cfg_.loss, *train_loader_);
   if (!cfg_.validation.datasets.empty()) {
     data::LoaderConfig v = cfg_.data;
     v.datasets = cfg_.validation.datasets;
@@ -356,6 +355,7 @@ void Run::open_loaders() {
   }
   // The "same output for every scene" baseline: the training set's mean image.
   if (val_loader_ && !session_->vae_task()) dataset_mean_ = training_mean_image(cfg_.data, 32);
+  data_report_ = data_report_json(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
 }
 
 void Run::open_run_folder() {
@@ -366,6 +366,7 @@ void Run::open_run_folder() {
     RunDir::create(run_dir_.root);
     setup_logging(cfg_.log.level, run_dir_.logs() + "/train.log");
     config::save_text(run_dir_.config_file(), config_yaml_);
+    write_file_atomic(run_dir_.root + "/data_report.json", data_report_);
     metrics_ = std::make_unique<MetricsLog>(run_dir_.root, cfg_.log.tensorboard,
                                             mode_ == StartMode::resume ? state_.step : -1);
   }
@@ -380,9 +381,11 @@ void Run::open_run_folder() {
                  cfg_.data.width, cfg_.data.input_frames, cfg_.device, bf16() ? "bf16 autocast" : "fp32", cfg_.vae.l1,
                  cfg_.vae.l2, cfg_.vae.lpips, cfg_.vae.kl);
   else
-    spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}", double(params) / 1e6,
-                 cfg_.pipeline.model.vae.dim, cfg_.pipeline.model.heads, cfg_.device,
-                 bf16() ? "bf16 autocast" : "fp32");
+    spdlog::info("scene decoder: {:.3f} M parameters (dim {}, {} heads), device {}, precision {}, optimiser {} "
+                 "(lr {:g}){}",
+                 double(params) / 1e6, cfg_.pipeline.model.vae.dim, cfg_.pipeline.model.heads, cfg_.device,
+                 bf16() ? "bf16 autocast" : "fp32", cfg_.optim.name, cfg_.optim.lr,
+                 cfg_.pipeline.model.activation_checkpointing ? ", activation checkpointing" : "");
   if (!random_latents_.empty()) {
     spdlog::warn("=====================================================================");
     spdlog::warn("RANDOM-ENCODER LATENTS: {} hold latents of a random-weight encoder.", random_latents_);
@@ -391,8 +394,9 @@ void Run::open_run_folder() {
     spdlog::warn("=====================================================================");
   }
   if (dp_)
-    spdlog::info("data parallel: {} ranks, global batch {} ({} per rank), {} gradient bucket(s) of <= {} MB{}",
-                 env_.world_size, cfg_.data.batch_size, train_data_.batch_size, dp_->buckets(),
+    spdlog::info("data parallel: {} ranks x data.batch_size {} per rank = effective batch {} (the learning rate is "
+                 "not rescaled: docs/training.md), {} gradient bucket(s) of <= {} MB{}",
+                 env_.world_size, cfg_.data.batch_size, cfg_.data.batch_size * env_.world_size, dp_->buckets(),
                  cfg_.distributed.bucket_mb, cfg_.distributed.overlap ? ", all-reduced during backward" : "");
 }
 

@@ -9,6 +9,7 @@
 #include "cli_fixtures.h"
 #include "flat/core/image_io.h"
 #include "flat/core/tensor_io.h"
+#include "flat/data/scene.h"
 
 namespace fs = std::filesystem;
 using namespace flat::test;
@@ -474,52 +475,61 @@ std::string cameras_with_c2w(const std::string& c2w) {
 
 }  // namespace
 
-TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input folder byte-identical", "[cli]") {
+TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, reported, and does not stop the others",
+          "[cli]") {
   const Fixtures& f = fixtures();
   const std::string d = fresh_dir("cli_inputs").string(), data = d + "/data";
   fs::copy(f.synth, data, fs::copy_options::recursive);
   const std::string scene_json = data + "/room_000000/scene.json";
   const std::string good_json = read_file(scene_json);
   fs::resize_file(scene_json, fs::file_size(scene_json) / 2);  // a scene.json cut short
-  const auto before = snapshot(data);
+  const auto before = snapshot(data + "/room_000000");
   auto latents = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
                       "latents_bad");
   INFO(latents.output);
   CHECK(latents.rc == 1);
   CHECK_THAT(latents.output, FLAT_CONTAINS("scene.json"));
-  CHECK_THAT(latents.output, FLAT_CONTAINS("the log of this run is"));
-  CHECK(snapshot(data) == before);  // no flat_latents.log, nothing else
+  CHECK(snapshot(data + "/room_000000") == before);
+  // The report names the scene and why.
+  CHECK_THAT(read_file(data + "/flat_latents_report.json"), FLAT_CONTAINS("room_000000"));
+  CHECK_THAT(read_file(data + "/flat_latents_report.json"), FLAT_CONTAINS("scene.json"));
   auto pack = tool("flat_pack", {"--scenes", data}, d, "pack_bad");
   INFO(pack.output);
   CHECK(pack.rc == 1);
-  CHECK(snapshot(data) == before);
+  CHECK(snapshot(data + "/room_000000") == before);
   if (flat::image_io_available()) {
-    // A frame cut short, found only while encoding: still nothing written.
+    // A frame cut short, found only while encoding: the scene is not touched.
     write_text(scene_json, good_json);
     std::string png;
     for (const auto& e : fs::recursive_directory_iterator(data + "/room_000000"))
       if (e.path().extension() == ".png" && png.empty()) png = e.path().string();
     REQUIRE_FALSE(png.empty());
     fs::resize_file(png, 40);
-    const auto before_frames = snapshot(data);
+    const auto before_frames = snapshot(data + "/room_000000");
     auto mid = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
                     "latents_bad_frame");
     INFO(mid.output);
     CHECK(mid.rc == 1);
-    CHECK(snapshot(data) == before_frames);
-    // Two scenes, the second's frame cut short: the first, encoded before the
-    // failure, is left as it was too (staged, then discarded; not committed).
+    CHECK(snapshot(data + "/room_000000") == before_frames);
+    // Two scenes, the first's frame cut short: the second is encoded and
+    // committed all the same (one bad clip in 10,000 loses nothing else), the
+    // bad one stays as it was, and the run ends with exit 1 naming it.
     const std::string two = d + "/two";
     fs::create_directories(two);
-    fs::copy(f.synth + "/room_000000", two + "/room_a", fs::copy_options::recursive);
-    fs::copy(data + "/room_000000", two + "/room_b", fs::copy_options::recursive);  // the bad frame
-    const auto before_two = snapshot(two);
+    fs::copy(data + "/room_000000", two + "/room_a", fs::copy_options::recursive);  // the bad frame
+    fs::copy(f.synth + "/room_000000", two + "/room_b", fs::copy_options::recursive);
+    const auto before_a = snapshot(two + "/room_a");
     auto second = tool("flat_latents", {"--scenes", two, "--random-weights", "--dim", "4", "--window", "5"}, d,
-                       "latents_second_bad");
+                       "latents_first_bad");
     INFO(second.output);
     CHECK(second.rc == 1);
-    CHECK_THAT(second.output, FLAT_CONTAINS("room_b"));
-    CHECK(snapshot(two) == before_two);  // no latents.safetensors in room_a, no staged file anywhere
+    CHECK_THAT(second.output, FLAT_CONTAINS("room_a"));
+    CHECK(snapshot(two + "/room_a") == before_a);  // no latent file, no staged file
+    CHECK(fs::exists(two + "/room_b/latents_16x24_f5.safetensors"));
+    CHECK_THAT(read_file(two + "/room_b/scene.json"), FLAT_CONTAINS("latent_sets"));
+    const std::string report = read_file(two + "/flat_latents_report.json");
+    CHECK_THAT(report, FLAT_CONTAINS("room_a"));
+    CHECK_THAT(report, !FLAT_CONTAINS("room_b"));
   }
   // A run that succeeds leaves its log there, as docs/cli.md says.
   const std::string good = d + "/good";
@@ -527,7 +537,7 @@ TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input
   auto ok = tool("flat_latents", {"--scenes", good, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents_ok");
   INFO(ok.output);
   CHECK(ok.rc == 0);
-  CHECK_THAT(read_file(good + "/flat_latents.log"), FLAT_CONTAINS("wrote latents for 1 of 1 scenes"));
+  CHECK_THAT(read_file(good + "/flat_latents.log"), FLAT_CONTAINS("1 set(s) encoded"));
   // A log that cannot be placed (here a folder of that name) does not fail a run whose work is done.
   const std::string blocked = d + "/blocked";
   fs::copy(f.synth, blocked, fs::copy_options::recursive);
@@ -537,6 +547,80 @@ TEST_CASE("flat_latents, flat_pack: a failure on an input scene leaves the input
   INFO(warned.output);
   CHECK(warned.rc == 0);
   CHECK_THAT(warned.output, FLAT_CONTAINS("cannot append the log there"));
+}
+
+TEST_CASE("flat_latents: latent sets by size and window; a new set leaves the others byte-identical", "[cli]") {
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_latent_sets").string(), data = d + "/data";
+  fs::create_directories(data);
+  // Three 9-frame scenes.
+  REQUIRE(tool("flat_synth", {"--out", data, "--scenes", "3", "--frames", "9", "--size", "16x24"}, d, "synth").rc == 0);
+  (void)f;
+  const std::vector<std::string> rnd = {"--random-weights", "--dim", "4", "--seed", "1"};
+  auto args = [&](std::vector<std::string> a) {
+    a.insert(a.begin(), {"--scenes", data});
+    a.insert(a.end(), rnd.begin(), rnd.end());
+    return a;
+  };
+  const std::string room = data + "/room_000000";
+  REQUIRE(tool("flat_latents", args({"--window", "5", "--size", "16x24"}), d, "first").rc == 0);
+  const std::string first_file = room + "/latents_16x24_f5.safetensors";
+  REQUIRE(fs::exists(first_file));
+  const std::string first_bytes = read_file(first_file);
+  // A second set (9-frame windows at 8x16) is added beside it: the first file is untouched.
+  auto second = tool("flat_latents", args({"--window", "9", "--size", "8x16"}), d, "second");
+  INFO(second.output);
+  REQUIRE(second.rc == 0);
+  CHECK(read_file(first_file) == first_bytes);
+  CHECK(fs::exists(room + "/latents_8x16_f9.safetensors"));
+  auto scene = flat::data::read_scene(room);
+  REQUIRE(scene.latent_sets.size() == 2);
+  CHECK(flat::data::latent_set_list(scene) == "8x16_f9, 16x24_f5");
+  // The same set again, made the same way: nothing to do, nothing touched.
+  const auto all_before = snapshot(room);
+  auto again = tool("flat_latents", args({"--window", "5", "--size", "16x24"}), d, "again");
+  INFO(again.output);
+  CHECK(again.rc == 0);
+  CHECK_THAT(again.output, FLAT_CONTAINS("3 already present"));
+  CHECK(snapshot(room) == all_before);
+  // Made another way (another seed): refused per scene without --overwrite, named, nothing touched.
+  auto other = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--seed", "2", "--window", "5",
+                                     "--size", "16x24"},
+                    d, "other_seed");
+  INFO(other.output);
+  CHECK(other.rc == 1);
+  CHECK_THAT(other.output, FLAT_CONTAINS("--overwrite"));
+  CHECK(snapshot(room) == all_before);
+  // --overwrite replaces that set and leaves the other set's file as it was.
+  const std::string nine_bytes = read_file(room + "/latents_8x16_f9.safetensors");
+  auto over = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--seed", "2", "--window", "5",
+                                    "--size", "16x24", "--overwrite"},
+                   d, "overwrite");
+  INFO(over.output);
+  CHECK(over.rc == 0);
+  CHECK(read_file(first_file) != first_bytes);
+  CHECK(read_file(room + "/latents_8x16_f9.safetensors") == nine_bytes);
+  // Shards: 0/2 and 1/2 take disjoint scenes that together are all of them.
+  const std::string sharded = d + "/sharded";
+  fs::create_directories(sharded);
+  REQUIRE(tool("flat_synth", {"--out", sharded, "--scenes", "3", "--frames", "5", "--size", "16x24"}, d, "synth2").rc ==
+          0);
+  auto s0 = tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--window", "5", "--shard",
+                                  "0/2"},
+                 d, "shard0");
+  INFO(s0.output);
+  CHECK(s0.rc == 0);
+  CHECK(fs::exists(sharded + "/room_000000/latents_16x24_f5.safetensors"));
+  CHECK_FALSE(fs::exists(sharded + "/room_000001/latents_16x24_f5.safetensors"));
+  CHECK(fs::exists(sharded + "/room_000002/latents_16x24_f5.safetensors"));
+  CHECK(fs::exists(sharded + "/flat_latents_report.shard-0-of-2.json"));
+  auto s1 = tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--window", "5", "--shard",
+                                  "1/2"},
+                 d, "shard1");
+  CHECK(s1.rc == 0);
+  CHECK(fs::exists(sharded + "/room_000001/latents_16x24_f5.safetensors"));
+  CHECK(tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--shard", "2/2"}, d, "shard_bad")
+            .rc == 2);
 }
 
 TEST_CASE("flat_eval: --out-table never replaces a file without --overwrite; bad flags are usage errors", "[cli]") {
@@ -859,4 +943,52 @@ TEST_CASE("flat_bench decoder and raster say what they time before the first run
   INFO(ras.output);
   CHECK(ras.rc == 0);
   CHECK(ras.output.find("2 warm-up + 1 timed forward+backward run(s)") < ras.output.find("forward+backward 0") );
+}
+
+TEST_CASE("flat_import batch: a failed clip makes exit 1 after the others land; a rerun resumes", "[cli][import_batch]") {
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the clips' frames are PNG");
+  const Fixtures& f = fixtures();
+  const std::string d = fresh_dir("cli_import_batch").string();
+  const std::string cams = d + "/cams", frames = d + "/frames", out = d + "/out";
+  // RealEstate10K clips of two frames (identity poses shifted along x); "bad" has a truncated line.
+  auto clip = [&](const std::string& name, bool truncated) {
+    std::string text = "https://www.youtube.com/watch?v=" + name + "\n";
+    for (int i = 0; i < 2; ++i) {
+      const std::string ts = std::to_string(1000 + i);
+      text += ts + (truncated && i == 1 ? " 0.8 0.9\n" : " 0.8 0.9 0.5 0.5 0 0 1 0 0 " + std::to_string(i) +
+                                                             " 0 1 0 0 0 0 1 0\n");
+      flat::write_image(frames + "/" + name + "/" + ts + ".png", torch::rand({3, 8, 12}));
+    }
+    write_text(cams + "/" + name + ".txt", text);
+  };
+  clip("good1", false);
+  clip("good2", false);
+  clip("bad", true);
+  auto r = tool("flat_import", {"re10k", "--in", cams, "--frames-dir", frames, "--out", out, "--jobs", "2"}, d, "batch");
+  INFO(r.output);
+  CHECK(r.rc == 1);
+  CHECK_THAT(r.output, FLAT_CONTAINS("bad.txt: line 3"));
+  CHECK_THAT(r.output, FLAT_CONTAINS("import_summary.json"));
+  CHECK(fs::exists(out + "/good1/scene.json"));
+  CHECK(fs::exists(out + "/good2/scene.json"));
+  CHECK_FALSE(fs::exists(out + "/bad"));
+  CHECK_THAT(read_file(out + "/import_summary.json"), FLAT_CONTAINS("\"failed\": 1"));
+  CHECK(fs::exists(out + "/flat_import.log"));
+  // The bad clip repaired: the rerun imports it alone and exits 0.
+  clip("bad", false);
+  auto again = tool("flat_import", {"re10k", "--in", cams, "--frames-dir", frames, "--out", out}, d, "batch_again");
+  INFO(again.output);
+  CHECK(again.rc == 0);
+  CHECK_THAT(again.output, FLAT_CONTAINS("1 imported, 2 already present, 0 failed"));
+  CHECK(fs::exists(out + "/bad/scene.json"));
+  // Batch-only and single-only flags are usage errors; --help names the summary and the exit codes.
+  CHECK(tool("flat_import", {"re10k", "--in", cams, "--frames-dir", frames, "--out", out, "--name", "x"}, d,
+             "batch_name")
+            .rc == 2);
+  CHECK(tool("flat_import", {"transforms", "--in", f.capture, "--out", d + "/one", "--jobs", "2"}, d, "single_jobs")
+            .rc == 2);
+  auto help = tool("flat_import", {"--help"}, d, "help");
+  CHECK_THAT(help.output, FLAT_CONTAINS("--jobs"));
+  CHECK_THAT(help.output, FLAT_CONTAINS("import_summary.json"));
+  CHECK_THAT(help.output, FLAT_CONTAINS("at least one clip failed"));
 }

@@ -350,3 +350,112 @@ TEST_CASE("loader workers leave the caller's intra-op threads, and those of thre
   CHECK(caller == 3);
   CHECK(later == 3);
 }
+
+namespace {
+
+// One latent set (windows of `frames` at h x w) whose every value is `value`.
+void add_set(const fs::path& scene_dir, int64_t h, int64_t w, int64_t frames, float value) {
+  auto scene = data::read_scene(scene_dir.string());
+  data::LatentInfo info;
+  info.encoder = "random";
+  info.height = h;
+  info.width = w;
+  info.windows = {{0, frames}};
+  const int64_t t = 1 + (frames - 1) / 4;
+  data::write_scene_latents(scene, info,
+                            {{torch::full({16, t, h / 8, w / 8}, value), torch::full({32, t, h / 8, w / 8}, value)}});
+}
+
+std::string bytes_of(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+}  // namespace
+
+TEST_CASE("latent sets: a scene holds one per size and window; the loader reads the stage's own", "[data][loader]") {
+  auto root = make_dataset("loader_sets", 2, 13);
+  for (const char* s : {"s0", "s1"}) add_set(root / s, 8, 8, 5, 1.0f);
+  const auto first = root / "s0" / "latents_8x8_f5.safetensors";
+  REQUIRE(fs::exists(first));
+  const std::string first_bytes = bytes_of(first);
+  for (const char* s : {"s0", "s1"}) add_set(root / s, 16, 16, 9, 2.0f);
+  // The second set left the first's file byte-identical and both are listed.
+  CHECK(bytes_of(first) == first_bytes);
+  auto scene = data::read_scene((root / "s0").string());
+  CHECK(data::latent_set_list(scene) == "8x8_f5, 16x16_f9");
+  CHECK_FALSE(scene.latents.present());  // two sets: none is chosen for the reader
+  REQUIRE_THROWS_WITH(data::read_window_latents(scene, 0), FLAT_CONTAINS("several latent sets"));
+  REQUIRE_THROWS_WITH(data::choose_latent_set(scene, ""), FLAT_CONTAINS("--latent-set"));
+  data::choose_latent_set(scene, "16x16_f9");
+  CHECK(data::read_window_latents(scene, 0).video.min().item<float>() == 2.0f);
+  REQUIRE_THROWS_WITH(data::choose_latent_set(scene, "16x16_f17"),
+                      FLAT_CONTAINS("no latent set 16x16_f17") && FLAT_CONTAINS("8x8_f5, 16x16_f9"));
+  REQUIRE_THROWS_WITH(data::choose_latent_set(scene, "16x16"), FLAT_CONTAINS("HEIGHTxWIDTH_fFRAMES"));
+  // The loader of each stage reads its own set.
+  auto c = tiny_config(root);
+  c.workers = 0;
+  c.latents = true;
+  c.target_views = 4;
+  CHECK(data::Loader(c).next().video_latents.min().item<float>() == 1.0f);
+  c.height = 16;
+  c.width = 16;
+  c.input_frames = 9;
+  auto b = data::Loader(c).next();
+  CHECK(b.video_latents.min().item<float>() == 2.0f);
+  CHECK(b.video_latents.size(2) == 3);
+  // Replacing a set keeps the other one's file.
+  add_set(root / "s0", 16, 16, 9, 3.0f);
+  CHECK(bytes_of(first) == first_bytes);
+}
+
+TEST_CASE("loader: a mixture losing a dataset's scenes is named per dataset, and fails when the key says so",
+          "[data][loader]") {
+  auto a = make_dataset("loader_mix_a", 2, 13);
+  auto b = make_dataset("loader_mix_b", 3, 13);
+  for (const char* s : {"s0", "s1"}) add_set(a / s, 8, 8, 5, 1.0f);
+  add_set(b / "s0", 8, 8, 5, 2.0f);
+  add_set(b / "s1", 16, 16, 9, 2.0f);  // another stage's set only
+  // b/s2 has no latents at all.
+  auto c = tiny_config(a);
+  c.datasets = {{a.string(), 0.5}, {b.string(), 0.5}};
+  c.workers = 0;
+  c.latents = true;
+  c.target_views = 4;
+  {
+    data::Loader warn(c);
+    REQUIRE(warn.reports().size() == 2);
+    const auto& rb = warn.reports()[1];
+    CHECK(rb.found == 3);
+    CHECK(rb.used == 1);
+    CHECK(rb.missing_set == 2);
+    CHECK(rb.other_sets.count("16x16_f9") == 1);
+    CHECK(rb.other_sets.count("none") == 1);
+    CHECK(warn.reports()[0].used == 2);
+    CHECK(warn.reports()[0].with_depth == 2);
+  }
+  c.incomplete_datasets = "fail";
+  REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS(b.string()) && FLAT_CONTAINS("2 of 3 scenes lack") &&
+                                           FLAT_CONTAINS("8x8_f5") && FLAT_CONTAINS("incomplete_datasets"));
+  // A dataset left with no scene at all: named in both modes; fails only with the key.
+  add_set(b / "s0", 16, 16, 9, 2.0f);
+  fs::remove(b / "s0" / "latents_8x8_f5.safetensors");
+  {
+    auto j = data::read_scene((b / "s0").string());
+    j.latent_sets.erase(std::remove_if(j.latent_sets.begin(), j.latent_sets.end(),
+                                       [](const data::LatentInfo& l) { return l.height == 8; }),
+                        j.latent_sets.end());
+    j.latents = {};
+    data::write_scene_json(j);
+  }
+  REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("no usable scene of 3"));
+  c.incomplete_datasets = "warn";
+  data::Loader lost(c);
+  CHECK(lost.reports()[1].used == 0);
+  CHECK(lost.scene_count() == 2);
+  // The stage asks for a set no dataset has: the error says what the stage needs.
+  c.input_frames = 9;
+  c.height = 32;
+  c.width = 32;
+  REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("32x32_f9") && FLAT_CONTAINS("no usable scenes"));
+}

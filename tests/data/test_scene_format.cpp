@@ -115,10 +115,40 @@ TEST_CASE("scene validation names the file and the key at fault", "[data][scene]
   SECTION("latent window not 1+4k frames") {
     auto j = good;
     std::ofstream(dir / "latents.safetensors") << "x";
-    j["latents"] = {{"file", "latents.safetensors"}, {"encoder", "random"}, {"height", 16}, {"width", 16},
-                    {"windows", {{{"start", 0}, {"count", 4}}}}};
+    j["latent_sets"] = {{{"file", "latents.safetensors"}, {"encoder", "random"}, {"height", 16}, {"width", 16},
+                         {"windows", {{{"start", 0}, {"count", 4}}}}}};
     write_json(json_path, j);
-    REQUIRE_THROWS_WITH(data::read_scene(dir.string()), FLAT_CONTAINS("latents.windows[0]: 'count' must be 1+4k"));
+    REQUIRE_THROWS_WITH(data::read_scene(dir.string()),
+                        FLAT_CONTAINS("latent set 16x16_f4.windows[0]: 'count' must be 1+4k"));
+  }
+  SECTION("two latent sets of one size and window") {
+    auto j = good;
+    std::ofstream(dir / "a.safetensors") << "x";
+    nlohmann::json set = {{"file", "a.safetensors"}, {"encoder", "random"}, {"height", 16}, {"width", 16},
+                          {"windows", {{{"start", 0}, {"count", 5}}}}};
+    j["latent_sets"] = {set, set};
+    write_json(json_path, j);
+    REQUIRE_THROWS_WITH(data::read_scene(dir.string()),
+                        FLAT_CONTAINS("latent_sets[1]: a second set 16x16_f5"));
+  }
+  SECTION("a version-1 scene's one latents object is read as its one set, and written back as version 2") {
+    auto j = good;
+    j["version"] = 1;
+    std::ofstream(dir / "latents.safetensors") << "x";
+    j["latents"] = {{"file", "latents.safetensors"}, {"encoder", "random"}, {"height", 8}, {"width", 16},
+                    {"windows", {{{"start", 0}, {"count", 5}}}}};
+    write_json(json_path, j);
+    auto scene = data::read_scene(dir.string());
+    REQUIRE(scene.latent_sets.size() == 1);
+    CHECK(scene.latents.present());
+    CHECK(scene.latents.file == "latents.safetensors");
+    CHECK(data::latent_set_key(scene.latents) == "8x16_f5");
+    data::write_scene_json(scene);
+    auto back = read_json(json_path);
+    CHECK(back["version"] == 2);
+    CHECK_FALSE(back.contains("latents"));
+    CHECK(back["latent_sets"][0]["file"] == "latents.safetensors");
+    CHECK(data::read_scene(dir.string()).latents.file == "latents.safetensors");
   }
   SECTION("corrupt image file fails naming it when loaded") {
     auto scene = data::read_scene(dir.string());

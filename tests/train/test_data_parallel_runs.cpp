@@ -23,7 +23,9 @@ using namespace flat::test;
 
 namespace {
 
-// Global batch 2 (one scene per rank with --nproc 2); small gradient buckets,
+// data.batch_size is per rank: --nproc 2 with the config's batch of 1 (the
+// README's command as written, no override) is the batch of 2 that one
+// process with data.batch_size=2 reads. Small gradient buckets,
 // so that the tiny model has 40 (20 KB each) and the overlap is exercised.
 // AdamW with eps 1 and lr 2: its update is then a smooth function of the
 // gradient (momentum SGD, lr ~2). With the usual eps, AdamW's first steps
@@ -32,6 +34,8 @@ namespace {
 // model's weights after 8 steps then differ by up to 0.18 (relative, one
 // tensor) between one process on 1 and on 2 threads, which would hide
 // anything a comparison could show.
+const std::vector<std::string> kTwoRanks = {"--set", "distributed.bucket_mb=0.02", "--set", "distributed.overlap=true",
+                                            "--set", "optim.eps=1", "--set", "optim.lr=2"};
 const std::vector<std::string> kBatch2 = {"--set", "data.batch_size=2",  "--set", "distributed.bucket_mb=0.02",
                                           "--set", "distributed.overlap=true",
                                           "--set", "optim.eps=1",        "--set", "optim.lr=2"};
@@ -107,7 +111,7 @@ double worst_difference(const std::string& a, const std::string& b, size_t* tens
 const std::string& two_rank_reference() {
   static std::string run_dir = [] {
     const std::string d = fresh_dir("dp_reference").string();
-    const int rc = train(args({"--config", write_config(d, 8), "--nproc", "2"}, kBatch2), d + "/log.txt");
+    const int rc = train(args({"--config", write_config(d, 8), "--nproc", "2"}, kTwoRanks), d + "/log.txt");
     INFO(read_file(d + "/log.txt"));
     REQUIRE(rc == 0);
     return d + "/run";
@@ -117,7 +121,7 @@ const std::string& two_rank_reference() {
 
 // Starts an 8-step two-rank run in `d` and waits until it has logged `rows` steps.
 Child start_two_ranks(const std::string& d, int64_t rows, const std::vector<std::string>& more = {}) {
-  Child launcher = spawn(args(args({binary("flat_train"), "--config", write_config(d, 8), "--nproc", "2"}, kBatch2), more),
+  Child launcher = spawn(args(args({binary("flat_train"), "--config", write_config(d, 8), "--nproc", "2"}, kTwoRanks), more),
                          d + "/log1.txt");
   REQUIRE(launcher.pid > 0);
   const std::string jsonl = d + "/run/metrics/train.jsonl";
@@ -187,7 +191,7 @@ TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one proc
   const double whole = std::sqrt(whole_diff / whole_norm), moved = std::sqrt(whole_move / whole_norm);
   CHECK(whole < 5e-5);
   CHECK(moved > 100 * whole);  // the last two steps alone moved the weights far more
-  std::printf("flat_train --nproc 2 against one process (global batch 2, 8 steps): relative difference of the weights "
+  std::printf("flat_train --nproc 2 (batch 1 per rank) against one process (batch 2, 8 steps): relative difference of the weights "
               "%.3g (worst of %zu tensors %.3g), of the losses %.3g; the last two steps moved the weights by %.3g\n",
               whole, a.size(), worst, worst_loss, moved);
 
@@ -199,13 +203,14 @@ TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one proc
   CHECK(listing(one) == listing(two));
   const std::string train_log = read_file(two + "/logs/train.log");
   CHECK(train_log.find("[rank 1") == std::string::npos);
-  CHECK_THAT(train_log, FLAT_CONTAINS("data parallel: 2 ranks, global batch 2 (1 per rank)"));
+  CHECK_THAT(train_log, FLAT_CONTAINS("data parallel: 2 ranks x data.batch_size 1 per rank = effective batch 2"));
+  CHECK_THAT(read_file(two + "/data_report.json"), FLAT_CONTAINS("\"effective_batch\": 2"));
   CHECK(rows(two, "val").size() == rows(one, "val").size());
 
   // All-reduced after backward in one bucket instead: the same sums, the same weights bit for bit.
   const std::string after = d + "/after";
   fs::create_directories(after);
-  const int rc = train(args(args({"--config", write_config(after, 8), "--nproc", "2"}, kBatch2),
+  const int rc = train(args(args({"--config", write_config(after, 8), "--nproc", "2"}, kTwoRanks),
                             {"--set", "distributed.overlap=false", "--set", "distributed.bucket_mb=25"}),
                        after + "/log.txt");
   INFO(read_file(after + "/log.txt"));
@@ -222,7 +227,7 @@ TEST_CASE("flat_train --nproc 2: two Gloo ranks end with the weights of one proc
   // still go out during backward.
   const std::string ckpt = d + "/checkpointed";
   fs::create_directories(ckpt);
-  const int rc_ckpt = train(args(args({"--config", write_config(ckpt, 8), "--nproc", "2"}, kBatch2),
+  const int rc_ckpt = train(args(args({"--config", write_config(ckpt, 8), "--nproc", "2"}, kTwoRanks),
                                  {"--set", "pipeline.model.activation_checkpointing=true"}),
                             ckpt + "/log.txt");
   INFO(read_file(ckpt + "/log.txt"));
@@ -241,7 +246,7 @@ TEST_CASE("flat_train under torchrun-style variables: rank 1 writes nothing in t
   const std::string port = std::to_string(flat::test::free_port());
   std::vector<Child> ranks;
   for (int r = 0; r < 2; ++r) {
-    std::vector<std::string> a = args({binary("flat_train"), "--config", cfg}, kBatch2);
+    std::vector<std::string> a = args({binary("flat_train"), "--config", cfg}, kTwoRanks);
     if (r == 1) a = args(a, {"--set", "run_dir=" + d + "/rank1_run"});
     ranks.push_back(spawn(a, d + "/rank" + std::to_string(r) + ".txt",
                           {"RANK=" + std::to_string(r), "LOCAL_RANK=" + std::to_string(r), "WORLD_SIZE=2",

@@ -58,6 +58,11 @@ struct LoaderConfig {
   bool input_images = false;  // also load the F input frames (for on-the-fly encoding)
   bool latents = false;       // require and load the window's precomputed latents
   bool skip_bad_scenes = false;
+  // What a dataset that loses scenes does: "warn" logs each dataset's count
+  // and reasons; "fail" stops the run when any scene lacks this stage's latent
+  // set or any dataset with a positive weight is left with no scene (a mixture
+  // never changes silently). Scenes too short for the window are only logged.
+  std::string incomplete_datasets = "warn";
   // Not a YAML key: the trainer copies pipeline.model.camera_rays here, so the
   // loader reads the camera latents the model is conditioned on.
   std::string camera_rays = "rppc";
@@ -81,9 +86,27 @@ struct LoaderConfig {
     v.field("input_images", input_images, "load the input window frames");
     v.field("latents", latents, "load precomputed latents (scenes without them are bad)");
     v.field("skip_bad_scenes", skip_bad_scenes, "skip and count bad scenes instead of failing");
+    v.field("incomplete_datasets", incomplete_datasets, config::one_of({"warn", "fail"}),
+            "warn | fail: when scenes lack this stage's latent set, or a dataset of the mixture has no usable "
+            "scene, log it per dataset (warn) or stop (fail)");
   }
   void check() const;  // cross-field checks (F = 1+4k, at least one dataset with weight > 0)
   ViewSamplerConfig views() const;
+};
+
+// What the loader found in one dataset: how many scenes it uses and why it left
+// out the rest (logged, and written to the run folder by the trainer).
+struct DatasetReport {
+  std::string root;
+  double weight = 0;
+  int64_t found = 0;       // scene folders
+  int64_t used = 0;
+  int64_t short_scenes = 0;      // fewer frames than one window of the stage
+  int64_t missing_set = 0;       // long enough, but without this stage's latent set
+  int64_t bad = 0;               // unreadable scene.json (skip_bad_scenes)
+  int64_t with_depth = 0, with_normals = 0;  // among the used scenes
+  std::map<std::string, int64_t> other_sets;  // latent sets the missing_set scenes hold instead
+  std::string example_missing;                // one such scene, for the message
 };
 
 struct Sample {
@@ -146,6 +169,10 @@ class Loader {
   // scored on random-encoder latents never passes for a result.
   std::map<std::string, int64_t> latent_encoders() const;
   int64_t skipped_scenes() const { return skipped_; }
+  const std::vector<DatasetReport>& reports() const { return reports_; }
+  // Scenes carrying depth / normals among the used ones (all datasets).
+  int64_t scenes_with_depth() const;
+  int64_t scenes_with_normals() const;
   int64_t next_batch_index() const { return next_give_; }
   const LoaderConfig& config() const { return config_; }
 
@@ -159,6 +186,7 @@ class Loader {
   int64_t rank_ = 0, world_size_ = 1;
   std::vector<Dataset> datasets_;
   std::vector<double> cumulative_;  // normalised cumulative weights
+  std::vector<DatasetReport> reports_;
 
   std::mutex bad_mutex_;
   std::set<std::string> bad_;  // scene dirs found bad

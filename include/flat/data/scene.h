@@ -15,7 +15,9 @@
 
 namespace flat::data {
 
-inline constexpr int kSceneFormatVersion = 1;
+// Version 2 holds any number of latent sets ("latent_sets"); version 1 (one
+// "latents" object) is still read, as one set.
+inline constexpr int kSceneFormatVersion = 2;
 inline constexpr const char* kSceneFile = "scene.json";
 
 struct SceneFrame {
@@ -33,7 +35,10 @@ struct LatentWindow {
   int64_t count = 0;
 };
 
-// What latents.safetensors holds and how it was made.
+// One latent set: the windows of one frame count encoded at one size, in one
+// file (latents_<H>x<W>_f<F>.safetensors), and how it was made. A scene holds
+// any number of sets, one per (size, window), so the four stages of the paper
+// (17 and 49 frames at 176x320, 49 at 360x640 and 432x768) share one folder.
 struct LatentInfo {
   std::string file;              // "" = the scene has no latents
   std::string encoder;           // "pretrained" | "random"
@@ -44,7 +49,12 @@ struct LatentInfo {
   bool plucker = false;          // "camera_plucker.<i>" are present too (the conditioning ablation)
   std::vector<LatentWindow> windows;
   bool present() const { return !file.empty(); }
+  int64_t frames() const { return windows.empty() ? 0 : windows[0].count; }  // every window has this count
 };
+
+// "176x320_f17": what identifies a set within a scene.
+std::string latent_set_key(int64_t height, int64_t width, int64_t frames);
+std::string latent_set_key(const LatentInfo& set);
 
 struct Scene {
   std::string dir;   // folder holding scene.json (absolute or as given)
@@ -55,7 +65,12 @@ struct Scene {
   std::vector<SceneFrame> frames;
   bool has_depth = false;    // every frame has depth (all or none)
   bool has_normals = false;  // every frame has normals (all or none)
+  std::string depth_source;    // where the depth maps came from ("" = none or not recorded)
+  std::string normals_source;  // where the normal maps came from (predictor files, ray-cast, ...)
   std::string packed;        // "" or "frames.safetensors" (see pack.h)
+  std::vector<LatentInfo> latent_sets;  // every precomputed latent set, in key order
+  // The set that readers of one window use: the only set when there is one,
+  // else the one chosen by select_latent_set (empty when several and none chosen).
   LatentInfo latents;
 
   int64_t size() const { return int64_t(frames.size()); }
@@ -73,6 +88,23 @@ Scene read_scene(const std::string& dir, bool check_files = true);
 // Structural checks (sizes, all-or-none depth/normals, windows in range, rigid
 // cameras); throws naming the scene file and the key at fault.
 void validate_scene(const Scene& scene, bool check_files);
+
+// The set of this size and window frame count, or nullptr.
+const LatentInfo* find_latent_set(const Scene& scene, int64_t height, int64_t width, int64_t frames);
+// Makes that set scene.latents; throws naming the scene, the set asked for and
+// the sets it holds when there is none.
+void select_latent_set(Scene& scene, int64_t height, int64_t width, int64_t frames);
+// For tools that read one window (flat_infer, flat_eval, flat_mesh): `key`
+// ("176x320_f17") picks that set; "" keeps the scene's only set and fails,
+// listing the sets, when it holds several. A scene without latents is left as is.
+void choose_latent_set(Scene& scene, const std::string& key);
+// "176x320_f17" -> height, width, frames; throws naming `what` on another form.
+void parse_latent_set_key(const std::string& key, int64_t& height, int64_t& width, int64_t& frames,
+                          const std::string& what);
+// Adds `set` to scene.latent_sets, replacing the set of the same key; keeps key order.
+void put_latent_set(Scene& scene, const LatentInfo& set);
+// "176x320_f17, 360x640_f49" (or "none"), for messages.
+std::string latent_set_list(const Scene& scene);
 
 // Writes scene.json atomically (the camera fields through camera_entry()).
 void write_scene_json(const Scene& scene);

@@ -1,5 +1,7 @@
 // Precomputed latents of a scene (paper, Model Training: "For each video, we
-// precompute its latents using the frozen VAE"), in <scene>/latents.safetensors:
+// precompute its latents using the frozen VAE"). A scene holds one file per
+// latent set (a frame size and window length, scene.h), named
+// <scene>/latents_<H>x<W>_f<F>.safetensors (version-1 scenes: latents.safetensors):
 //   "video.<i>"  (16,T',h,w) normalised VAE latent of window i
 //   "camera.<i>" (32,T',h,w) RPPC camera latents of window i (E_ref ; E_dir)
 //   "camera_plucker.<i>" (32,T',h,w) optional: Plucker camera latents (the
@@ -7,7 +9,7 @@
 //   "frames.<i>" (F,) int64 the frames window i covers, F = 1+4(T'-1)
 // Metadata: format "flat-scene-latents", version, encoder "pretrained"|"random",
 // weights (file name), seed, height, width. scene.json repeats this under
-// "latents" (LatentInfo) so a loader can choose windows without opening the file.
+// "latent_sets" (LatentInfo) so a loader can choose windows without opening the file.
 #pragma once
 #include <vector>
 
@@ -17,7 +19,8 @@
 
 namespace flat::data {
 
-inline constexpr const char* kLatentsFile = "latents.safetensors";
+// "latents_176x320_f17.safetensors": the file of one set.
+std::string latent_set_file(int64_t height, int64_t width, int64_t frames);
 
 struct WindowLatents {
   at::Tensor video;   // (16,T',h,w)
@@ -25,7 +28,9 @@ struct WindowLatents {
   at::Tensor camera_plucker;  // (32,T',h,w) or undefined (written only when asked for)
 };
 
-// Writes latents.safetensors and records `info` (file name set here) in scene.json.
+// Writes the set's file and records `info` (file name set here) among the
+// scene's sets in scene.json, replacing a set of the same size and window and
+// leaving every other set's file and entry as they were; makes it scene.latents.
 // info.windows[i] must match latents[i]: T' = 1 + (count-1)/4, h = height/8, w = width/8.
 // Equivalent to stage_scene_latents then commit_scene_latents.
 void write_scene_latents(Scene& scene, LatentInfo info, const std::vector<WindowLatents>& latents);

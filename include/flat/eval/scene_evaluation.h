@@ -28,6 +28,7 @@ struct EvalSettings {
   std::string views = "scene";  // scene | window | unseen
   int64_t max_views = 0;        // 0 = all
   int64_t window = 0;           // which latent window decodes the scene
+  std::string latent_set;       // which latent set ("176x320_f17"; "" = each scene's only one)
   int64_t height = 0, width = 0;  // 0 = the latents' frame size
   SsimConvention ssim = SsimConvention::skimage;
   double normal_alpha = 0.5;    // normals scored where alpha > this

@@ -20,6 +20,7 @@ namespace flat::infer {
 struct InputSpec {
   std::string scene_dir;  // a scene folder, or ""
   int64_t window = 0;     // which latent window of the scene
+  std::string latent_set;  // which latent set ("176x320_f17"; "" = the scene's only one)
   std::string latents_file, cameras_file;
   std::string vae_weights;  // Wan VAE weights to encode missing camera latents ("" = none)
   bool need_camera_latents = true;  // the model has a camera adapter

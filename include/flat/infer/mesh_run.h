@@ -35,6 +35,7 @@ struct MeshRunOptions {
   std::string from;           // a flat_infer output folder (scene.ply + summary.json), or a soup PLY
   std::string scene_dir;      // "" = the scene folder flat_infer's summary.json names
   int64_t window = -1;        // latent window of the scene (-1 = the summary's)
+  std::string latent_set;     // latent set of the scene, HxW_fF ("" = the summary's, else the scene's only one)
   std::string out_dir;
   bool overwrite = false;
   std::string device = "auto";  // auto | cpu | cuda

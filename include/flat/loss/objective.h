@@ -21,6 +21,9 @@ struct LossConfig {
   double lambda_perc = 0.5;
   double lambda_depth = 0.01;
   double lambda_normal = 0.01;
+  // A depth or normal term whose training scenes carry no depth / normals trains
+  // nothing: "fail" refuses to start, "warn" only says so (train/geometry_targets.h).
+  std::string missing_geometry = "fail";
   double lambda_opacity = 0.001;
   double lambda_normal_consistency = 0.0;  // 2DGS regulariser
   double lambda_distortion = 0.0;          // 2DGS regulariser
@@ -38,6 +41,8 @@ struct LossConfig {
     v.field("lambda_perc", lambda_perc, config::non_negative(), "weight of LPIPS (needs lpips_weights)");
     v.field("lambda_depth", lambda_depth, config::non_negative(), "weight of the scale-invariant disparity loss");
     v.field("lambda_normal", lambda_normal, config::non_negative(), "weight of the normal loss");
+    v.field("missing_geometry", missing_geometry, config::one_of({"fail", "warn"}),
+            "fail | warn: when lambda_depth or lambda_normal is set and no training scene has depth / normals");
     v.field("lambda_opacity", lambda_opacity, config::non_negative(), "weight of the L1 opacity regulariser");
     v.field("lambda_normal_consistency", lambda_normal_consistency, config::non_negative(),
             "weight of the 2DGS normal-consistency regulariser");
