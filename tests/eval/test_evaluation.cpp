@@ -148,7 +148,7 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   test::write_scene_with_latents((dir / "setB/room_c").string(), 3);
   // A broken scene: its latents file is gone.
   test::write_scene_with_latents((dir / "setB/room_broken").string(), 4);
-  fs::remove(dir / "setB/room_broken/latents.safetensors");
+  fs::remove(dir / "setB/room_broken/latents_48x80_f9.safetensors");
 
   eval::EvalRunOptions o;
   o.model = model;
@@ -168,7 +168,7 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   for (const auto& sc : results.scores) {
     if (sc.scene == "room_broken") {
       CHECK(!sc.ok);
-      CHECK(sc.error.find("latents.safetensors") != std::string::npos);
+      CHECK(sc.error.find("latents_48x80_f9.safetensors") != std::string::npos);
     } else {
       CHECK(sc.ok);
       CHECK(sc.views == 4);

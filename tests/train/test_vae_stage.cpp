@@ -116,7 +116,7 @@ TEST_CASE("VAE stage: it learns to reconstruct, and its file round-trips through
   REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", vae, "--window", "5"}, d + "/latents.txt") == 0);
   auto rescanned = flat::data::read_scene(copy);
   CHECK(rescanned.latents.encoder == "pretrained");
-  auto stored = flat::load_safetensors(copy + "/latents.safetensors").at("video.0");
+  auto stored = flat::load_safetensors(copy + "/" + rescanned.latents.file).at("video.0");
   CHECK(rel_error(stored, latent[0]) < 1e-4);
 }
 
