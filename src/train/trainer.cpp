@@ -234,7 +234,9 @@ class Run {
   std::unique_ptr<data::Loader> val_loader_;  // none without validation.datasets
   std::string random_latents_;  // which scenes hold random-encoder latents; empty: none
   std::string data_report_;     // data_report.json: what each loader used and left out
-  at::Tensor dataset_mean_;     // the training set's mean image (scene task with validation)
+  std::vector<data::Scene> val_scenes_;  // scene task: the held-out scenes, scored as flat_eval scores them
+  eval::EvalSettings val_settings_;
+  eval::FrameSums val_frame_sums_;
   std::unique_ptr<MetricsLog> metrics_;  // rank 0
   std::optional<Progress> progress_;     // rank 0, while steps remain
 };
@@ -354,7 +356,21 @@ void Run::open_loaders() {
     }
   }
   // The "same output for every scene" baseline: the training set's mean image.
-  if (val_loader_ && !session_->vae_task()) dataset_mean_ = training_mean_image(cfg_.data, 32);
+  if (val_loader_ && !session_->vae_task()) {
+    val_settings_ = validation_settings(cfg_.validation.max_views, bf16());
+    val_scenes_ = held_out_scenes(cfg_.validation.datasets, cfg_.validation.scenes, cfg_.data.height, cfg_.data.width,
+                                  cfg_.data.input_frames);
+    val_frame_sums_ = held_out_frame_sums(val_scenes_, val_settings_);
+    std::string names;
+    for (const auto& s : val_scenes_) names += (names.empty() ? "" : ", ") + s.name;
+    spdlog::info("validation: {} held-out scenes ({}), window 0 of latent set {}, {} views each, scored as flat_eval "
+                 "scores them (flat_eval --max-views {} --latent-set {})",
+                 val_scenes_.size(), names, data::latent_set_key(cfg_.data.height, cfg_.data.width,
+                                                                 cfg_.data.input_frames),
+                 cfg_.validation.max_views ? "at most " + std::to_string(cfg_.validation.max_views) : "all",
+                 cfg_.validation.max_views,
+                 data::latent_set_key(cfg_.data.height, cfg_.data.width, cfg_.data.input_frames));
+  }
   data_report_ = data_report_json(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
 }
 
@@ -406,9 +422,9 @@ void Run::run_validation(int64_t step) {
   auto r = session_->vae_task()
                ? validate_vae(session_->vae, *val_loader_, cfg_.validation.scenes, session_->vae_lpips,
                               cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr)
-               : validate(*session_->pipeline, *val_loader_, cfg_.validation.scenes,
+               : validate(*session_->pipeline, val_scenes_, val_settings_, val_frame_sums_,
                           session_->objective->lpips_network(), cfg_.validation.grid_views,
-                          dp_ ? &dp_->group() : nullptr, dataset_mean_, bf16());
+                          dp_ ? &dp_->group() : nullptr);
   signal_for_test(step);
   if (std::isnan(summary_.first_val_psnr)) summary_.first_val_psnr = r.psnr;
   summary_.last_val_psnr = r.psnr;
@@ -431,7 +447,7 @@ void Run::run_validation(int64_t step) {
                  grid.empty() ? "" : "; grid " + grid);
   else
     spdlog::info("validation @ step {}: PSNR {:.2f} dB | baselines: mean colour {:.2f}, dataset mean {:.2f}, swap "
-                 "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out samples "
+                 "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out scenes "
                  "({:.1f} s){}{}",
                  step, r.psnr, r.mean_colour_psnr, r.dataset_mean_psnr, r.swap_psnr, r.ssim, lp, r.normal_cosine,
                  r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,

@@ -14,6 +14,10 @@
 #include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
 #include "flat/eval/normal_metrics.h"
+#include "flat/eval/scene_evaluation.h"
+#include "flat/data/frame_resize.h"
+#include "flat/data/scene_frames.h"
+#include "flat/data/scene_latents.h"
 
 namespace flat::train {
 
@@ -36,6 +40,7 @@ Scalars ValidationResult::scalars() const {
                  {"val_ssim", ssim},
                  {"val_lpips", lpips},
                  {"val_normal_cosine", normal_cosine},
+                 {"val_normal_l1", normal_l1},
                  {"val_mean_colour_psnr", mean_colour_psnr}};
   // The baselines that apply to the stage (NaN: not measured here).
   for (const auto& [name, value] : Scalars{{"val_dataset_mean_psnr", dataset_mean_psnr},
@@ -43,25 +48,6 @@ Scalars ValidationResult::scalars() const {
                                            {"val_latent_correlation", latent_correlation}})
     if (!std::isnan(value)) out.push_back({name, value});
   return out;
-}
-
-at::Tensor training_mean_image(const data::LoaderConfig& config, int64_t samples) {
-  data::LoaderConfig c = config;
-  c.batch_size = 1;
-  c.workers = 0;
-  c.depth = false;
-  c.normals = false;
-  c.input_images = false;
-  c.latents = false;
-  data::Loader loader(c);
-  at::Tensor sum;
-  int64_t n = 0;
-  for (int64_t i = 0; i < samples; ++i) {
-    auto t = loader.batch(i).target_images[0].to(at::kDouble);  // (V,3,H,W)
-    sum = sum.defined() ? sum + t.sum(0) : t.sum(0);
-    n += t.size(0);
-  }
-  return (sum / double(std::max<int64_t>(n, 1))).to(at::kFloat);
 }
 
 at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Batch& batch, int64_t b,
@@ -107,107 +93,121 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
   return at::cat(rows, 1).contiguous();
 }
 
-ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
-                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group,
-                          const at::Tensor& dataset_mean, bool bf16) {
+std::vector<data::Scene> held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count,
+                                         int64_t height, int64_t width, int64_t frames) {
+  std::vector<data::Scene> scenes;
+  for (const auto& d : datasets) {
+    if (!(d.weight > 0)) continue;
+    for (const auto& dir : data::scene_dirs_under(d.root)) {
+      if (count > 0 && int64_t(scenes.size()) >= count) return scenes;
+      data::Scene scene = data::read_scene(dir);
+      // Only scenes holding the stage's set are held out (the validation
+      // loader has reported the others, per dataset).
+      if (!data::find_latent_set(scene, height, width, frames)) continue;
+      data::select_latent_set(scene, height, width, frames);
+      scenes.push_back(std::move(scene));
+    }
+  }
+  FLAT_CHECK(!scenes.empty(), "validation: no held-out scene holds the latent set " +
+                                  data::latent_set_key(height, width, frames) + " of this stage");
+  return scenes;
+}
+
+eval::EvalSettings validation_settings(int64_t max_views, bool bf16) {
+  eval::EvalSettings s;  // flat_eval's defaults: every view of the scene, window 0, skimage SSIM
+  s.max_views = max_views;
+  s.bf16 = bf16;
+  return s;
+}
+
+eval::FrameSums held_out_frame_sums(const std::vector<data::Scene>& scenes, const eval::EvalSettings& settings) {
+  eval::FrameSums sums;
+  for (const auto& scene : scenes) eval::add_frame_sums(sums, scene, settings);
+  return sums;
+}
+
+namespace {
+
+// One grid row: the scene's first evaluation view, decoded from window 0.
+at::Tensor validation_grid_row(pipeline::ScenePipeline& pipeline, const data::Scene& scene,
+                               const eval::EvalSettings& s) {
+  const auto device = pipeline.decoder()->conv2->weight.device();
+  const auto& win = scene.latents.windows[size_t(s.window)];
+  auto latents = data::read_window_latents(scene, size_t(s.window), pipeline.config().model.camera_rays);
+  std::vector<int64_t> window_frames;
+  for (int64_t i = 0; i < win.count; ++i) window_frames.push_back(win.start + i);
+  const auto cams = scene.cameras(window_frames);
+  pipeline::SceneInput in;
+  in.video_latents = latents.video.unsqueeze(0).to(at::kFloat);
+  if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
+  in.input_intrinsics = cams.intrinsics.unsqueeze(0);
+  in.input_c2w = cams.c2w.unsqueeze(0);
+  const int64_t view = eval::evaluation_views(scene, s).front();
+  const int64_t H = scene.latents.height, W = scene.latents.width;
+  auto frames = data::load_frames(scene, {view}, scene.has_depth, scene.has_normals);
+  auto intr = data::fit_frames(frames, scene.cameras({view}).intrinsics, H, W);
+  pipeline::RenderedViews v;
+  {
+    AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
+    auto soup = pipeline.decode(in, s.streaming);
+    v = pipeline.render(soup.scene(0), camera::Cameras{intr.to(device), scene.cameras({view}).c2w.to(device)}, H, W);
+  }
+  for (auto* t : {&v.rgb, &v.alpha, &v.depth, &v.normal})
+    if (t->defined()) *t = t->to(at::kCPU, at::kFloat);
+  data::Batch b;
+  b.target_images = frames.images.unsqueeze(0);
+  if (frames.depth.defined()) b.target_depth = frames.depth.unsqueeze(0);
+  if (frames.normals.defined()) b.target_normals = frames.normals.unsqueeze(0);
+  return validation_grid(v, b, 0, 1);
+}
+
+}  // namespace
+
+ValidationResult validate(pipeline::ScenePipeline& pipeline, const std::vector<data::Scene>& scenes,
+                          const eval::EvalSettings& settings, const eval::FrameSums& frame_sums, loss::Lpips lpips,
+                          int64_t grid_views, distributed::ProcessGroup* group) {
   torch::NoGradGuard no_grad;
   ValidationResult r;
-  double psnr = 0, ssim = 0, lp = 0, base = 0, cosine = 0, mean_image = 0, swap = 0, swap_views = 0;
-  int64_t grid_rows = 0;
-  int64_t normal_pixels = 0;
+  // Per-scene means summed over the scenes (flat_eval's table is their mean),
+  // each with its count: a baseline counts where it could be measured.
+  enum { kPsnr, kSsim, kLpips, kLpipsN, kCos, kL1, kCosN, kOracle, kMean, kMeanN, kSwap, kSwapN, kViews, kScenes, kN };
+  std::vector<double> sums(kN, 0.0);
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
-  const bool autocast_on = bf16 && device.is_cuda();
-  // Each sample's scene and target images, loaded once whether it is scored
-  // here or only a swap partner.
-  std::map<int64_t, std::pair<std::string, at::Tensor>> held_out;
-  auto targets_of = [&](int64_t index) -> const std::pair<std::string, at::Tensor>& {
-    auto it = held_out.find(index);
-    if (it == held_out.end()) {
-      data::Batch other = loader.batch(index);
-      it = held_out.emplace(index, std::make_pair(other.scenes[0], other.target_images[0])).first;
+  const int64_t n = int64_t(scenes.size());
+  for (int64_t i = first; i < n; i += stride) {
+    eval::BaselineInputs inputs;
+    if (const auto partner = eval::swap_partner(size_t(i), size_t(n))) inputs.swap_with = &scenes[*partner];
+    inputs.frame_sums = &frame_sums;
+    const auto sc = eval::evaluate_scene(pipeline, scenes[size_t(i)], settings, lpips, inputs);
+    sums[kPsnr] += sc.psnr;
+    sums[kSsim] += sc.ssim;
+    if (std::isfinite(sc.lpips)) sums[kLpips] += sc.lpips, sums[kLpipsN] += 1;
+    if (std::isfinite(sc.normal_cosine)) sums[kCos] += sc.normal_cosine, sums[kL1] += sc.normal_l1, sums[kCosN] += 1;
+    sums[kOracle] += sc.mean_colour_psnr;
+    if (std::isfinite(sc.dataset_mean_psnr)) sums[kMean] += sc.dataset_mean_psnr, sums[kMeanN] += 1;
+    if (std::isfinite(sc.swap_psnr)) sums[kSwap] += sc.swap_psnr, sums[kSwapN] += 1;
+    sums[kViews] += double(sc.views);
+    sums[kScenes] += 1;
+    // Grid rows: the first view of each of this rank's first scenes, so that
+    // a reader sees whether each held-out scene gets its own layout.
+    if (i / stride < grid_views) {
+      auto row = validation_grid_row(pipeline, scenes[size_t(i)], settings);
+      r.grid = r.grid.defined() ? at::cat({r.grid, row}, 1) : row;
     }
-    return it->second;
-  };
-  for (int64_t i = first; i < samples; i += stride) {
-    data::Batch batch = loader.batch(i);
-    held_out.emplace(i, std::make_pair(batch.scenes[0], batch.target_images[0]));
-    pipeline::SceneInput in{batch.video_latents, batch.camera_latents, batch.input_intrinsics, batch.input_c2w};
-    // Decode and render under the run's precision; the scores in fp32.
-    auto soup = [&] {
-      AutocastScope autocast(autocast_on, device.type());
-      return pipeline.decode(in);
-    }();
-    for (int64_t b = 0; b < soup.batch(); ++b) {
-      const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
-      auto views = [&] {
-        AutocastScope autocast(autocast_on, device.type());
-        return pipeline.render(soup.scene(b), batch.target_cameras(b).to(device), H, W);
-      }();
-      for (auto* t : {&views.rgb, &views.alpha, &views.depth, &views.normal})
-        if (t->defined()) *t = t->to(at::kFloat);
-      auto target = batch.target_images[b].to(device, at::kFloat);
-      auto rgb = views.rgb.clamp(0, 1);
-      psnr += eval::psnr(rgb, target).sum().item<double>();
-      ssim += eval::ssim(rgb, target).sum().item<double>();
-      if (!lpips.is_empty()) lp += eval::lpips(lpips, rgb, target, 512, 4).sum().item<double>();
-      base += eval::mean_colour_psnr(target).sum().item<double>();
-      if (dataset_mean.defined())
-        mean_image += eval::psnr(dataset_mean.to(device).unsqueeze(0).expand_as(target), target).sum().item<double>();
-      // Swap: the same renders against the views of the next sample of
-      // another scene (same view index); samples are drawn with replacement,
-      // and a sample of the same scene is no swap.
-      at::Tensor partner;
-      for (int64_t k = 1; k < samples && !partner.defined(); ++k) {
-        const auto& candidate = targets_of((i + k) % samples);
-        if (candidate.first != batch.scenes[b]) partner = candidate.second;
-      }
-      if (partner.defined()) {
-        auto other = partner.to(device, at::kFloat);
-        FLAT_CHECK(other.sizes() == target.sizes(), "validation: the swap baseline needs samples of the same views "
-                                                    "and size, got " + shape_str(other) + " and " + shape_str(target));
-        swap += eval::psnr(rgb, other).sum().item<double>();
-        swap_views += double(target.size(0));
-      }
-      if (batch.target_normals.defined() && batch.normals_present[b].item<bool>()) {
-        auto acc = eval::normal_accuracy(views.normal, batch.target_normals[b].to(device, at::kFloat),
-                                         views.alpha > 0.5);
-        if (acc.valid_pixels > 0) {
-          cosine += acc.mean_cosine * double(acc.valid_pixels);
-          normal_pixels += acc.valid_pixels;
-        }
-      }
-      r.views += target.size(0);
-      // Grid rows: the first view of each of this rank's first samples, so
-      // that a reader sees whether each held-out scene gets its own layout.
-      if (grid_rows < grid_views) {
-        auto row = validation_grid(views, batch, b, 1);
-        r.grid = r.grid.defined() ? at::cat({r.grid, row}, 1) : row;
-        ++grid_rows;
-      }
-    }
-    r.samples += soup.batch();
   }
-  if (group) {
-    auto sums = distributed::sum_over_ranks(
-        *group,
-        {psnr, ssim, lp, base, cosine, double(normal_pixels), double(r.views), double(r.samples), mean_image, swap,
-         swap_views},
-        device);
-    psnr = sums[0], ssim = sums[1], lp = sums[2], base = sums[3], cosine = sums[4];
-    mean_image = sums[8], swap = sums[9], swap_views = sums[10];
-    normal_pixels = int64_t(std::llround(sums[5]));
-    r.views = int64_t(std::llround(sums[6]));
-    r.samples = int64_t(std::llround(sums[7]));
-  }
-  const double v = double(std::max<int64_t>(r.views, 1));
-  r.psnr = psnr / v;
-  r.ssim = ssim / v;
-  r.lpips = lpips.is_empty() ? NAN : lp / v;
-  r.mean_colour_psnr = base / v;
-  r.dataset_mean_psnr = dataset_mean.defined() ? mean_image / v : NAN;
-  r.swap_psnr = swap_views > 0 ? swap / swap_views : NAN;
-  r.normal_cosine = normal_pixels > 0 ? cosine / double(normal_pixels) : NAN;
+  if (group) sums = distributed::sum_over_ranks(*group, sums, device);
+  auto mean = [&](int value, int count) { return sums[size_t(count)] > 0 ? sums[size_t(value)] / sums[size_t(count)] : NAN; };
+  r.samples = int64_t(std::llround(sums[kScenes]));
+  r.views = int64_t(std::llround(sums[kViews]));
+  r.psnr = mean(kPsnr, kScenes);
+  r.ssim = mean(kSsim, kScenes);
+  r.lpips = mean(kLpips, kLpipsN);
+  r.normal_cosine = mean(kCos, kCosN);
+  r.normal_l1 = mean(kL1, kCosN);
+  r.mean_colour_psnr = mean(kOracle, kScenes);
+  r.dataset_mean_psnr = mean(kMean, kMeanN);
+  r.swap_psnr = mean(kSwap, kSwapN);
   return r;
 }
 

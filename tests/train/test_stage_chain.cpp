@@ -4,10 +4,13 @@
 // call making every stage's latent set from the configs, each stage starting
 // from the one before, the geometry terms active, a SIGKILL in the middle of
 // the chain and --resume, then flat_eval on the last stage's held-out set.
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 
 #include "flat/data/scene.h"
+#include "flat/eval/evaluation_report.h"
 #include "train_fixtures.h"
 
 namespace fs = std::filesystem;
@@ -95,14 +98,28 @@ TEST_CASE("the four tiny stages chain on one set of dataset folders, each on its
   CHECK_THAT(read_file(root + "/stage4/logs/train.log"),
              FLAT_CONTAINS("optimiser adamw8bit") && FLAT_CONTAINS("activation checkpointing"));
 
-  // The last stage scored on its held-out set, beside the baselines.
+  // The last stage scored on its held-out set, beside the baselines, with the
+  // views the trainer's validation scores (validation.max_views 16): one
+  // held-out number, the trainer's last validation and flat_eval's table agree.
   const int rc_eval = run({binary("flat_eval"), "--model", root + "/stage4", "--scenes", "synth=" + root + "/data/val",
-                           "--latent-set", "80x144_f17", "--out", d + "/eval", "--device", "cpu"},
+                           "--latent-set", "80x144_f17", "--max-views", "16", "--out", d + "/eval", "--device", "cpu"},
                           d + "/eval.log");
   INFO(read_file(d + "/eval.log"));
   REQUIRE(rc_eval == 0);
   const std::string table = read_file(d + "/eval/table.md");
   CHECK_THAT(table, FLAT_CONTAINS("oracle"));
+  const auto means = flat::eval::dataset_means(flat::eval::read_results_json(d + "/eval/results.json").scores).back();
+  const auto val = rows(root + "/stage4", "val").back();
+  REQUIRE(means.scenes == 2);
+  std::printf("stage 4: trainer's validation PSNR %.4f dB, flat_eval %.4f dB (oracle %.4f / %.4f, swap %.4f / %.4f)\n",
+              val.at("val_psnr").get<double>(), means.psnr, val.at("val_mean_colour_psnr").get<double>(),
+              means.mean_colour_psnr, val.at("val_swap_psnr").get<double>(), means.swap_psnr);
+  CHECK(std::abs(val.at("val_psnr").get<double>() - means.psnr) < 0.05);
+  CHECK(std::abs(val.at("val_ssim").get<double>() - means.ssim) < 1e-3);
+  CHECK(std::abs(val.at("val_mean_colour_psnr").get<double>() - means.mean_colour_psnr) < 0.05);
+  CHECK(std::abs(val.at("val_dataset_mean_psnr").get<double>() - means.dataset_mean_psnr) < 0.05);
+  CHECK(std::abs(val.at("val_swap_psnr").get<double>() - means.swap_psnr) < 0.05);
+  CHECK(std::abs(val.at("val_normal_cosine").get<double>() - means.normal_cosine) < 1e-3);
   // Without --latent-set, a scene of four sets is refused naming them.
   const int rc_ambiguous = run({binary("flat_eval"), "--model", root + "/stage4", "--scenes",
                                 "synth=" + root + "/data/val", "--out", d + "/eval2", "--device", "cpu"},

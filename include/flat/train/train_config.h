@@ -106,13 +106,18 @@ struct CheckpointConfig {
 struct ValidationConfig {
   std::vector<data::DatasetSource> datasets;  // held-out scenes (empty: no validation)
   int64_t every = 1000;                       // steps (and before the first and after the last)
-  int64_t scenes = 4;                         // held-out samples per validation
+  int64_t scenes = 4;                         // held-out scenes scored (the first in name order)
+  int64_t max_views = 16;                     // views per scene, evenly spaced (0 = every frame)
   int64_t grid_views = 4;                     // samples in the PNG grid, one view each (0 = none)
   template <class V>
   void visit(V& v) {
     v.list("datasets", datasets);
     v.field("every", every, config::positive(), "validate every N steps");
-    v.field("scenes", scenes, config::positive(), "held-out samples per validation");
+    v.field("scenes", scenes, config::positive(),
+            "held-out scenes scored at each validation (the first in name order; task: vae: held-out windows)");
+    v.field("max_views", max_views, config::non_negative(),
+            "views scored per held-out scene, evenly spaced over its frames (0 = all; flat_eval --max-views N "
+            "scores the same views)");
     v.field("grid_views", grid_views, config::non_negative(),
             "held-out samples in the validation image grid, one view each (0 = none)");
   }

@@ -1,16 +1,18 @@
-// Validation on held-out scenes (paper, Evaluation): decode each held-out
-// sample's latents, render its target views, and score them against the
-// ground truth with the metrics of the paper's Table 1: PSNR, SSIM, LPIPS and
-// normal cosine (normals only where alpha > 0.5). Beside them, the scores a
-// model that ignores its input would also reach (a result only counts where
-// it clears them):
+// Validation on held-out scenes (paper, Evaluation), scored exactly as
+// flat_eval scores them (eval/scene_evaluation.h), so that the trainer's
+// validation and flat_eval give one number for one model: each held-out scene
+// decoded from window 0 of the stage's latent set, every view of the scene
+// (or max_views of them, evenly spaced) rendered at the set's size, PSNR,
+// SSIM, LPIPS per view averaged per scene, normal L1 and cosine where alpha >
+// 0.5; the figure is the mean over the scenes, as flat_eval's table. Beside
+// them, the scores a model that ignores its input would also reach (a result
+// only counts where it clears them), the same as flat_eval's:
 //   mean-colour oracle: every view painted its own mean colour;
-//   dataset mean: every view predicted as the training set's mean image (the
-//     best "same output for every scene");
-//   swap: each sample's renders scored against the ground truth of the next
-//     sample (cyclically) that shows another scene, same view index; a model
-//     that ignores its latents scores the same on its own scene and on the
-//     swapped one.
+//   dataset mean: every view predicted as the other held-out scenes' mean
+//     frame of the same index (the best "same output for every scene");
+//   swap: each scene's renders scored against the next held-out scene's
+//     frames (cyclically); a model that ignores its latents scores the same
+//     on its own scene and on the swapped one.
 // Writes an image grid for a person to look at.
 #pragma once
 #include <cstdint>
@@ -19,6 +21,8 @@
 #include <ATen/ATen.h>
 
 #include "flat/data/loader.h"
+#include "flat/eval/baselines.h"
+#include "flat/eval/scene_evaluation.h"
 #include "flat/distributed/process_group.h"
 #include "flat/loss/lpips.h"
 #include "flat/pipeline/scene_pipeline.h"
@@ -29,13 +33,14 @@ namespace flat::train {
 struct ValidationResult {
   double psnr = 0, ssim = 0;
   double lpips = NAN;          // NaN without LPIPS weights
-  double normal_cosine = NAN;  // NaN where no sample has reference normals
+  double normal_cosine = NAN;  // NaN where no scene has reference normals
+  double normal_l1 = NAN;
   double mean_colour_psnr = 0; // the mean-colour baseline on the same views
-  double dataset_mean_psnr = NAN;  // the training set's mean image on the same views
-  double swap_psnr = NAN;          // renders against the next other-scene sample's ground truth
+  double dataset_mean_psnr = NAN;  // the other held-out scenes' mean frame on the same views
+  double swap_psnr = NAN;          // renders against the next held-out scene's frames
   double latent_correlation = NAN; // VAE stage: mean Pearson correlation of the samples' latents
-  int64_t samples = 0, views = 0;
-  at::Tensor grid;             // (3,H',W') in [0,1]: one row per sample (its first view)
+  int64_t samples = 0, views = 0;  // held-out scenes (VAE stage: windows) and views scored
+  at::Tensor grid;             // (3,H',W') in [0,1]: one row per scene (its first view)
   Scalars scalars() const;     // "val_psnr", "val_ssim", ...
 };
 
@@ -45,23 +50,29 @@ struct ValidationResult {
 at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Batch& batch, int64_t b,
                            int64_t max_views);
 
-// Scores `samples` batches 0.. of `loader` (batch size 1, fixed seed: the same
-// views every time). lpips: an empty holder skips LPIPS. With `group` (every
-// rank calls it) rank r scores batches r, r + W, ... and the sums are added
-// over the ranks: every rank gets the scores of all samples, rank 0 the grid
-// (of batch 0).
-// The grid holds the first view of each of the first `grid_views` samples
-// (one row each), so that different held-out scenes can be told apart.
-// dataset_mean: (3,H,W) in [0,1], the training set's mean image at the
-// validation size (training_mean_image), or undefined (no such baseline).
-// bf16: decode and render under CUDA bf16 autocast, as the run trains and as
-// flat_eval scores by default; the scores are computed in fp32.
-ValidationResult validate(pipeline::ScenePipeline& pipeline, data::Loader& loader, int64_t samples,
-                          loss::Lpips lpips, int64_t grid_views, distributed::ProcessGroup* group = nullptr,
-                          const at::Tensor& dataset_mean = {}, bool bf16 = false);
+// The held-out scenes: those of `datasets` (weight > 0) in name order,
+// dataset by dataset, at most `count` (0 = all), each with the latent set of
+// the stage (its size and window length) chosen; scenes without that set are
+// left out (the validation loader reports them). Throws when none is left.
+std::vector<data::Scene> held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count,
+                                         int64_t height, int64_t width, int64_t frames);
 
-// The mean target image of `samples` training samples (batches 0.. of a
-// loader built from `config` with batch size 1): (3,H,W) on the CPU.
-at::Tensor training_mean_image(const data::LoaderConfig& config, int64_t samples);
+// flat_eval's default settings (views "scene", window 0, skimage SSIM) with
+// at most `max_views` views per scene (0 = all) and the run's precision:
+// `flat_eval --max-views N` (with --latent-set of the stage when the scenes
+// hold several sets) scores the same views.
+eval::EvalSettings validation_settings(int64_t max_views, bool bf16);
+
+// The held-out scenes' frames by index, for the dataset-mean baseline.
+eval::FrameSums held_out_frame_sums(const std::vector<data::Scene>& scenes, const eval::EvalSettings& settings);
+
+// Scores every scene (flat_eval's evaluate_scene). lpips: an empty holder
+// skips LPIPS. With `group` (every rank calls it) rank r scores scenes r,
+// r + W, ... and the sums are added over the ranks: every rank gets the
+// scores of all scenes, rank 0 the grid. The grid holds the first view of
+// each of the first `grid_views` scenes (one row each).
+ValidationResult validate(pipeline::ScenePipeline& pipeline, const std::vector<data::Scene>& scenes,
+                          const eval::EvalSettings& settings, const eval::FrameSums& frame_sums, loss::Lpips lpips,
+                          int64_t grid_views, distributed::ProcessGroup* group = nullptr);
 
 }  // namespace flat::train
