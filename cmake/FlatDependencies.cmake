@@ -21,6 +21,29 @@ if(FLAT_WITH_OIIO)
   find_package(OpenImageIO REQUIRED)
 endif()
 
+# libpng and libjpeg(-turbo) (Debian libpng-dev, libjpeg62-turbo-dev): PNG and
+# JPEG files without OpenImageIO (src/core/png_jpeg_io.cpp; read_image and
+# write_image use them when FLAT_WITH_OIIO is off). Looked up in every build,
+# OpenImageIO or not, so that the OpenImageIO build tests the two against
+# each other; without them only OpenImageIO reads images. Like flat_gltf, the
+# switch is its own target, linked PRIVATE by the core module alone (tests
+# ask png_jpeg_available()), so that it does not change the shared
+# precompiled header's flags.
+set(FLAT_PNG_JPEG_FOUND OFF)
+find_package(PNG QUIET)
+find_package(JPEG QUIET)
+if(TARGET PNG::PNG AND TARGET JPEG::JPEG)
+  set(FLAT_PNG_JPEG_FOUND ON)
+else()
+  message(STATUS "libpng/libjpeg not found (Debian libpng-dev, libjpeg62-turbo-dev): "
+                 "without OpenImageIO, PNG/JPEG files cannot be read")
+endif()
+add_library(flat_png_jpeg INTERFACE)
+target_compile_definitions(flat_png_jpeg INTERFACE FLAT_WITH_PNG_JPEG=$<BOOL:${FLAT_PNG_JPEG_FOUND}>)
+if(FLAT_PNG_JPEG_FOUND)
+  target_link_libraries(flat_png_jpeg INTERFACE PNG::PNG JPEG::JPEG)
+endif()
+
 # tinygltf (Debian libtinygltf-dev, a shared library there): the GLB writer of
 # the export module. Optional: Ubuntu has no package, and without it only the
 # GLB functions fail (the PLY export still works). The switch is carried by

@@ -2,7 +2,8 @@
 # Installs what FLAT-C++ needs on a Debian 12 machine (run as root), skipping
 # what is already there:
 #   - Debian -dev packages (yaml-cpp, spdlog, CLI11, OpenImageIO, nlohmann-json,
-#     GLM, Catch2, clang's libFuzzer runtime, ninja);
+#     GLM, Catch2, clang's libFuzzer runtime, ninja; libpng and libjpeg for
+#     PNG/JPEG in builds without OpenImageIO, src/core/png_jpeg_io.cpp);
 #   - libtorch as shipped in PyTorch's `torch` wheel (pinned to the GPU
 #     machine's version), in a virtual environment outside the checkout. The
 #     wheels are downloaded once into a cache folder and reused afterwards;
@@ -29,7 +30,7 @@ APT_PACKAGES=(cmake ninja-build g++ clang libclang-rt-14-dev
   libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev libglm-dev catch2
   libopenimageio-dev openimageio-tools libopencv-core-dev python3-venv python3-pip
   libtinygltf-dev libjs-three ffmpeg chromium assimp-utils blender python3-numpy
-  libgloo-dev libnanoflann-dev)
+  libgloo-dev libnanoflann-dev libpng-dev libjpeg62-turbo-dev)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do

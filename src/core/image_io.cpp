@@ -1,6 +1,9 @@
 // Image files through OpenImageIO (PNG for colour, EXR for depth/normals).
-// Without OpenImageIO (-DFLAT_WITH_OIIO=OFF) reading and writing throw a clear
-// flat::Error; listing a folder needs only std::filesystem and always works.
+// Without OpenImageIO (-DFLAT_WITH_OIIO=OFF) PNG and JPEG go through
+// libpng/libjpeg (png_jpeg_io.cpp) and every other format throws a clear
+// flat::Error naming the file; listing a folder needs only std::filesystem and
+// always works. See image_io.h for what image_io_available() and
+// float_image_io_available() mean.
 #include "flat/core/image_io.h"
 
 #include <algorithm>
@@ -9,6 +12,7 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
+#include "flat/core/png_jpeg_io.h"
 #include "flat/core/tensor_io.h"
 #include "flat/core/shape.h"
 
@@ -30,15 +34,25 @@ std::string lower_extension(const std::string& path) {
 }
 
 #if !FLAT_WITH_OIIO
-[[noreturn]] void unavailable(const std::string& path) {
-  fail("image IO unavailable: this build has no OpenImageIO (-DFLAT_WITH_OIIO=OFF); write safetensors instead (" +
-       path + ")");
+[[noreturn]] void unavailable(const std::string& path, const std::string& ext) {
+  if (png_jpeg_available()) {
+    fail(path + ": cannot read or write '." + ext + "' images: this build has no OpenImageIO (-DFLAT_WITH_OIIO=OFF), "
+         "which every format but PNG and JPEG needs (EXR, TIFF); store depth and normals as .safetensors or .npy "
+         "instead");
+  }
+  fail("image IO unavailable: this build has no OpenImageIO (-DFLAT_WITH_OIIO=OFF) and no libpng/libjpeg "
+       "(Debian libpng-dev, libjpeg62-turbo-dev); write safetensors instead (" + path + ")");
 }
+
+bool is_png(const std::string& ext) { return ext == "png"; }
+bool is_jpeg(const std::string& ext) { return ext == "jpg" || ext == "jpeg"; }
 #endif
 
 }  // namespace
 
-bool image_io_available() { return FLAT_WITH_OIIO != 0; }
+bool image_io_available() { return FLAT_WITH_OIIO != 0 || png_jpeg_available(); }
+
+bool float_image_io_available() { return FLAT_WITH_OIIO != 0; }
 
 #if FLAT_WITH_OIIO
 
@@ -96,9 +110,23 @@ void write_image(const std::string& path, const at::Tensor& chw, bool png16) {
 
 #else
 
-at::Tensor read_image(const std::string& path) { unavailable(path); }
+// PNG and JPEG through libpng/libjpeg; the rest needs OpenImageIO.
+at::Tensor read_image(const std::string& path) {
+  const std::string ext = lower_extension(path);
+  if (png_jpeg_available() && is_png(ext)) return read_png(path);
+  if (png_jpeg_available() && is_jpeg(ext)) return read_jpeg(path);
+  unavailable(path, ext);
+}
 
-void write_image(const std::string& path, const at::Tensor& /*chw*/, bool /*png16*/) { unavailable(path); }
+void write_image(const std::string& path, const at::Tensor& chw, bool png16) {
+  const std::string ext = lower_extension(path);
+  if (png_jpeg_available() && is_png(ext)) return write_png(path, chw, png16);
+  if (png_jpeg_available() && is_jpeg(ext)) return write_jpeg(path, chw);
+  if (png_jpeg_available() && ext != "exr" && ext != "tif" && ext != "tiff") {
+    fail(path + ": unsupported image extension '" + ext + "' (use png, jpg, exr or tif)");
+  }
+  unavailable(path, ext);
+}
 
 #endif
 

@@ -92,7 +92,7 @@ void write_normals(const std::string& path, const at::Tensor& normals) {
   write_one(path, normals.to(at::kFloat).cpu(), "normals");
 }
 
-std::string float_map_extension() { return image_io_available() ? ".exr" : ".safetensors"; }
+std::string float_map_extension() { return float_image_io_available() ? ".exr" : ".safetensors"; }
 std::string rgb_extension() { return image_io_available() ? ".png" : ".safetensors"; }
 
 }  // namespace flat::data

@@ -1,10 +1,12 @@
 // Image files: PNG round trips within quantisation, EXR round trips exactly;
-// without OpenImageIO every read/write names the missing library and the path.
+// without OpenImageIO, PNG and JPEG go through libpng/libjpeg
+// (test_png_jpeg_io.cpp) and EXR names the missing library and the path.
 #include <filesystem>
 #include <fstream>
 
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
+#include "flat/core/png_jpeg_io.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
@@ -27,6 +29,7 @@ TEST_CASE("list_images finds image files sorted by name", "[core][image_io]") {
 
 TEST_CASE("PNG round trip within 8-bit (and 16-bit) quantisation", "[core][image_io]") {
   REQUIRE(flat::image_io_available());
+  REQUIRE(flat::float_image_io_available());
   auto dir = flat::test::scratch_dir("image_png");
   auto gen = at::make_generator<at::CPUGeneratorImpl>(7);
   auto img = at::rand({3, 5, 7}, gen, at::kFloat);
@@ -92,13 +95,48 @@ TEST_CASE("image errors name the path", "[core][image_io]") {
 
 #else  // built with -DFLAT_WITH_OIIO=OFF
 
-TEST_CASE("without OpenImageIO, image IO fails clearly and names the path", "[core][image_io]") {
-  CHECK(!flat::image_io_available());
-  REQUIRE_THROWS_WITH(flat::read_image("in/view_000.png"),
-                      FLAT_CONTAINS("image IO unavailable: this build has no OpenImageIO (-DFLAT_WITH_OIIO=OFF)") &&
-                          FLAT_CONTAINS("write safetensors instead") && FLAT_CONTAINS("in/view_000.png"));
-  REQUIRE_THROWS_WITH(flat::write_image("out/render.png", at::zeros({3, 2, 2})),
-                      FLAT_CONTAINS("image IO unavailable") && FLAT_CONTAINS("out/render.png"));
+TEST_CASE("without OpenImageIO, PNG and JPEG work through libpng/libjpeg; EXR fails naming the path",
+          "[core][image_io]") {
+  CHECK(!flat::float_image_io_available());
+  if (!flat::png_jpeg_available()) {
+    CHECK(!flat::image_io_available());
+    REQUIRE_THROWS_WITH(flat::read_image("in/view_000.png"),
+                        FLAT_CONTAINS("image IO unavailable: this build has no OpenImageIO (-DFLAT_WITH_OIIO=OFF)") &&
+                            FLAT_CONTAINS("write safetensors instead") && FLAT_CONTAINS("in/view_000.png"));
+    REQUIRE_THROWS_WITH(flat::write_image("out/render.png", at::zeros({3, 2, 2})),
+                        FLAT_CONTAINS("image IO unavailable") && FLAT_CONTAINS("out/render.png"));
+    return;
+  }
+  CHECK(flat::image_io_available());
+  auto dir = flat::test::scratch_dir("image_no_oiio");
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(7);
+  auto img = at::rand({3, 5, 7}, gen, at::kFloat);
+  const std::string png = (dir / "rgb.png").string(), png16 = (dir / "rgb16.PNG").string();
+  flat::write_image(png, img);
+  auto back = flat::read_image(png);
+  REQUIRE(back.sizes() == at::IntArrayRef({3, 5, 7}));
+  CHECK((back - img).abs().max().item<float>() <= 0.5f / 255 + 1e-6f);
+  flat::write_image(png16, img, /*png16=*/true);
+  CHECK((flat::read_image(png16) - img).abs().max().item<float>() <= 0.5f / 65535 + 1e-6f);
+  const std::string jpg = (dir / "rgb.jpg").string();
+  flat::write_image(jpg, at::full({3, 16, 16}, 0.5f));
+  auto jback = flat::read_image(jpg);
+  REQUIRE(jback.sizes() == at::IntArrayRef({3, 16, 16}));
+  CHECK((jback - 0.5f).abs().max().item<float>() < 0.01f);
+
+  const std::string exr = (dir / "depth.exr").string();
+  REQUIRE_THROWS_WITH(flat::write_image(exr, at::zeros({1, 2, 2})),
+                      FLAT_CONTAINS(exr) && FLAT_CONTAINS("-DFLAT_WITH_OIIO=OFF") && FLAT_CONTAINS(".safetensors"));
+  CHECK(!fs::exists(exr));
+  std::ofstream(exr) << "x";
+  REQUIRE_THROWS_WITH(flat::read_image(exr), FLAT_CONTAINS(exr) && FLAT_CONTAINS("EXR"));
+  REQUIRE_THROWS_WITH(flat::write_image((dir / "x.bmpx").string(), at::zeros({3, 2, 2})),
+                      FLAT_CONTAINS("unsupported image extension"));
+  const std::string garbage = (dir / "garbage.png").string();
+  std::ofstream(garbage) << "not a png";
+  REQUIRE_THROWS_WITH(flat::read_image(garbage), FLAT_CONTAINS(garbage) && FLAT_CONTAINS("not a PNG"));
+  // Previews are PNG again.
+  CHECK(flat::write_preview_image(img, (dir / "grid").string()) == (dir / "grid.png").string());
 }
 
 #endif
