@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 
@@ -282,7 +283,8 @@ EncodeSummary encode_latent_sets(const EncodeOptions& o) {
   torch::NoGradGuard no_grad;
 
   SpreadSample spread(o.spread_sample, e.seed);
-  Progress progress("flat_latents windows", std::max<int64_t>(total_windows, 1), 5.0);
+  std::optional<Progress> progress;  // only when there is something to encode
+  if (total_windows > 0) progress.emplace("flat_latents windows", total_windows, 5.0);
   int64_t attempted = 0;
   for (const auto& dir : dirs) {
     data::Scene scene;
@@ -325,7 +327,7 @@ EncodeSummary encode_latent_sets(const EncodeOptions& o) {
         std::vector<data::WindowLatents> latents;
         for (const auto& w : want.windows) {
           latents.push_back(enc.encode_window(scene, w, want.height, want.width, s.plucker));
-          progress.step();
+          if (progress) progress->step();
         }
         if (k == sets_of[dir].front()) spread.offer(latents.front().video);
         staged = data::stage_scene_latents(scene, want, latents);
@@ -344,7 +346,7 @@ EncodeSummary encode_latent_sets(const EncodeOptions& o) {
       }
     }
   }
-  progress.finish();
+  if (progress) progress->finish();
   sum.spread_scenes = int64_t(spread.kept().size());
   sum.spread = eval::latent_spread(spread.kept());
   sum.seconds = std::chrono::duration<double>(Clock::now() - t0).count();

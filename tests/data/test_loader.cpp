@@ -439,7 +439,6 @@ TEST_CASE("loader: a mixture losing a dataset's scenes is named per dataset, and
                                            FLAT_CONTAINS("8x8_f5") && FLAT_CONTAINS("incomplete_datasets"));
   // A dataset left with no scene at all: named in both modes; fails only with the key.
   add_set(b / "s0", 16, 16, 9, 2.0f);
-  fs::remove(b / "s0" / "latents_8x8_f5.safetensors");
   {
     auto j = data::read_scene((b / "s0").string());
     j.latent_sets.erase(std::remove_if(j.latent_sets.begin(), j.latent_sets.end(),
@@ -447,6 +446,7 @@ TEST_CASE("loader: a mixture losing a dataset's scenes is named per dataset, and
                         j.latent_sets.end());
     j.latents = {};
     data::write_scene_json(j);
+    fs::remove(b / "s0" / "latents_8x8_f5.safetensors");
   }
   REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("no usable scene of 3"));
   c.incomplete_datasets = "warn";
