@@ -33,7 +33,9 @@ fi
 grid_png() { python3 "$ROOT/scripts/safetensors_to_png.py" "$1/renders/compare.safetensors" "$OUT/$2.png" ${3:-} >/dev/null; }
 keep() {  # run folder, name[, PNG stride]: small outputs into $OUT
   for f in metrics.json summary.json mesh_stats.json mesh.log; do [ -f "$1/$f" ] && cp "$1/$f" "$OUT/$2_$f"; done
-  [ -f "$1/renders/compare.safetensors" ] && grid_png "$1" "$2_compare" "${3:-}"
+  # A build with libpng writes the grid as PNG; one without any image library as safetensors.
+  if [ -f "$1/renders/compare.png" ]; then cp "$1/renders/compare.png" "$OUT/$2_compare.png"
+  elif [ -f "$1/renders/compare.safetensors" ]; then grid_png "$1" "$2_compare" "${3:-}"; fi
 }
 
 if [ "$PHASE" = "chain" ] || [ "$PHASE" = "all" ]; then
