@@ -45,6 +45,7 @@ int main(int argc, char** argv) {
   app.add_option("--stride", o.stride, "keep every n-th frame")->check(CLI::PositiveNumber);
   app.add_option("--max-frames", o.max_frames, "keep at most this many frames (0 = all)")->check(CLI::NonNegativeNumber);
   app.add_flag("--skip-missing", o.skip_missing, "transforms: skip frames whose image file is missing (with a warning)");
+  flat::data::add_geometry_options(app, o.geometry);  // --depth, --normals and their formats (geometry_maps.h)
   int threads = 0;
   flat::cli::add_threads(app, threads);
   app.footer(

@@ -10,6 +10,7 @@
 #include "flat/core/image_io.h"
 #include "flat/core/progress.h"
 #include "flat/data/frame_io.h"
+#include "flat/data/geometry_maps.h"
 #include "flat/data/importers.h"
 
 namespace flat::data {
@@ -86,6 +87,9 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
   for (size_t i = 0; i < all.size(); i += size_t(o.stride)) keep.push_back(i);
   if (o.max_frames > 0 && int64_t(keep.size()) > o.max_frames) keep.resize(size_t(o.max_frames));
 
+  std::vector<std::string> kept_files;
+  for (size_t i : keep) kept_files.push_back(files[i]);
+  GeometryImport geometry(o.geometry, o.metric_scale, kept_files);  // every frame's maps found before any is written
   auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
   scene.dir = staged->path();
@@ -114,10 +118,12 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
     frame.c2w = detail::rigid(c2w, where);
     frame.timestamp = std::stod(l.timestamp);
     frame.image = detail::write_import_image(scene, int64_t(k), rgb);
+    geometry.attach(scene, int64_t(k), frame, rgb.size(1), rgb.size(2));
     scene.frames.push_back(std::move(frame));
     progress.step();
   }
   progress.finish();
+  geometry.finish(scene);
   detail::finish_import(scene, *staged);
   return scene;
 }

@@ -13,6 +13,7 @@
 #include "flat/core/progress.h"
 #include "flat/data/frame_io.h"
 #include "flat/data/frame_resize.h"
+#include "flat/data/geometry_maps.h"
 #include "flat/data/importers.h"
 #include "flat/data/undistort.h"
 
@@ -139,6 +140,8 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
   }
   if (o.max_frames > 0 && int64_t(kept.size()) > o.max_frames) kept.resize(size_t(o.max_frames));
   if (kept.empty()) fail(file.string() + ": no frames with images");
+  kept_paths.resize(kept.size());
+  GeometryImport geometry(o.geometry, o.metric_scale, kept_paths);  // every frame's maps found before any is written
 
   auto staged = detail::begin_import(out_dir, o.overwrite);
   Scene scene;
@@ -185,10 +188,12 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
     frame.intrinsics = at::tensor({c.fx / c.w, c.fy / c.h, c.cx / c.w, c.cy / c.h}, at::kDouble).to(at::kFloat);
     frame.c2w = detail::rigid(c2w, where + ": 'transform_matrix'");
     frame.image = detail::write_import_image(scene, int64_t(i), rgb);
+    geometry.attach(scene, int64_t(i), frame, H, W, c.dist);  // resized and undistorted as the image
     scene.frames.push_back(std::move(frame));
     progress.step();
   }
   progress.finish();
+  geometry.finish(scene);
   detail::finish_import(scene, *staged);
   return scene;
 }

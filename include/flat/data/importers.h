@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <string>
 
+#include "flat/data/geometry_maps.h"
 #include "flat/data/scene.h"
 
 namespace flat::data {
@@ -25,6 +26,7 @@ struct ImportOptions {
   int64_t max_frames = 0;     // 0 = all
   bool skip_missing = false;  // transforms.json: skip frames whose image is missing (else an error)
   bool overwrite = false;     // replace an existing scene folder (only once the new one is complete)
+  GeometryOptions geometry;   // depth / normal maps from predictors to attach (geometry_maps.h)
 };
 
 // Both build the scene in a staging folder beside out_dir and rename it into
