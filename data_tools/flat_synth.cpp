@@ -4,6 +4,9 @@
 // Scenes are named <family>_<index>; an existing scene of the batch is refused
 // before anything is rendered (never mixed with a new one) unless --overwrite,
 // and --first-index continues the numbering of an earlier batch.
+// Export mode (issue #43): the same rooms in the formats real users bring,
+// with known answers (include/flat/data/synthetic_export.h):
+//   flat_synth --format re10k|dl3dv --out ROOT --count 4 --seed 0 --frames 17 --size 176x320 --unit 0.5 --corrupt 1
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
@@ -17,6 +20,7 @@
 #include "flat/core/progress.h"
 #include "flat/core/shape.h"
 #include "flat/core/staged_dir.h"
+#include "flat/data/synthetic_export.h"
 #include "flat/data/synthetic_scene.h"
 
 namespace fs = std::filesystem;
@@ -40,10 +44,63 @@ int main(int argc, char** argv) {
   app.add_option("--frames", o.frames, "frames per scene (the paper's videos: 49 to 81)")->check(CLI::Range(1, 1000));
   app.add_option("--size", size, "frame size HxW");
   app.add_option("--motion", o.motion, "pan, zoom, orbit or mixed")->check(CLI::IsMember({"pan", "zoom", "orbit", "mixed"}));
+  flat::data::SynthExportOptions x;
+  std::string format;
+  bool no_truth = false;
+  app.add_option("--format", format,
+                 "export mode: write the rooms as RealEstate10K clips (re10k) or DL3DV/nerfstudio scenes (dl3dv) "
+                 "under --out, with manifest.json and the metric truth (docs/data_tools.md)")
+      ->check(CLI::IsMember({"re10k", "dl3dv"}));
+  auto* count_opt = app.add_option("--count", x.count, "export mode: number of clips/scenes")->check(CLI::PositiveNumber);
+  auto* unit_opt = app.add_option("--unit", x.unit, "export mode: metres per written unit of translation and depth "
+                                                    "(import with --scale UNIT to restore metres)")
+                       ->check(CLI::PositiveNumber);
+  auto* corrupt_opt = app.add_option("--corrupt", x.corrupt, "export mode: clips made corrupt on purpose (chosen by "
+                                                             "seed, listed in manifest.json)")
+                          ->check(CLI::NonNegativeNumber);
+  auto* truth_opt = app.add_flag("--no-truth", no_truth, "export mode: leave out the truth folders (metric scene folders)");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   return flat::cli::run([&] {
     if (!flat::parse_size(size, o.height, o.width))
       throw flat::cli::UsageError("flat_synth: --size must be HxW (e.g. 176x320), got '" + size + "'");
+    if (format.empty()) {
+      for (auto* opt : {count_opt, unit_opt, corrupt_opt, truth_opt})
+        if (opt->count()) throw flat::cli::UsageError("flat_synth: " + opt->get_name() + " needs --format re10k|dl3dv");
+    } else {
+      if (app.count("--scenes") || app.count("--first-index"))
+        throw flat::cli::UsageError("flat_synth: --format exports --count clips; --scenes and --first-index are for "
+                                    "scene folders");
+      if (x.corrupt > x.count)
+        throw flat::cli::UsageError("flat_synth: --corrupt " + std::to_string(x.corrupt) + " exceeds --count " +
+                                    std::to_string(x.count));
+      // Export mode: ROOT is staged whole; the log goes beside it.
+      x.format = format;
+      x.seed = uint64_t(seed);
+      x.truth = !no_truth;
+      x.overwrite = overwrite;
+      x.synth = o;
+      x.synth.frame_threads = threads;
+      const double pixels = double(o.height) * double(o.width);
+      flat::cli::check_memory(pixels * 4.0 * (double(o.frames) * 9.0 + 40.0),
+                              "flat_synth: a scene of " + std::to_string(o.frames) + " frames at " + size,
+                              c10::Device(c10::kCPU));
+      at::set_num_threads(1);
+      std::string root = out;
+      while (root.size() > 1 && root.back() == '/') root.pop_back();
+      flat::cli::start_logging(log_level, root + ".log");
+      spdlog::info("flat_synth: {} {} {} clip(s) of {} frames at {} into {} (unit {} m, {} corrupt)", x.count,
+                   format, o.family, o.frames, size, out, x.unit, x.corrupt);
+      flat::Progress progress("flat_synth frames", x.count * o.frames, 5.0);
+      x.synth.on_frame = [&] { progress.step(); };
+      auto clips = flat::data::export_synthetic(x, root);
+      progress.finish();
+      std::string corrupt;
+      for (const auto& c : clips)
+        if (!c.corrupt.empty()) corrupt += (corrupt.empty() ? "" : ", ") + c.name + " (" + c.corrupt + ")";
+      spdlog::info("wrote {} {} {} to {} (manifest.json){}", clips.size(), format,
+                   format == "re10k" ? "clips" : "scenes", out, corrupt.empty() ? "" : "; corrupt: " + corrupt);
+      return 0;
+    }
     auto name_of = [&](int64_t i) {
       char name[64];
       std::snprintf(name, sizeof(name), "%s_%06lld", o.family.c_str(), static_cast<long long>(i));
