@@ -51,7 +51,8 @@ int main(int argc, char** argv) {
   app.footer(
       "Batch mode: --in a folder of clips (re10k: <clip>.txt files; transforms: scene folders with transforms.json) "
       "imports each into <out>/<clip>/, skipping those already there (a rerun resumes); a clip that fails is logged "
-      "and skipped, and <out>/import_summary.json lists every failure with its reason.\n"
+      "and skipped, and <out>/import_summary.json lists every failure with its reason. --depth/--normals then name "
+      "roots holding one <clip>/ folder of maps per clip.\n"
       "Exit codes: 0 done (batch: every clip imported or already present); 1 an error, or (batch) at least one clip "
       "failed, after the others were imported; 2 a usage error.");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;

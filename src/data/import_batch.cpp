@@ -33,31 +33,6 @@ namespace {
 
 constexpr const char* kSummaryFile = "import_summary.json";
 
-// ---- Geometry hook ---------------------------------------------------------
-// ImportOptions::geometry (external depth/normal maps: GeometryOptions with
-// depth_dir and normals_dir, include/flat/data/geometry_maps.h) comes with
-// another change. In batch mode its folders are roots holding one folder per
-// clip. These overloads use the member when ImportOptions has it and are
-// no-ops otherwise, so this file builds either way; once the member exists
-// for good they can be replaced by direct accesses.
-template <class O>
-auto geometry_roots(const O& o, int) -> decltype(o.geometry.depth_dir, std::pair<std::string, std::string>()) {
-  return {o.geometry.depth_dir, o.geometry.normals_dir};
-}
-template <class O>
-std::pair<std::string, std::string> geometry_roots(const O&, long) {
-  return {};
-}
-template <class O>
-auto set_geometry_dirs(O& o, const std::string& depth, const std::string& normals, int)
-    -> decltype(o.geometry.depth_dir, void()) {
-  o.geometry.depth_dir = depth;
-  o.geometry.normals_dir = normals;
-}
-template <class O>
-void set_geometry_dirs(O&, const std::string&, const std::string&, long) {}
-// ---------------------------------------------------------------------------
-
 bool hidden(const fs::path& p) {
   const std::string n = p.filename().string();
   return n.empty() || n[0] == '.';
@@ -163,7 +138,8 @@ bool same_path(const fs::path& a, const fs::path& b) {
 void import_clip(const BatchClip& clip, const BatchImportOptions& options) {
   ImportOptions o = options.import;
   o.name.clear();  // each scene is named after its output folder, the clip
-  const auto [depth_root, normals_root] = geometry_roots(o, 0);
+  // In batch mode the depth / normals folders are roots holding one folder per clip.
+  const std::string depth_root = o.geometry.depth_dir, normals_root = o.geometry.normals_dir;
   auto clip_dir = [&](const std::string& root, const char* kind) -> std::string {
     if (root.empty()) return "";
     const std::string dir = (fs::path(root) / clip.name).string();
@@ -174,7 +150,8 @@ void import_clip(const BatchClip& clip, const BatchImportOptions& options) {
     return dir;
   };
   const std::string depth = clip_dir(depth_root, "depth"), normals = clip_dir(normals_root, "normals");
-  set_geometry_dirs(o, depth, normals, 0);
+  o.geometry.depth_dir = depth;
+  o.geometry.normals_dir = normals;
   const std::string out = (fs::path(options.out_root) / clip.name).string();
   if (options.format == BatchFormat::re10k) {
     import_re10k(clip.source, clip.frames, out, o);
@@ -237,7 +214,7 @@ std::vector<BatchClip> list_batch_clips(const BatchImportOptions& o) {
 }
 
 std::string batch_summary_json(const BatchImportOptions& o, const BatchImportResult& r) {
-  nlohmann::json j;
+  nlohmann::ordered_json j;  // in the order written: what ran, the counts, then the failures
   j["format"] = format_name(o.format);
   j["in"] = o.in;
   if (o.format == BatchFormat::re10k) j["frames_dir"] = o.frames_root;
@@ -250,7 +227,7 @@ std::string batch_summary_json(const BatchImportOptions& o, const BatchImportRes
   j["seconds"] = r.seconds;
   // Clips this run imported per minute of its wall time (present ones cost little and are not counted).
   j["clips_per_minute"] = r.seconds > 0 ? double(r.imported) * 60.0 / r.seconds : 0.0;
-  nlohmann::json failures = nlohmann::json::array();
+  nlohmann::ordered_json failures = nlohmann::ordered_json::array();
   for (const auto& f : r.failures) failures.push_back({{"name", f.name}, {"source", f.source}, {"reason", f.reason}});
   j["failures"] = std::move(failures);
   return j.dump(2) + "\n";

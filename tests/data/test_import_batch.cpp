@@ -312,3 +312,39 @@ TEST_CASE("batch import: an empty input folder or a missing frames root stops th
   REQUIRE_THROWS_WITH(data::import_batch(o), FLAT_CONTAINS("no scene folders"));
   CHECK_FALSE(fs::exists(root / "out" / "import_summary.json"));
 }
+
+TEST_CASE("batch import with depth maps: the depth option is a root of per-clip folders", "[data][import_batch]") {
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the clips' frames are PNG");
+  const fs::path root = test::fresh_dir("import_batch_depth");
+  const fs::path cams = root / "cams", frames = root / "frames", depth = root / "depth", out = root / "out";
+  write_re10k_clip(cams, frames, "g1", 0);
+  write_re10k_clip(cams, frames, "g2", 1);
+  write_re10k_clip(cams, frames, "g3", 2);
+  // Depth maps of g1 (1.5 m) and g3 (4 m); g2 has no folder under the root.
+  for (const auto& [name, metres] : {std::pair<std::string, double>{"g1", 1.5}, {"g3", 4.0}})
+    for (int f = 0; f < kFrames; ++f)
+      data::write_depth((depth / name / (std::to_string(1000000 + 33366 * f) + ".exr")).string(),
+                        torch::full({1, 8, 10}, metres));
+  data::BatchImportOptions o;
+  o.format = data::BatchFormat::re10k;
+  o.in = cams.string();
+  o.frames_root = frames.string();
+  o.out_root = out.string();
+  o.jobs = 2;
+  o.import.geometry.depth_dir = depth.string();
+  auto r = data::import_batch(o);
+  CHECK(r.imported == 2);
+  REQUIRE(r.failures.size() == 1);
+  CHECK(r.failures[0].name == "g2");
+  CHECK_THAT(r.failures[0].reason, FLAT_CONTAINS((depth / "g2").string() + ": no depth folder for clip 'g2'"));
+  CHECK_FALSE(fs::exists(out / "g2"));
+  // Each clip got its own folder's maps (not the root, not another clip's).
+  for (const auto& [name, metres] : {std::pair<std::string, double>{"g1", 1.5}, {"g3", 4.0}}) {
+    INFO(name);
+    const data::Scene s = data::read_scene((out / name).string());
+    CHECK(s.has_depth);
+    CHECK_THAT(s.depth_source, FLAT_CONTAINS((depth / name).string()));
+    auto d = data::load_frames(s, {1}, true, false).depth;
+    CHECK(d.mean().item<double>() == Approx(metres).epsilon(1e-5));
+  }
+}

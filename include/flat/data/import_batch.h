@@ -43,8 +43,8 @@ struct BatchImportOptions {
   // is named after its clip). With `overwrite` every clip is imported again
   // (each existing scene replaced only once its new one is complete);
   // without it existing scenes are kept and counted as already present.
-  // Geometry maps (when ImportOptions has them): depth/normals folders given
-  // there are roots holding one folder per clip, <root>/<c>/.
+  // Geometry maps: import.geometry's depth_dir / normals_dir are roots holding
+  // one folder per clip, <root>/<c>/ (a clip without its folder fails).
   ImportOptions import;
   int jobs = 0;                         // clips imported at once (0: min(cores, 4))
   double progress_log_seconds = 10.0;   // progress line period when stdout is no terminal
