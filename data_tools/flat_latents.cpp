@@ -84,9 +84,12 @@ int run(Options& o, PendingLog& log) {
   o.encode.report_file = !o.report.empty() ? o.report : (fs::path(first) / ("flat_latents_report" + tag + ".json")).string();
 
   const auto sum = latents::encode_latent_sets(o.encode);
-  if (sum.encoded + sum.present == 0 && sum.failed.empty())
-    fail("flat_latents: no scene is long enough for any set (" + std::to_string(sum.scenes) +
-         " scene(s), the longest has " + std::to_string(sum.longest) + " frames); nothing to encode");
+  if (sum.encoded + sum.present == 0 && sum.failed.empty()) {
+    std::string windows;
+    for (const auto& s : o.encode.sets) windows += (windows.empty() ? "" : " or ") + std::to_string(s.window);
+    fail("flat_latents: no scene has --window " + windows + " frames (" + std::to_string(sum.scenes) +
+         " scene(s), the longest has " + std::to_string(sum.longest) + "); nothing to encode");
+  }
   spdlog::info("flat_latents: {} set(s) encoded ({} windows), {} already present, {} scene(s) too short, {} failed, "
                "in {:.0f} s; report {}",
                sum.encoded, sum.windows, sum.present, sum.too_short, sum.failed.size(), sum.seconds,

@@ -58,15 +58,33 @@ void check_geometry_targets(const loss::LossConfig& loss, const data::Loader& tr
   check_term("normals", "lambda_normal", loss.lambda_normal, train.scenes_with_normals(), n, loss.missing_geometry);
 }
 
+std::vector<std::string> data_summary(const data::Loader& train, const data::Loader* val, int64_t world_size,
+                                      int64_t batch_per_rank) {
+  std::vector<std::string> lines;
+  lines.push_back(fmt::format(
+      "data: {} training scenes ({} with depth, {} with normals){}; batch {} per rank x {} rank(s) = {}",
+      train.scene_count(), train.scenes_with_depth(), train.scenes_with_normals(),
+      val ? ", " + std::to_string(val->scene_count()) + " validation scenes (" +
+                std::to_string(val->scenes_with_depth()) + " with depth, " +
+                std::to_string(val->scenes_with_normals()) + " with normals)"
+          : "",
+      batch_per_rank, world_size, batch_per_rank * world_size));
+  for (const auto* l : {&train, val}) {
+    if (!l) continue;
+    for (const auto& r : l->reports())
+      lines.push_back(fmt::format("data: {} dataset '{}' (weight {}): {} of {} scenes used ({} too short, {} without "
+                                  "latent set {}, {} unreadable)",
+                                  l == &train ? "training" : "validation", r.root, r.weight, r.used, r.found,
+                                  r.short_scenes, r.missing_set,
+                                  data::latent_set_key(l->config().height, l->config().width,
+                                                       l->config().input_frames),
+                                  r.bad));
+  }
+  return lines;
+}
+
 std::string data_report_json(const data::Loader& train, const data::Loader* val, int64_t world_size,
                              int64_t batch_per_rank) {
-  spdlog::info("data: {} training scenes ({} with depth, {} with normals){}; batch {} per rank x {} rank(s) = {}",
-               train.scene_count(), train.scenes_with_depth(), train.scenes_with_normals(),
-               val ? ", " + std::to_string(val->scene_count()) + " validation scenes (" +
-                         std::to_string(val->scenes_with_depth()) + " with depth, " +
-                         std::to_string(val->scenes_with_normals()) + " with normals)"
-                   : "",
-               batch_per_rank, world_size, batch_per_rank * world_size);
   nlohmann::json j;
   j["train"] = loader_json(train);
   if (val) j["validation"] = loader_json(*val);

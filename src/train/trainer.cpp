@@ -234,6 +234,7 @@ class Run {
   std::unique_ptr<data::Loader> val_loader_;  // none without validation.datasets
   std::string random_latents_;  // which scenes hold random-encoder latents; empty: none
   std::string data_report_;     // data_report.json: what each loader used and left out
+  std::vector<std::string> data_summary_;  // the same, for the log
   std::vector<data::Scene> val_scenes_;  // scene task: the held-out scenes, scored as flat_eval scores them
   eval::EvalSettings val_settings_;
   eval::FrameSums val_frame_sums_;
@@ -372,6 +373,7 @@ void Run::open_loaders() {
                  data::latent_set_key(cfg_.data.height, cfg_.data.width, cfg_.data.input_frames));
   }
   data_report_ = data_report_json(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
+  data_summary_ = data_summary(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
 }
 
 void Run::open_run_folder() {
@@ -402,6 +404,7 @@ void Run::open_run_folder() {
                  double(params) / 1e6, cfg_.pipeline.model.vae.dim, cfg_.pipeline.model.heads, cfg_.device,
                  bf16() ? "bf16 autocast" : "fp32", cfg_.optim.name, cfg_.optim.lr,
                  cfg_.pipeline.model.activation_checkpointing ? ", activation checkpointing" : "");
+  for (const auto& line : data_summary_) spdlog::info("{}", line);
   if (!random_latents_.empty()) {
     spdlog::warn("=====================================================================");
     spdlog::warn("RANDOM-ENCODER LATENTS: {} hold latents of a random-weight encoder.", random_latents_);
