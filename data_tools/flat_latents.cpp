@@ -32,7 +32,7 @@ namespace {
 
 struct Options {
   latents::EncodeOptions encode;
-  std::vector<std::string> scenes, configs;
+  std::vector<std::string> scenes, configs, overlays, overrides;
   std::string size, shard, report, log_level = "info", camera_rays = "rppc";
   int64_t window = 17, step = 0;
 };
@@ -42,10 +42,12 @@ std::vector<latents::LatentSetSpec> requested_sets(const Options& o) {
     if (!o.scenes.empty() || !o.size.empty())
       throw cli::UsageError("flat_latents: --configs takes the scenes, sizes and windows from the configs; "
                             "give --scenes/--size/--window or --configs, not both");
-    auto sets = latents::latent_sets_for_stages(o.configs);
+    auto sets = latents::latent_sets_for_stages(o.configs, o.overlays, o.overrides);
     for (auto& s : sets) s.step = o.step;
     return sets;
   }
+  if (!o.overlays.empty() || !o.overrides.empty())
+    throw cli::UsageError("flat_latents: --overlay and --set apply to --configs");
   if (o.scenes.empty()) throw cli::UsageError("flat_latents: give --scenes FOLDER... or --configs STAGE.yaml...");
   latents::LatentSetSpec s;
   s.roots = o.scenes;
@@ -126,6 +128,13 @@ int main(int argc, char** argv) {
   app.add_option("--configs", o.configs,
                  "flat_train stage configs: make every latent set they need (their data size and window) in their "
                  "training and validation datasets, instead of --scenes/--size/--window");
+  app.add_option("--overlay", o.overlays,
+                 "YAML files layered over each of --configs, in order, as flat_train's further --config files (e.g. "
+                 "one that points data.datasets and validation.datasets at your folders)");
+  app.add_option("--set", o.overrides,
+                 "override a key of each of --configs after the overlays, full key path as flat_train's --set: "
+                 "--set 'data.datasets=[{root: data/mine}]'")
+      ->take_all();
   app.add_option("--weights,--vae", e.weights,
                  "Wan 2.1 VAE weights: .safetensors (Wan or diffusers naming), a diffusers folder, or the "
                  "vae.safetensors of a flat_train VAE stage (its width is read from the file)");

@@ -13,10 +13,14 @@
 
 namespace flat::latents {
 
-std::vector<LatentSetSpec> latent_sets_for_stages(const std::vector<std::string>& config_files) {
+std::vector<LatentSetSpec> latent_sets_for_stages(const std::vector<std::string>& config_files,
+                                                  const std::vector<std::string>& overlays,
+                                                  const std::vector<std::string>& overrides) {
   std::map<std::tuple<int64_t, int64_t, int64_t>, LatentSetSpec> sets;
   for (const auto& file : config_files) {
-    const auto cfg = config::load<train::TrainConfig>(file);
+    std::vector<std::string> layers = {file};
+    layers.insert(layers.end(), overlays.begin(), overlays.end());
+    const auto cfg = config::load_layered<train::TrainConfig>("", "<defaults>", layers, overrides);
     if (cfg.task != "scene" || !cfg.data.latents) continue;  // a VAE stage encodes its frames itself
     auto& s = sets[{cfg.data.height, cfg.data.width, cfg.data.input_frames}];
     s.height = cfg.data.height;

@@ -47,10 +47,16 @@ TEST_CASE("the four tiny stages chain on one set of dataset folders, each on its
     REQUIRE(run({binary("flat_synth"), "--out", root + "/data/" + name, "--scenes", scenes, "--seed", seed,
                  "--family", "room", "--frames", "17", "--size", "80x144"},
                 log) == 0);
-  // One call makes what the four stages need, in the folders they name.
+  // One call makes what the four stages need: the shipped configs as they are,
+  // with an overlay and a --set pointing their datasets at this folder, as a
+  // user points them at theirs.
+  const std::string overlay = d + "/my_data.yaml";
+  std::ofstream(overlay) << "data: {datasets: [{root: " << root << "/data/train}]}\n";
   std::vector<std::string> latents = {binary("flat_latents"), "--configs"};
-  latents.insert(latents.end(), configs.begin(), configs.end());
-  latents.insert(latents.end(), {"--random-weights", "--dim", "8", "--seed", "0"});
+  for (int n = 1; n <= 4; ++n)
+    latents.push_back(std::string(FLAT_SOURCE_DIR) + "/configs/tiny/stage" + std::to_string(n) + ".yaml");
+  latents.insert(latents.end(), {"--overlay", overlay, "--set", "validation.datasets=[{root: " + root + "/data/val}]",
+                                 "--random-weights", "--dim", "8", "--seed", "0"});
   const int rc_latents = run(latents, d + "/latents.log");
   INFO(read_file(d + "/latents.log"));
   REQUIRE(rc_latents == 0);

@@ -81,7 +81,12 @@ EncodeSummary encode_latent_sets(const EncodeOptions& options);
 // The sets that the stage configs (flat_train YAML) need: each scene-decoder
 // stage's data size and window, for its training and validation datasets
 // (task: vae stages need none). Sets of the same size and window are merged.
-std::vector<LatentSetSpec> latent_sets_for_stages(const std::vector<std::string>& config_files);
+// Each config is read as flat_train reads `--config FILE --config OVERLAY...
+// --set KEY=VALUE...`: the overlays layered over it in order, then the
+// overrides (full key paths, e.g. "data.datasets=[{root: data/mine}]").
+std::vector<LatentSetSpec> latent_sets_for_stages(const std::vector<std::string>& config_files,
+                                                  const std::vector<std::string>& overlays = {},
+                                                  const std::vector<std::string>& overrides = {});
 
 // "K/N" -> shard index and count; throws naming the text otherwise.
 void parse_shard(const std::string& text, int64_t& index, int64_t& count);
