@@ -3,8 +3,11 @@
 //   flat_import re10k --in CAMERAS.txt --frames-dir FRAMES_DIR --out SCENE_DIR [--scale S]
 // Batch (a dataset, one scene per clip; src/data/import_batch.cpp):
 //   flat_import re10k --in CAMERAS_DIR --frames-dir FRAMES_ROOT --out OUT_ROOT [--jobs 4]
-//   flat_import transforms --in ROOT_OF_SCENE_FOLDERS --out OUT_ROOT [--jobs 4]
+//   flat_import transforms --in ROOT_OF_SCENE_FOLDERS --out OUT_ROOT [--jobs 4] [--depth 'ROOT/{clip}/depth']
 // The scene appears whole or not at all; an existing one is kept unless --overwrite.
+#include <string>
+#include <utility>
+
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
@@ -46,13 +49,27 @@ int main(int argc, char** argv) {
   app.add_option("--max-frames", o.max_frames, "keep at most this many frames (0 = all)")->check(CLI::NonNegativeNumber);
   app.add_flag("--skip-missing", o.skip_missing, "transforms: skip frames whose image file is missing (with a warning)");
   flat::data::add_geometry_options(app, o.geometry);  // --depth, --normals and their formats (geometry_maps.h)
+  // Their folders must exist, except batch patterns with {clip} (each clip's folder is checked when imported;
+  // one clip with {clip} is a usage error below).
+  for (const char* flag : {"--depth", "--normals"}) {
+    CLI::Option* option = app.get_option(flag);
+    option->get_validator(0)->active(false);  // CLI::ExistingDirectory, the only check add_geometry_options sets
+    option->check(CLI::Validator(
+        [](std::string& value) {
+          return value.find(flat::data::kClipPlaceholder) != std::string::npos ? std::string()
+                                                                               : CLI::ExistingDirectory(value);
+        },
+        "DIR", "folder or {clip} pattern"));
+  }
   int threads = 0;
   flat::cli::add_threads(app, threads);
   app.footer(
       "Batch mode: --in a folder of clips (re10k: <clip>.txt files; transforms: scene folders with transforms.json) "
       "imports each into <out>/<clip>/, skipping those already there (a rerun resumes); a clip that fails is logged "
       "and skipped, and <out>/import_summary.json lists every failure with its reason. --depth/--normals then name "
-      "roots holding one <clip>/ folder of maps per clip.\n"
+      "roots holding one <clip>/ folder of maps per clip, or patterns in which {clip} stands for the clip's name "
+      "(maps inside each DL3DV scene folder: --depth 'IN/{clip}/depth' --normals 'IN/{clip}/normals'); {clip} is "
+      "a usage error for one clip.\n"
       "Exit codes: 0 done (batch: every clip imported or already present); 1 an error, or (batch) at least one clip "
       "failed, after the others were imported; 2 a usage error.");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
@@ -78,6 +95,11 @@ int main(int argc, char** argv) {
     }
     if (app.count("--jobs"))
       throw flat::cli::UsageError("--jobs applies to batch mode (--in a folder of clips); " + in + " is one clip");
+    for (const auto& [flag, dir] : {std::pair<const char*, std::string>{"--depth", o.geometry.depth_dir},
+                                    {"--normals", o.geometry.normals_dir}})
+      if (dir.find(flat::data::kClipPlaceholder) != std::string::npos)
+        throw flat::cli::UsageError(std::string(flag) + " " + dir + ": {clip} stands for each clip's name in batch " +
+                                    "mode (--in a folder of clips); " + in + " is one clip: name its maps folder");
     // The log lands beside the scene, <out>.log (outside it: the staged folder holds the scene only).
     std::string log = out;
     while (log.size() > 1 && log.back() == '/') log.pop_back();

@@ -138,15 +138,20 @@ bool same_path(const fs::path& a, const fs::path& b) {
 void import_clip(const BatchClip& clip, const BatchImportOptions& options) {
   ImportOptions o = options.import;
   o.name.clear();  // each scene is named after its output folder, the clip
-  // In batch mode the depth / normals folders are roots holding one folder per clip.
+  // In batch mode the depth / normals options are roots holding one folder per
+  // clip, or patterns naming it with {clip}.
   const std::string depth_root = o.geometry.depth_dir, normals_root = o.geometry.normals_dir;
   auto clip_dir = [&](const std::string& root, const char* kind) -> std::string {
     if (root.empty()) return "";
-    const std::string dir = (fs::path(root) / clip.name).string();
+    const std::string dir = clip_maps_folder(root, clip.name);
     std::error_code ec;
     if (!fs::is_directory(dir, ec))
-      fail(dir + ": no " + kind + " folder for clip '" + clip.name + "' (in batch mode the " + kind +
-           " option names a root holding one folder per clip)");
+      fail(dir + ": no " + kind + " folder for clip '" + clip.name + "' (" +
+           (root.find(kClipPlaceholder) != std::string::npos
+                ? "the " + std::string(kind) + " option '" + root + "' with {clip} replaced by the clip's name"
+                : "in batch mode the " + std::string(kind) +
+                      " option names a root holding one folder per clip, or a pattern with {clip}") +
+           ")");
     return dir;
   };
   const std::string depth = clip_dir(depth_root, "depth"), normals = clip_dir(normals_root, "normals");
@@ -167,6 +172,16 @@ void import_clip(const BatchClip& clip, const BatchImportOptions& options) {
 const char* format_name(BatchFormat f) { return f == BatchFormat::re10k ? "re10k" : "transforms"; }
 
 }  // namespace
+
+std::string clip_maps_folder(const std::string& root_or_pattern, const std::string& clip) {
+  if (root_or_pattern.empty()) return "";
+  const std::string placeholder = kClipPlaceholder;
+  if (root_or_pattern.find(placeholder) == std::string::npos) return (fs::path(root_or_pattern) / clip).string();
+  std::string dir = root_or_pattern;
+  for (auto at = dir.find(placeholder); at != std::string::npos; at = dir.find(placeholder, at + clip.size()))
+    dir.replace(at, placeholder.size(), clip);
+  return dir;
+}
 
 BatchFormat batch_format(const std::string& name) {
   if (name == "re10k") return BatchFormat::re10k;

@@ -333,7 +333,9 @@ std::vector<ExportedClip> export_synthetic(const SynthExportOptions& o, const st
         {"clip", "flat_import transforms --in ROOT/<scene> --out OUT/<scene>" + scale +
                      " --depth ROOT/<scene>/depth --depth-png-scale 0.001 --normals ROOT/<scene>/normals"
                      " --normals-convention opengl"},
-        {"batch", "flat_import transforms --in ROOT --out OUT" + scale}};
+        {"batch", "flat_import transforms --in ROOT --out OUT" + scale +
+                      " --depth 'ROOT/{clip}/depth' --depth-png-scale 0.001 --normals 'ROOT/{clip}/normals'"
+                      " --normals-convention opengl"}};
   manifest["clips"] = json::array();
   manifest["corrupt"] = json::array();
   std::vector<ExportedClip> out;

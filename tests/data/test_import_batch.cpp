@@ -14,6 +14,7 @@
 #include "flat/data/import_batch.h"
 #include "flat/data/scene.h"
 #include "flat/data/scene_frames.h"
+#include "flat/data/synthetic_export.h"
 #include "test_support.h"
 
 using namespace flat;
@@ -347,4 +348,77 @@ TEST_CASE("batch import with depth maps: the depth option is a root of per-clip 
     auto d = data::load_frames(s, {1}, true, false).depth;
     CHECK(d.mean().item<double>() == Approx(metres).epsilon(1e-5));
   }
+}
+
+TEST_CASE("batch import: {clip} in --depth / --normals finds maps inside each DL3DV scene folder",
+          "[data][import_batch]") {
+  CHECK(data::clip_maps_folder("maps", "c1") == (fs::path("maps") / "c1").string());
+  CHECK(data::clip_maps_folder("raw/{clip}/depth", "c1") == "raw/c1/depth");
+  CHECK(data::clip_maps_folder("a/{clip}/b_{clip}", "{clip}x") == "a/{clip}x/b_{clip}x");
+  CHECK(data::clip_maps_folder("", "c1").empty());
+  if (!flat::image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the scenes' frames are PNG");
+  // flat_synth --format dl3dv: <scene>/images_4/, <scene>/depth/*.png (16-bit,
+  // millimetres of the unit), <scene>/normals/*.npy (OpenGL), <scene>/truth/.
+  const fs::path root = test::fresh_dir("import_batch_clip_placeholder");
+  const fs::path in = root / "dl3dv", out = root / "out";
+  data::SynthExportOptions e;
+  e.format = "dl3dv";
+  e.count = 3;
+  e.seed = 5;
+  e.unit = 0.25;
+  e.synth.frames = 3;
+  e.synth.height = 16;
+  e.synth.width = 24;
+  const auto exported = data::export_synthetic(e, in.string());
+  REQUIRE(exported.size() == 3);
+  const auto manifest = nlohmann::json::parse(slurp(in / "manifest.json"));
+  const std::string batch_line = manifest["import"]["batch"];
+  CHECK_THAT(batch_line, FLAT_CONTAINS("--depth 'ROOT/{clip}/depth' --depth-png-scale 0.001"));
+  CHECK_THAT(batch_line, FLAT_CONTAINS("--normals 'ROOT/{clip}/normals' --normals-convention opengl"));
+  // The third scene lost its normals folder: that clip fails, naming the folder and the pattern.
+  const std::string lost = exported[2].name;
+  fs::rename(in / lost / "normals", root / "normals_moved_away");
+
+  data::BatchImportOptions o;
+  o.format = data::BatchFormat::transforms;
+  o.in = in.string();
+  o.out_root = out.string();
+  o.jobs = 2;
+  o.import.metric_scale = e.unit;
+  o.import.geometry.depth_dir = (in / "{clip}" / "depth").string();
+  o.import.geometry.depth_png_scale = 0.001;
+  o.import.geometry.normals_dir = (in / "{clip}" / "normals").string();
+  o.import.geometry.normals_convention = "opengl";
+  auto r = data::import_batch(o);
+  CHECK(r.clips == 3);
+  CHECK(r.imported == 2);
+  REQUIRE(r.failures.size() == 1);
+  CHECK(r.failures[0].name == lost);
+  CHECK_THAT(r.failures[0].reason, FLAT_CONTAINS((in / lost / "normals").string() + ": no normals folder for clip '" +
+                                                 lost + "' (the normals option '" + o.import.geometry.normals_dir));
+  CHECK_FALSE(fs::exists(out / lost));
+  // Each scene got its own folder's maps: metric depth (code * 0.001 * unit)
+  // within half a code of the truth, normals converted to OpenCV.
+  for (size_t i = 0; i < 2; ++i) {
+    const std::string name = exported[i].name;
+    INFO(name);
+    const data::Scene s = data::read_scene((out / name).string());
+    REQUIRE(s.size() == 3);
+    CHECK(s.has_depth);
+    CHECK(s.has_normals);
+    CHECK_THAT(s.depth_source, FLAT_CONTAINS((in / name / "depth").string()));
+    CHECK_THAT(s.normals_source, FLAT_CONTAINS((in / name / "normals").string()));
+    const data::Scene truth = data::read_scene((in / name / "truth").string());
+    auto got = data::load_frames(s, {0, 1, 2}, true, true);
+    auto want = data::load_frames(truth, {0, 1, 2}, true, true);
+    CHECK((got.depth - want.depth).abs().max().item<double>() <= 0.5e-3 * e.unit + 1e-5);
+    CHECK((got.normals - want.normals).abs().max().item<double>() < 1e-4);
+  }
+  // The scene repaired, a rerun imports just it.
+  fs::rename(root / "normals_moved_away", in / lost / "normals");
+  r = data::import_batch(o);
+  CHECK(r.imported == 1);
+  CHECK(r.present == 2);
+  CHECK(r.ok());
+  CHECK(data::read_scene((out / lost).string()).has_normals);
 }

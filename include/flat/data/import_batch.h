@@ -44,11 +44,21 @@ struct BatchImportOptions {
   // (each existing scene replaced only once its new one is complete);
   // without it existing scenes are kept and counted as already present.
   // Geometry maps: import.geometry's depth_dir / normals_dir are roots holding
-  // one folder per clip, <root>/<c>/ (a clip without its folder fails).
+  // one folder per clip, <root>/<c>/, or, when they contain "{clip}",
+  // patterns in which it is replaced by the clip's name (DL3DV keeps the maps
+  // inside each scene folder: "<in>/{clip}/depth"). A clip without its folder fails.
   ImportOptions import;
   int jobs = 0;                         // clips imported at once (0: min(cores, 4))
   double progress_log_seconds = 10.0;   // progress line period when stdout is no terminal
 };
+
+// The placeholder of a clip's name in batch-mode --depth / --normals values.
+inline constexpr const char* kClipPlaceholder = "{clip}";
+
+// The folder of clip `clip`'s maps for a batch --depth / --normals value:
+// every "{clip}" in `root_or_pattern` replaced by the name; without one,
+// <root>/<clip>. "" stays "" (no maps).
+std::string clip_maps_folder(const std::string& root_or_pattern, const std::string& clip);
 
 // One unit of work, as listed from the input folder.
 struct BatchClip {
