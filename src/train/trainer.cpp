@@ -25,6 +25,7 @@
 #include "flat/core/run_dir.h"
 #include "flat/model/weights.h"
 #include "flat/optim/adamw.h"
+#include "flat/train/best_validation.h"
 #include "flat/train/checkpoint.h"
 #include "flat/train/data_parallel.h"
 #include "flat/train/data_report.h"
@@ -209,6 +210,7 @@ class Run {
  private:
   void run_validation(int64_t step);
   void write_checkpoint();
+  void write_model_file(const std::string& path);
   TrainSummary end_ranks();
 
   torch::nn::Module& net() { return session_->model(); }  // the trained module
@@ -239,6 +241,7 @@ class Run {
   eval::EvalSettings val_settings_;
   eval::FrameSums val_frame_sums_;
   std::unique_ptr<MetricsLog> metrics_;  // rank 0
+  std::optional<BestValidation> best_;   // rank 0: the best held-out validation, kept in best/
   std::optional<Progress> progress_;     // rank 0, while steps remain
 };
 
@@ -387,6 +390,8 @@ void Run::open_run_folder() {
     write_file_atomic(run_dir_.root + "/data_report.json", data_report_);
     metrics_ = std::make_unique<MetricsLog>(run_dir_.root, cfg_.log.tensorboard,
                                             mode_ == StartMode::resume ? state_.step : -1);
+    best_.emplace(run_dir_.root, cfg_.validation.fall_warning_db, cfg_.optim.warmup_steps);
+    if (mode_ == StartMode::resume) best_->resume();
   }
   const int64_t params = model::count_parameters(net());
   spdlog::info("flat_train: stage '{}' (task {}), steps {} to {}, run folder {}{}", cfg_.stage, cfg_.task, state_.step,
@@ -434,6 +439,9 @@ void Run::run_validation(int64_t step) {
   summary_.mean_colour_psnr = r.mean_colour_psnr;
   if (!rank0_) return;
   metrics_->write("val", step, r.scalars());
+  if (best_->record(step, r, session_->vae_task() ? "vae.safetensors" : "model.safetensors",
+                    [&](const std::string& path) { write_model_file(path); }))
+    spdlog::info("validation @ step {}: the best so far; weights in {}/best", step, run_dir_.root);
   std::string grid;
   if (r.grid.defined()) {
     char name[64];
@@ -563,6 +571,31 @@ Run::LoopEnd Run::train() {
   return LoopEnd::completed;
 }
 
+// The weights as flat_infer / flat_latents read them: model.safetensors (Wan
+// key names, the architecture signature), or for the VAE task the Wan VAE
+// file with the training windows' latent statistics folded in.
+void Run::write_model_file(const std::string& path) {
+  if (session_->vae_task()) {
+    data::LoaderConfig stats_data = train_data_;
+    stats_data.batch_size = 1;
+    stats_data.workers = 0;
+    data::Loader stats_loader(stats_data);
+    const auto stats = measure_latent_statistics(session_->vae, stats_loader, cfg_.vae.stats_samples);
+    write_vae_file(session_->vae, stats, path,
+                   {{"producer", "flat_train"}, {"stage", cfg_.stage}, {"task", "vae"},
+                    {"step", std::to_string(state_.step)}});
+    spdlog::info("flat_train: VAE written to {} (Wan 2.1 key names; latent mean {:.3f}..{:.3f}, std {:.3f}..{:.3f} "
+                 "over {} training windows, folded in)",
+                 path, stats.mean.min().item<double>(), stats.mean.max().item<double>(),
+                 stats.std.min().item<double>(), stats.std.max().item<double>(), stats.samples);
+  } else {
+    auto meta = pipeline::signature_metadata(signature());
+    meta.insert({{"producer", "flat_train"}, {"stage", cfg_.stage}, {"step", std::to_string(state_.step)}});
+    if (!random_latents_.empty()) meta.insert({{"latent_encoder", "random"}});
+    model::save_weights(net(), path, model::WeightNaming::wan, meta);
+  }
+}
+
 // ---- the end -------------------------------------------------------------------
 TrainSummary Run::finish(LoopEnd end) {
   // Stopped by a signal: its checkpoint is written and the summary says so
@@ -571,29 +604,8 @@ TrainSummary Run::finish(LoopEnd end) {
   summary_.steps_done = state_.step;
   summary_.skipped_steps = state_.skipped_steps;
   if (!rank0_) return end_ranks();
-  if (session_->vae_task()) {
-    // The latent statistics of the training windows, folded into the file
-    // that flat_latents, flat_vae and init.from: wan_vae read.
-    data::LoaderConfig stats_data = train_data_;
-    stats_data.batch_size = 1;
-    stats_data.workers = 0;
-    data::Loader stats_loader(stats_data);
-    const auto stats = measure_latent_statistics(session_->vae, stats_loader, cfg_.vae.stats_samples);
-    summary_.model_file = run_dir_.root + "/vae.safetensors";
-    write_vae_file(session_->vae, stats, summary_.model_file,
-                   {{"producer", "flat_train"}, {"stage", cfg_.stage}, {"task", "vae"},
-                    {"step", std::to_string(state_.step)}});
-    spdlog::info("flat_train: VAE written to {} (Wan 2.1 key names; latent mean {:.3f}..{:.3f}, std {:.3f}..{:.3f} "
-                 "over {} training windows, folded in)",
-                 summary_.model_file, stats.mean.min().item<double>(), stats.mean.max().item<double>(),
-                 stats.std.min().item<double>(), stats.std.max().item<double>(), stats.samples);
-  } else {
-    summary_.model_file = run_dir_.root + "/model.safetensors";
-    auto meta = pipeline::signature_metadata(signature());
-    meta.insert({{"producer", "flat_train"}, {"stage", cfg_.stage}, {"step", std::to_string(state_.step)}});
-    if (!random_latents_.empty()) meta.insert({{"latent_encoder", "random"}});
-    model::save_weights(net(), summary_.model_file, model::WeightNaming::wan, meta);
-  }
+  summary_.model_file = run_dir_.root + (session_->vae_task() ? "/vae.safetensors" : "/model.safetensors");
+  write_model_file(summary_.model_file);
   spdlog::info("flat_train: stage '{}' finished: {} steps ({} skipped as non-finite)", cfg_.stage, state_.step,
                state_.skipped_steps);
   if (!std::isnan(summary_.last_val_psnr)) {
@@ -606,6 +618,13 @@ TrainSummary Run::finish(LoopEnd end) {
                    summary_.first_val_psnr, summary_.last_val_psnr, summary_.mean_colour_psnr,
                    summary_.dataset_mean_psnr, summary_.swap_psnr,
                    random_latents_.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
+    if (best_ && best_->best_step() >= 0)
+      spdlog::info("best held-out PSNR {:.2f} dB at step {} ({}/best){}", best_->best_psnr(), best_->best_step(),
+                   run_dir_.root,
+                   best_->falls() ? fmt::format("; {} validation(s) of this session fell more than {} dB below the "
+                                                "best (logs/val_falls.jsonl)",
+                                                best_->falls(), cfg_.validation.fall_warning_db)
+                                  : "");
   }
   spdlog::info("outputs: {} (config.yaml, logs/train.log, metrics/*.jsonl, tensorboard/, renders/, checkpoints/, "
                "{})",

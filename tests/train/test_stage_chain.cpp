@@ -89,6 +89,8 @@ TEST_CASE("the four tiny stages chain on one set of dataset folders, each on its
     CHECK(report["train"]["with_depth"] == 3);
     CHECK(report["train"]["with_normals"] == 3);
     CHECK(report["validation"]["scenes"] == 2);
+    CHECK(fs::exists(run_dir + "/best/best.json"));  // the best validation's weights, beside the last
+    CHECK(fs::exists(run_dir + "/best/model.safetensors"));
     const auto train_rows = rows(run_dir);
     REQUIRE(train_rows.size() == 4);
     // The geometry terms took part in every step.

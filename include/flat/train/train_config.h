@@ -108,6 +108,7 @@ struct ValidationConfig {
   int64_t every = 1000;                       // steps (and before the first and after the last)
   int64_t scenes = 4;                         // held-out scenes scored (the first in name order)
   int64_t max_views = 16;                     // views per scene, evenly spaced (0 = every frame)
+  double fall_warning_db = 0.5;               // warn when a validation falls this far below the best (0 = never)
   int64_t grid_views = 4;                     // samples in the PNG grid, one view each (0 = none)
   template <class V>
   void visit(V& v) {
@@ -118,6 +119,9 @@ struct ValidationConfig {
     v.field("max_views", max_views, config::non_negative(),
             "views scored per held-out scene, evenly spaced over its frames (0 = all; flat_eval --max-views N "
             "scores the same views)");
+    v.field("fall_warning_db", fall_warning_db, config::non_negative(),
+            "after the warm-up, warn (log and logs/val_falls.jsonl) when the held-out PSNR falls more than this "
+            "below the best before it (0 = never); the best model is kept in best/ either way");
     v.field("grid_views", grid_views, config::non_negative(),
             "held-out samples in the validation image grid, one view each (0 = none)");
   }
