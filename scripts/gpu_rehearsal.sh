@@ -20,7 +20,8 @@
 # Variables: PHASES (default all), NPROC (GPUs, default: all visible),
 #   STEPS ("s1 s2 s3 s4", default "200 100 60 40"), CLIPS ("re10k dl3dv val_re10k
 #   val_dl3dv", default "16 8 4 4"), FRAMES (default 57), W (work folder,
-#   default /tmp/rehearsal), BUILD (default build-gpu).
+#   default /tmp/rehearsal), BUILD (default build-gpu), GPU_CMAKE_ARGS (e.g.
+#   -DFLAT_CUTLASS=OFF: every conv through cuDNN, a shorter build).
 # Logs and the summary go to $OUT (or ./gpu_out).
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -50,7 +51,7 @@ note "commit ${FLAT_COMMIT:-unknown}, $(date -u +%F), NPROC=$NPROC, steps $S1/$S
 if has build; then
   timed "configure" "$OUT/configure.log" cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release \
     -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" \
-    -DFLAT_TORCH_PYTHON="$(command -v python3)" || { tail -30 "$OUT/configure.log"; exit 1; }
+    -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} || { tail -30 "$OUT/configure.log"; exit 1; }
   timed "build" "$OUT/build.log" ninja -C "$BUILD" flat_synth flat_import flat_latents flat_train flat_eval flat_infer \
     flat_mesh || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
 fi
