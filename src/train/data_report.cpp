@@ -71,14 +71,15 @@ std::vector<std::string> data_summary(const data::Loader& train, const data::Loa
       batch_per_rank, world_size, batch_per_rank * world_size));
   for (const auto* l : {&train, val}) {
     if (!l) continue;
+    const auto& c = l->config();
     for (const auto& r : l->reports())
-      lines.push_back(fmt::format("data: {} dataset '{}' (weight {}): {} of {} scenes used ({} too short, {} without "
-                                  "latent set {}, {} unreadable)",
-                                  l == &train ? "training" : "validation", r.root, r.weight, r.used, r.found,
-                                  r.short_scenes, r.missing_set,
-                                  data::latent_set_key(l->config().height, l->config().width,
-                                                       l->config().input_frames),
-                                  r.bad));
+      lines.push_back(fmt::format(
+          "data: {} dataset '{}' (weight {}): {} of {} scenes used ({} too short{}, {} unreadable)",
+          l == &train ? "training" : "validation", r.root, r.weight, r.used, r.found, r.short_scenes,
+          c.latents ? fmt::format(", {} without latent set {}", r.missing_set,
+                                  data::latent_set_key(c.height, c.width, c.input_frames))
+                    : "",
+          r.bad));
   }
   return lines;
 }

@@ -237,9 +237,8 @@ class Run {
   std::string random_latents_;  // which scenes hold random-encoder latents; empty: none
   std::string data_report_;     // data_report.json: what each loader used and left out
   std::vector<std::string> data_summary_;  // the same, for the log
-  std::vector<data::Scene> val_scenes_;  // scene task: the held-out scenes, scored as flat_eval scores them
+  HeldOut val_scenes_;  // scene task: the held-out scenes, scored as flat_eval scores them
   eval::EvalSettings val_settings_;
-  eval::FrameSums val_frame_sums_;
   std::unique_ptr<MetricsLog> metrics_;  // rank 0
   std::optional<BestValidation> best_;   // rank 0: the best held-out validation, kept in best/
   std::optional<Progress> progress_;     // rank 0, while steps remain
@@ -364,12 +363,12 @@ void Run::open_loaders() {
     val_settings_ = validation_settings(cfg_.validation.max_views, bf16());
     val_scenes_ = held_out_scenes(cfg_.validation.datasets, cfg_.validation.scenes, cfg_.data.height, cfg_.data.width,
                                   cfg_.data.input_frames);
-    val_frame_sums_ = held_out_frame_sums(val_scenes_, val_settings_);
+    val_scenes_.measure_frames(val_settings_);
     std::string names;
-    for (const auto& s : val_scenes_) names += (names.empty() ? "" : ", ") + s.name;
+    for (const auto& s : val_scenes_.scenes) names += (names.empty() ? "" : ", ") + s.name;
     spdlog::info("validation: {} held-out scenes ({}), window 0 of latent set {}, {} views each, scored as flat_eval "
                  "scores them (flat_eval --max-views {} --latent-set {})",
-                 val_scenes_.size(), names, data::latent_set_key(cfg_.data.height, cfg_.data.width,
+                 val_scenes_.scenes.size(), names, data::latent_set_key(cfg_.data.height, cfg_.data.width,
                                                                  cfg_.data.input_frames),
                  cfg_.validation.max_views ? "at most " + std::to_string(cfg_.validation.max_views) : "all",
                  cfg_.validation.max_views,
@@ -430,9 +429,8 @@ void Run::run_validation(int64_t step) {
   auto r = session_->vae_task()
                ? validate_vae(session_->vae, *val_loader_, cfg_.validation.scenes, session_->vae_lpips,
                               cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr)
-               : validate(*session_->pipeline, val_scenes_, val_settings_, val_frame_sums_,
-                          session_->objective->lpips_network(), cfg_.validation.grid_views,
-                          dp_ ? &dp_->group() : nullptr);
+               : validate(*session_->pipeline, val_scenes_, val_settings_, session_->objective->lpips_network(),
+                          cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr);
   signal_for_test(step);
   if (std::isnan(summary_.first_val_psnr)) summary_.first_val_psnr = r.psnr;
   summary_.last_val_psnr = r.psnr;

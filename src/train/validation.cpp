@@ -1,5 +1,6 @@
 #include "flat/train/validation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <utility>
@@ -93,24 +94,26 @@ at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Bat
   return at::cat(rows, 1).contiguous();
 }
 
-std::vector<data::Scene> held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count,
-                                         int64_t height, int64_t width, int64_t frames) {
-  std::vector<data::Scene> scenes;
-  for (const auto& d : datasets) {
+HeldOut held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count, int64_t height,
+                        int64_t width, int64_t frames) {
+  HeldOut h;
+  for (size_t k = 0; k < datasets.size(); ++k) {
+    const auto& d = datasets[k];
     if (!(d.weight > 0)) continue;
     for (const auto& dir : data::scene_dirs_under(d.root)) {
-      if (count > 0 && int64_t(scenes.size()) >= count) return scenes;
+      if (count > 0 && int64_t(h.scenes.size()) >= count) return h;
       data::Scene scene = data::read_scene(dir);
       // Only scenes holding the stage's set are held out (the validation
       // loader has reported the others, per dataset).
       if (!data::find_latent_set(scene, height, width, frames)) continue;
       data::select_latent_set(scene, height, width, frames);
-      scenes.push_back(std::move(scene));
+      h.scenes.push_back(std::move(scene));
+      h.dataset.push_back(k);
     }
   }
-  FLAT_CHECK(!scenes.empty(), "validation: no held-out scene holds the latent set " +
-                                  data::latent_set_key(height, width, frames) + " of this stage");
-  return scenes;
+  FLAT_CHECK(!h.scenes.empty(), "validation: no held-out scene holds the latent set " +
+                                    data::latent_set_key(height, width, frames) + " of this stage");
+  return h;
 }
 
 eval::EvalSettings validation_settings(int64_t max_views, bool bf16) {
@@ -120,10 +123,18 @@ eval::EvalSettings validation_settings(int64_t max_views, bool bf16) {
   return s;
 }
 
-eval::FrameSums held_out_frame_sums(const std::vector<data::Scene>& scenes, const eval::EvalSettings& settings) {
-  eval::FrameSums sums;
-  for (const auto& scene : scenes) eval::add_frame_sums(sums, scene, settings);
-  return sums;
+void HeldOut::measure_frames(const eval::EvalSettings& settings) {
+  frame_sums.clear();
+  for (size_t i = 0; i < scenes.size(); ++i) eval::add_frame_sums(frame_sums[dataset[i]], scenes[i], settings);
+}
+
+std::optional<size_t> HeldOut::swap_partner(size_t i) const {
+  std::vector<size_t> same;  // the scenes of i's dataset, in order
+  for (size_t j = 0; j < scenes.size(); ++j)
+    if (dataset[j] == dataset[i]) same.push_back(j);
+  const size_t at = size_t(std::find(same.begin(), same.end(), i) - same.begin());
+  const auto p = eval::swap_partner(at, same.size());
+  return p ? std::optional<size_t>(same[*p]) : std::nullopt;
 }
 
 namespace {
@@ -163,9 +174,10 @@ at::Tensor validation_grid_row(pipeline::ScenePipeline& pipeline, const data::Sc
 
 }  // namespace
 
-ValidationResult validate(pipeline::ScenePipeline& pipeline, const std::vector<data::Scene>& scenes,
-                          const eval::EvalSettings& settings, const eval::FrameSums& frame_sums, loss::Lpips lpips,
-                          int64_t grid_views, distributed::ProcessGroup* group) {
+ValidationResult validate(pipeline::ScenePipeline& pipeline, const HeldOut& held_out,
+                          const eval::EvalSettings& settings, loss::Lpips lpips, int64_t grid_views,
+                          distributed::ProcessGroup* group) {
+  const auto& scenes = held_out.scenes;
   torch::NoGradGuard no_grad;
   ValidationResult r;
   // Per-scene means summed over the scenes (flat_eval's table is their mean),
@@ -177,8 +189,10 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, const std::vector<d
   const int64_t n = int64_t(scenes.size());
   for (int64_t i = first; i < n; i += stride) {
     eval::BaselineInputs inputs;
-    if (const auto partner = eval::swap_partner(size_t(i), size_t(n))) inputs.swap_with = &scenes[*partner];
-    inputs.frame_sums = &frame_sums;
+    // The baselines of flat_eval: swap and dataset mean within the scene's own dataset.
+    if (const auto partner = held_out.swap_partner(size_t(i))) inputs.swap_with = &scenes[*partner];
+    const auto sums_it = held_out.frame_sums.find(held_out.dataset[size_t(i)]);
+    if (sums_it != held_out.frame_sums.end()) inputs.frame_sums = &sums_it->second;
     const auto sc = eval::evaluate_scene(pipeline, scenes[size_t(i)], settings, lpips, inputs);
     sums[kPsnr] += sc.psnr;
     sums[kSsim] += sc.ssim;

@@ -339,7 +339,7 @@ TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[
   REQUIRE(tool("flat_latents", {"--scenes", out, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents")
               .rc == 0);
   const auto before = snapshot(out + "/room_000000");
-  REQUIRE(before.count("latents.safetensors"));
+  REQUIRE(before.count("latents_16x24_f5.safetensors"));
   auto again = tool("flat_synth", batch, d, "second");
   CHECK(again.rc == 1);
   CHECK_THAT(again.output, FLAT_CONTAINS("room_000000"));
@@ -357,7 +357,7 @@ TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[
   over.push_back("--overwrite");
   CHECK(tool("flat_synth", over, d, "overwrite").rc == 0);
   CHECK_FALSE(fs::exists(out + "/room_000000/images/stale.png"));
-  CHECK_FALSE(fs::exists(out + "/room_000000/latents.safetensors"));
+  CHECK_FALSE(fs::exists(out + "/room_000000/latents_16x24_f5.safetensors"));
   CHECK(fs::exists(out + "/room_000000/scene.json"));
   CHECK(fs::exists(out + "/flat_synth.log"));
 }

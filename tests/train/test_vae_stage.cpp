@@ -113,7 +113,12 @@ TEST_CASE("VAE stage: it learns to reconstruct, and its file round-trips through
   // stores the same latent for the scene's first window, recorded as pretrained.
   const std::string copy = d + "/val_copy";
   fs::copy(scene_dir, copy, fs::copy_options::recursive);
-  REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", vae, "--window", "5"}, d + "/latents.txt") == 0);
+  // The copy holds random-encoder latents of the same set: replacing them takes --overwrite.
+  REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", vae, "--window", "5"}, d + "/latents_refused.txt") ==
+          1);
+  CHECK_THAT(read_file(d + "/latents_refused.txt"), FLAT_CONTAINS("--overwrite replaces it"));
+  REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", vae, "--window", "5", "--overwrite"},
+              d + "/latents.txt") == 0);
   auto rescanned = flat::data::read_scene(copy);
   CHECK(rescanned.latents.encoder == "pretrained");
   auto stored = flat::load_safetensors(copy + "/" + rescanned.latents.file).at("video.0");

@@ -16,7 +16,10 @@
 // Writes an image grid for a person to look at.
 #pragma once
 #include <cstdint>
+#include <map>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include <ATen/ATen.h>
 
@@ -50,12 +53,23 @@ struct ValidationResult {
 at::Tensor validation_grid(const pipeline::RenderedViews& views, const data::Batch& batch, int64_t b,
                            int64_t max_views);
 
-// The held-out scenes: those of `datasets` (weight > 0) in name order,
-// dataset by dataset, at most `count` (0 = all), each with the latent set of
-// the stage (its size and window length) chosen; scenes without that set are
-// left out (the validation loader reports them). Throws when none is left.
-std::vector<data::Scene> held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count,
-                                         int64_t height, int64_t width, int64_t frames);
+// The held-out scenes and the dataset each comes from: the baselines, as
+// flat_eval's, pair a scene with the next of its own dataset (swap) and with
+// the mean frame of its dataset's other scenes.
+struct HeldOut {
+  std::vector<data::Scene> scenes;
+  std::vector<size_t> dataset;                  // index into validation.datasets, per scene
+  std::map<size_t, eval::FrameSums> frame_sums;  // per dataset (measure_frames)
+  void measure_frames(const eval::EvalSettings& settings);
+  std::optional<size_t> swap_partner(size_t scene) const;
+};
+
+// Those of `datasets` (weight > 0) in name order, dataset by dataset, at most
+// `count` (0 = all), each with the latent set of the stage (its size and
+// window length) chosen; scenes without that set are left out (the
+// validation loader reports them). Throws when none is left.
+HeldOut held_out_scenes(const std::vector<data::DatasetSource>& datasets, int64_t count, int64_t height,
+                        int64_t width, int64_t frames);
 
 // flat_eval's default settings (views "scene", window 0, skimage SSIM) with
 // at most `max_views` views per scene (0 = all) and the run's precision:
@@ -63,16 +77,13 @@ std::vector<data::Scene> held_out_scenes(const std::vector<data::DatasetSource>&
 // hold several sets) scores the same views.
 eval::EvalSettings validation_settings(int64_t max_views, bool bf16);
 
-// The held-out scenes' frames by index, for the dataset-mean baseline.
-eval::FrameSums held_out_frame_sums(const std::vector<data::Scene>& scenes, const eval::EvalSettings& settings);
-
 // Scores every scene (flat_eval's evaluate_scene). lpips: an empty holder
 // skips LPIPS. With `group` (every rank calls it) rank r scores scenes r,
 // r + W, ... and the sums are added over the ranks: every rank gets the
 // scores of all scenes, rank 0 the grid. The grid holds the first view of
 // each of the first `grid_views` scenes (one row each).
-ValidationResult validate(pipeline::ScenePipeline& pipeline, const std::vector<data::Scene>& scenes,
-                          const eval::EvalSettings& settings, const eval::FrameSums& frame_sums, loss::Lpips lpips,
-                          int64_t grid_views, distributed::ProcessGroup* group = nullptr);
+ValidationResult validate(pipeline::ScenePipeline& pipeline, const HeldOut& held_out,
+                          const eval::EvalSettings& settings, loss::Lpips lpips, int64_t grid_views,
+                          distributed::ProcessGroup* group = nullptr);
 
 }  // namespace flat::train
