@@ -148,6 +148,10 @@ void add_geometry_options(CLI::App& app, GeometryOptions& o) {
                  "metres per unit of 16-bit PNG depth (e.g. 0.001 for millimetres); required for PNG depth")
       ->check(CLI::PositiveNumber)
       ->needs(depth);
+  app.add_flag("--depth-metric", o.depth_metric,
+               "the depth maps are already in metres (MapAnything's metric depth): --scale applies to the poses "
+               "only (default: to poses and depth alike)")
+      ->needs(depth);
   auto* normals = app.add_option("--normals", o.normals_dir,
                                  "folder of per-frame camera-space normal maps from a predictor (e.g. NormalCrafter): "
                                  "<image stem>.exr, .npy or .png (0.5 n + 0.5); 0 = unknown")
@@ -336,7 +340,8 @@ void GeometryImport::attach(Scene& scene, int64_t index, SceneFrame& frame, int6
   const std::string ext = float_map_extension();
   if (!depth_files_.empty()) {
     const std::string& file = depth_files_[size_t(index)];
-    auto d = follow_image(read_predicted_depth(file, options_, source_height, source_width, image) * metric_scale_,
+    const double depth_scale = options_.depth_metric ? 1.0 : metric_scale_;
+    auto d = follow_image(read_predicted_depth(file, options_, source_height, source_width, image) * depth_scale,
                           false);
     frame.depth = "depth/" + frame_stem(index) + ext;
     fs::create_directories(scene.path("depth"));
@@ -371,7 +376,8 @@ void GeometryImport::finish(Scene& scene) const {
     scene.depth_source = join(depth_formats_, "+") + " files from " + depth_dir_abs_;
     if (std::find(depth_formats_.begin(), depth_formats_.end(), "png") != depth_formats_.end())
       scene.depth_source += ", " + number(options_.depth_png_scale) + " m per PNG unit";
-    scene.depth_source += " (metric scale " + number(metric_scale_) + ")";
+    scene.depth_source += options_.depth_metric ? " (metric as given; the poses' scale " + number(metric_scale_) + ")"
+                                                : " (metric scale " + number(metric_scale_) + ")";
     spdlog::info("{}: depth of {} frames: {}", scene.name, depth_files_.size(), scene.depth_source);
   }
   if (!normals_files_.empty()) {

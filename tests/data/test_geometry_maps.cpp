@@ -164,6 +164,16 @@ TEST_CASE("geometry maps: RE10K with NPY depth and OpenGL 8-bit PNG normals", "[
   CHECK(err < 0.02f);
   CHECK((f.normals - flip_yz(s.normals)).abs().max().item<float>() > 0.5f);
   CHECK((f.normals.norm(2, 1) - 1).abs().max().item<float>() < 1e-5f);  // renormalised after decoding
+
+  // Metric depth beside scale-free poses (MapAnything's depth, RealEstate10K's
+  // poses): --depth-metric keeps the depth as given and scales the poses only.
+  o.geometry.depth_metric = true;
+  auto metric = data::import_re10k((root / "cams.txt").string(), (root / "frames").string(),
+                                   (root / "scene_metric").string(), o);
+  CHECK_THAT(metric.depth_source, FLAT_CONTAINS("metric as given"));
+  auto g = load_all((root / "scene_metric").string());
+  CHECK(torch::allclose(g.depth, s.depth, 1e-6, 1e-6));
+  CHECK(torch::allclose(metric.cameras().c2w, scene.cameras().c2w, 1e-6, 1e-6));  // the poses scaled as before
 }
 
 TEST_CASE("geometry maps: transforms.json with 16-bit PNG depth and OpenCV NPY normals", "[data][geometry_maps]") {

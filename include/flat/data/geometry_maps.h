@@ -45,6 +45,9 @@ struct GeometryOptions {
   std::string depth_dir, normals_dir;            // "" = no depth / no normals
   std::string depth_format = "auto";             // auto|exr|npy|png16
   double depth_png_scale = 0;                    // metres per unit of a 16-bit PNG; required for png16
+  // The maps are already metric (MapAnything's depth) while the poses need
+  // --scale: the metric scale then applies to the poses only.
+  bool depth_metric = false;
   std::string normals_format = "auto";           // auto|exr|npy|png
   std::string normals_convention = "opencv";     // opencv|opengl
   bool any() const { return !depth_dir.empty() || !normals_dir.empty(); }
