@@ -287,6 +287,14 @@ Header parse(const uint8_t* bytes, size_t size, const std::string& label) {
   }
   uint64_t header_len = 0;
   for (int i = 7; i >= 0; --i) header_len = (header_len << 8) | bytes[i];  // little-endian u64
+  // A PyTorch checkpoint (torch.save: a zip archive, or a pickle before 1.6),
+  // such as Wan's official Wan2.1_VAE.pth: its first bytes read as an
+  // impossible header length; say what it is and what to do.
+  const bool zip = bytes[0] == 'P' && bytes[1] == 'K' && bytes[2] == 3 && bytes[3] == 4;
+  const bool pickle = bytes[0] == 0x80 && bytes[1] >= 2 && bytes[1] <= 5;
+  if ((zip || pickle) && (header_len > kMaxHeaderBytes || header_len > size - 8))
+    fail(label + ": a PyTorch checkpoint (torch.save, e.g. an official .pth), not a safetensors file: convert it "
+         "once with the Python line in docs/model.md (\"Converting the original .pth\")");
   if (header_len > kMaxHeaderBytes) {
     fail(label + ": header length " + std::to_string(header_len) + " exceeds the 100 MB limit (not a safetensors file?)");
   }

@@ -63,6 +63,10 @@ TEST_CASE("malformed safetensors files are rejected with specific messages", "[c
       {"shorter than the length prefix", std::string("\x01\x02\x03\x04\x05", 5), "truncated file: 5 bytes", ""},
       {"header length past the end", length_prefix(64) + "{}", "truncated file: header length 64 runs past", ""},
       {"header over 100 MB", length_prefix(100'000'001) + "{}", "exceeds the 100 MB limit", ""},
+      // torch.save's zip (what Wan's official .pth is) and its older pickle: named, with what to do.
+      {"a torch.save zip (.pth)", std::string("PK\x03\x04\x14\x00\x00\x00", 8) + "archive/data.pkl", "a PyTorch checkpoint",
+       ""},
+      {"a legacy torch.save pickle", std::string("\x80\x02\x8a\x0a" "l" "\xfc\x9c" "F", 8) + "....", "docs/model.md", ""},
       {"huge header length (no overflow)", length_prefix(~0ull), "exceeds the 100 MB limit", ""},
       {"invalid JSON", file_bytes(R"({"a": )"), "header is not valid JSON", ""},
       {"invalid UTF-8 in a name", file_bytes("{\"\xff\xfe\": {}}"), "header is not valid JSON", ""},
