@@ -126,6 +126,7 @@ LatentInfo parse_latents(const json& l, const std::string& where) {
   if (info.encoder != "pretrained" && info.encoder != "random")
     fail(where + ": 'encoder' must be \"pretrained\" or \"random\", got \"" + info.encoder + "\"");
   info.weights = optional_string(l, "weights", where);
+  info.weights_digest = optional_string(l, "weights_digest", where);
   if (l.contains("seed")) info.seed = integer(l, "seed", where);
   info.height = integer(l, "height", where);
   info.width = integer(l, "width", where);
@@ -148,6 +149,7 @@ json latents_json(const LatentInfo& info) {
   l["file"] = info.file;
   l["encoder"] = info.encoder;
   l["weights"] = info.weights;
+  if (!info.weights_digest.empty()) l["weights_digest"] = info.weights_digest;
   l["seed"] = info.seed;
   l["height"] = info.height;
   l["width"] = info.width;

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <optional>
 #include <random>
@@ -76,10 +77,30 @@ bool same_windows(const data::LatentInfo& a, const data::LatentInfo& b) {
   return true;
 }
 
+// The weights file's content, cheaply: 64-bit FNV-1a over its bytes (a
+// retrained VAE keeps its file name; its latents must not pass as present).
+// "" for a folder (diffusers layout) or an unreadable file.
+std::string file_digest(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return "";
+  uint64_t h = 1469598103934665603ull;
+  std::vector<char> buf(1 << 20);
+  while (in.read(buf.data(), std::streamsize(buf.size())) || in.gcount() > 0) {
+    for (std::streamsize i = 0; i < in.gcount(); ++i) h = (h ^ uint8_t(buf[size_t(i)])) * 1099511628211ull;
+    if (!in) break;
+  }
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(h));
+  return hex;
+}
+
 // "" when the existing set is what this run would make; else how it differs.
 std::string difference(const data::LatentInfo& have, const data::LatentInfo& want) {
   if (have.encoder != want.encoder) return "encoder " + have.encoder + " (this run: " + want.encoder + ")";
   if (have.weights != want.weights) return "weights '" + have.weights + "' (this run: '" + want.weights + "')";
+  if (!have.weights_digest.empty() && !want.weights_digest.empty() && have.weights_digest != want.weights_digest)
+    return "other weights of the same name '" + have.weights + "' (content digest " + have.weights_digest +
+           ", this run's " + want.weights_digest + ")";
   if (want.encoder == "random" && have.seed != want.seed)
     return "seed " + std::to_string(have.seed) + " (this run: " + std::to_string(want.seed) + ")";
   if (have.dtype != want.dtype) return "dtype " + have.dtype + " (this run: " + want.dtype + ")";
@@ -173,6 +194,7 @@ Encoder load_encoder(const EncoderSpec& e, int64_t dim, data::LatentInfo& proven
     auto report = model::load_weights(*enc.vae, e.weights, spec);
     provenance.encoder = "pretrained";
     provenance.weights = fs::path(e.weights).filename().string();
+    provenance.weights_digest = fs::is_regular_file(e.weights) ? file_digest(e.weights) : "";
     spdlog::info("flat_latents: PRETRAINED encoder weights from {} (dim {}; {})", e.weights, dim, report.summary());
   }
   enc.vae->eval();
@@ -278,6 +300,8 @@ EncodeSummary encode_latent_sets(const EncodeOptions& o) {
   } else {
     provenance.encoder = e.random_weights ? "random" : "pretrained";
     provenance.weights = e.random_weights ? "" : fs::path(e.weights).filename().string();
+    provenance.weights_digest =
+        !e.random_weights && fs::is_regular_file(e.weights) ? file_digest(e.weights) : "";
     provenance.seed = e.seed;
     provenance.dtype = cli::stored_dtype_name(e.store);
   }

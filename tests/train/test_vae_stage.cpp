@@ -123,6 +123,29 @@ TEST_CASE("VAE stage: it learns to reconstruct, and its file round-trips through
   CHECK(rescanned.latents.encoder == "pretrained");
   auto stored = flat::load_safetensors(copy + "/" + rescanned.latents.file).at("video.0");
   CHECK(rel_error(stored, latent[0]) < 1e-4);
+  CHECK(rescanned.latents.weights_digest.size() == 16);
+
+  // The same file again: already present, nothing rewritten. A retrained VAE
+  // under the same file name: its latents are not taken for the old ones.
+  const std::string latent_file = copy + "/" + rescanned.latents.file;
+  const std::string bytes = read_file(latent_file);
+  REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", vae, "--window", "5"}, d + "/latents_again.txt") == 0);
+  CHECK_THAT(read_file(d + "/latents_again.txt"), FLAT_CONTAINS("1 already present"));
+  CHECK(read_file(latent_file) == bytes);
+  flat::Metadata meta;
+  auto weights = flat::load_safetensors(vae, &meta);
+  for (auto& [name, t] : weights)
+    if (t.is_floating_point()) {
+      t = t + 0.01;  // a different VAE of the same shape
+      break;
+    }
+  fs::create_directories(d + "/retrained");
+  const std::string other = d + "/retrained/" + fs::path(vae).filename().string();
+  flat::save_safetensors(other, weights, meta);
+  REQUIRE(run({binary("flat_latents"), "--scenes", copy, "--vae", other, "--window", "5"}, d + "/latents_other.txt") ==
+          1);
+  CHECK_THAT(read_file(d + "/latents_other.txt"), FLAT_CONTAINS("other weights of the same name"));
+  CHECK(read_file(latent_file) == bytes);
 }
 
 TEST_CASE("VAE stage: killed with SIGKILL, --resume continues bit for bit", "[train][vae]") {

@@ -43,6 +43,7 @@ struct LatentInfo {
   std::string file;              // "" = the scene has no latents
   std::string encoder;           // "pretrained" | "random"
   std::string weights;           // file name of the encoder weights ("" when random)
+  std::string weights_digest;    // 64-bit FNV-1a of the weights file's bytes, hex ("" = not recorded)
   int64_t seed = 0;              // initialisation seed when random
   int64_t height = 0, width = 0; // frame size the latents were encoded at
   std::string dtype = "float32";
