@@ -109,18 +109,17 @@ std::string difference(const data::LatentInfo& have, const data::LatentInfo& wan
   return "";
 }
 
-// Every scene folder under the roots, once, in name order.
+// Every scene folder under the roots, once (by its canonical path, so that two
+// spellings of one folder in two sets' roots are one scene), in path order.
 std::vector<std::string> scene_folders(const std::vector<std::string>& roots) {
   std::set<std::string> seen;
-  std::vector<std::string> dirs;
   for (const auto& root : roots)
     for (const auto& dir : data::scene_dirs_under(root)) {
       std::error_code ec;
       const std::string canonical = fs::weakly_canonical(dir, ec).string();
-      if (seen.insert(ec ? dir : canonical).second) dirs.push_back(dir);
+      seen.insert(ec ? dir : canonical);
     }
-  std::sort(dirs.begin(), dirs.end());
-  return dirs;
+  return {seen.begin(), seen.end()};
 }
 
 // A fixed-size uniform sample of the scenes' first windows (reservoir sampling,
