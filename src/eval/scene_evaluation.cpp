@@ -65,6 +65,23 @@ void add_frame_sums(FrameSums& sums, const data::Scene& scene, const EvalSetting
   }
 }
 
+pipeline::SceneInput window_input(const data::Scene& scene, int64_t window, const std::string& camera_rays) {
+  FLAT_CHECK(window >= 0 && window < int64_t(scene.latents.windows.size()),
+             scene.json_path() + ": latent window " + std::to_string(window) + " does not exist (the scene has " +
+                 std::to_string(scene.latents.windows.size()) + ")");
+  const auto& win = scene.latents.windows[size_t(window)];
+  auto latents = data::read_window_latents(scene, size_t(window), camera_rays);
+  std::vector<int64_t> frames;
+  for (int64_t i = 0; i < win.count; ++i) frames.push_back(win.start + i);
+  const auto cams = scene.cameras(frames);
+  pipeline::SceneInput in;
+  in.video_latents = latents.video.unsqueeze(0).to(at::kFloat);
+  if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
+  in.input_intrinsics = cams.intrinsics.unsqueeze(0);
+  in.input_c2w = cams.c2w.unsqueeze(0);
+  return in;
+}
+
 SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& s,
                           loss::Lpips lpips, const BaselineInputs& baselines) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -79,15 +96,7 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   const auto device = pipeline.decoder()->conv2->weight.device();
 
   // Decode the window.
-  auto latents = data::read_window_latents(scene, size_t(s.window), pipeline.config().model.camera_rays);
-  std::vector<int64_t> window_frames;
-  for (int64_t i = 0; i < win.count; ++i) window_frames.push_back(win.start + i);
-  const auto input_cams = scene.cameras(window_frames);
-  pipeline::SceneInput in;
-  in.video_latents = latents.video.unsqueeze(0).to(at::kFloat);
-  if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
-  in.input_intrinsics = input_cams.intrinsics.unsqueeze(0);
-  in.input_c2w = input_cams.c2w.unsqueeze(0);
+  const auto in = window_input(scene, s.window, pipeline.config().model.camera_rays);
   primitives::ScenePrimitives prims;
   {
     AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());

@@ -143,16 +143,7 @@ namespace {
 at::Tensor validation_grid_row(pipeline::ScenePipeline& pipeline, const data::Scene& scene,
                                const eval::EvalSettings& s) {
   const auto device = pipeline.decoder()->conv2->weight.device();
-  const auto& win = scene.latents.windows[size_t(s.window)];
-  auto latents = data::read_window_latents(scene, size_t(s.window), pipeline.config().model.camera_rays);
-  std::vector<int64_t> window_frames;
-  for (int64_t i = 0; i < win.count; ++i) window_frames.push_back(win.start + i);
-  const auto cams = scene.cameras(window_frames);
-  pipeline::SceneInput in;
-  in.video_latents = latents.video.unsqueeze(0).to(at::kFloat);
-  if (latents.camera.defined()) in.camera_latents = latents.camera.unsqueeze(0).to(at::kFloat);
-  in.input_intrinsics = cams.intrinsics.unsqueeze(0);
-  in.input_c2w = cams.c2w.unsqueeze(0);
+  const auto in = eval::window_input(scene, s.window, pipeline.config().model.camera_rays);
   const int64_t view = eval::evaluation_views(scene, s).front();
   const int64_t H = scene.latents.height, W = scene.latents.width;
   auto frames = data::load_frames(scene, {view}, scene.has_depth, scene.has_normals);

@@ -67,6 +67,10 @@ void add_frame_sums(FrameSums& sums, const data::Scene& scene, const EvalSetting
 // Frame indices of the evaluation views (throws when there are none).
 std::vector<int64_t> evaluation_views(const data::Scene& scene, const EvalSettings& settings);
 
+// The decoder's input for latent window `window` of the scene (its chosen
+// latent set): latents and the window's cameras, B = 1, float32, on the CPU.
+pipeline::SceneInput window_input(const data::Scene& scene, int64_t window, const std::string& camera_rays);
+
 // lpips: an empty holder leaves LPIPS NaN. Throws flat::Error on a bad scene
 // (the caller records it as a failure).
 SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& settings,
