@@ -16,7 +16,7 @@
 # results), stage 1 starts from scratch, and LPIPS is off (no VGG weights).
 #
 # Usage (repo root on the device, .deps carried):
-#   PHASES="build data import latents train eval" NPROC=2 bash scripts/gpu_rehearsal.sh
+#   PHASES="build data import latents train eval mesh" NPROC=2 bash scripts/gpu_rehearsal.sh
 # Variables: PHASES (default all), NPROC (GPUs, default: all visible),
 #   STEPS ("s1 s2 s3 s4", default "200 100 60 40"), CLIPS ("re10k dl3dv val_re10k
 #   val_dl3dv", default "16 8 4 4"), FRAMES (default 57), W (work folder,
@@ -28,7 +28,7 @@ ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
 BUILD="${BUILD:-$ROOT/build-gpu}"
 W="${W:-/tmp/rehearsal}"
-PHASES="${PHASES:-build data import latents train eval}"
+PHASES="${PHASES:-build data import latents train eval mesh}"
 NPROC="${NPROC:-$(nvidia-smi -L 2>/dev/null | wc -l)}"
 read -r S1 S2 S3 S4 <<<"${STEPS:-200 100 60 40}"
 read -r N_RE N_DL N_VRE N_VDL <<<"${CLIPS:-16 8 4 4}"
@@ -104,17 +104,20 @@ EOF
 CONFIGS=(configs/stage1.yaml configs/stage2.yaml configs/stage3.yaml configs/stage4.yaml)
 
 if has latents; then
-  # One process per GPU, each a shard of the scenes; every stage's set in one pass.
-  t0=$(now); pids=()
-  for k in $(seq 0 $((NPROC - 1))); do
-    CUDA_VISIBLE_DEVICES=$k OMP_NUM_THREADS=4 "$B/flat_latents" --configs "${CONFIGS[@]}" --overlay "$W/my_data.yaml" \
-      --random-weights --seed 0 --dim 96 --device cuda --precision bf16 --store bf16 --shard "$k/$NPROC" \
-      >"$OUT/latents_$k.log" 2>&1 &
-    pids+=($!)
+  # Every stage's set, one stage at a time so each gets its own wall time;
+  # one process per GPU, each a shard of the scenes.
+  for n in 1 2 3 4; do
+    t0=$(now); pids=()
+    for k in $(seq 0 $((NPROC - 1))); do
+      CUDA_VISIBLE_DEVICES=$k OMP_NUM_THREADS=4 "$B/flat_latents" --configs "${CONFIGS[$((n - 1))]}" \
+        --overlay "$W/my_data.yaml" --random-weights --seed 0 --dim 96 --device cuda --precision bf16 --store bf16 \
+        --shard "$k/$NPROC" >"$OUT/latents_s${n}_$k.log" 2>&1 &
+      pids+=($!)
+    done
+    rc=0; for p in "${pids[@]}"; do wait "$p" || rc=$?; done
+    note "$(printf '%-44s rc=%-3s %7.1f s' "flat_latents stage $n set, $NPROC shard(s)" "$rc" "$(awk -v a="$(now)" -v b="$t0" 'BEGIN{print a-b}')")"
+    grep -hE "set\(s\) encoded|set [0-9]+x" "$OUT"/latents_s${n}_*.log | sed 's/^\[[^]]*\] \[info\] /  /' | sort -u | tee -a "$SUMMARY"
   done
-  rc=0; for p in "${pids[@]}"; do wait "$p" || rc=$?; done
-  note "$(printf '%-44s rc=%-3s %7.1f s' "flat_latents 4 sets, $NPROC shard(s)" "$rc" "$(awk -v a="$(now)" -v b="$t0" 'BEGIN{print a-b}')")"
-  grep -hE "set\(s\) encoded|set [0-9]+x" "$OUT"/latents_*.log | sed 's/^\[[^]]*\] \[info\] /  /' | sort -u | tee -a "$SUMMARY"
 fi
 
 stage_steps() { case $1 in 1) echo $S1 ;; 2) echo $S2 ;; 3) echo $S3 ;; 4) echo $S4 ;; esac; }
@@ -146,6 +149,8 @@ if has eval; then
   first=$(ls -d "$DATA"/val_re10k/*/ | head -1)
   timed "flat_infer stage 4, $(basename "$first")" "$OUT/infer.log" "$B/flat_infer" --model "$RUNS/stage4" \
     --scene "$first" --latent-set 432x768_f49 --device cuda --out "$W/infer"
+fi
+if has mesh; then
   timed "flat_mesh (defaults)" "$OUT/mesh.log" timeout 240 "$B/flat_mesh" --from "$W/infer" --out "$W/mesh" --device cuda
   [ -f "$W/mesh/mesh_stats.json" ] && cp "$W/mesh/mesh_stats.json" "$OUT/"
 fi
