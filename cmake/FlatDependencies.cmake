@@ -168,9 +168,18 @@ endif()
 # libstdc++ goes first among the shared libraries: the torch wheel's small
 # libtorch.so exports its own copy of std::filesystem, which would otherwise
 # interpose on ours, and its remove_all() crashes (null call) on a non-empty folder.
+# libtorch only in the build: an installed package links the Torch that its
+# consumer finds (cmake/flatConfig.cmake.in), not this machine's wheel paths.
+set(_torch_build_libs "")
+foreach(_l IN LISTS TORCH_LIBRARIES)
+  list(APPEND _torch_build_libs "$<BUILD_INTERFACE:${_l}>")
+endforeach()
 target_link_libraries(flat_deps INTERFACE "-Wl,--push-state,--no-as-needed" stdc++ "-Wl,--pop-state"
-                      ${TORCH_LIBRARIES} ${_yaml} spdlog::spdlog CLI11::CLI11
+                      ${_torch_build_libs} ${_yaml} spdlog::spdlog CLI11::CLI11
                       nlohmann_json::nlohmann_json glm::glm Threads::Threads)
+# C++17 for a program that embeds the installed library too (the build sets
+# CMAKE_CXX_STANDARD itself).
+target_compile_features(flat_deps INTERFACE cxx_std_17)
 target_compile_definitions(flat_deps INTERFACE
   FLAT_WITH_CUDA=$<BOOL:${FLAT_WITH_CUDA}> FLAT_WITH_OIIO=$<BOOL:${FLAT_WITH_OIIO}>
   FLAT_WITH_CUTLASS=$<BOOL:${FLAT_WITH_CUTLASS}>
@@ -186,7 +195,8 @@ if(TARGET fmt::fmt)
   list(GET _fmt_inc 0 _fmt_inc)
   file(MAKE_DIRECTORY "${CMAKE_BINARY_DIR}/fmt_include")
   file(CREATE_LINK "${_fmt_inc}/fmt" "${CMAKE_BINARY_DIR}/fmt_include/fmt" SYMBOLIC)
-  target_include_directories(flat_deps SYSTEM BEFORE INTERFACE "${CMAKE_BINARY_DIR}/fmt_include")
+  # (Build tree only; the installed package makes its own: flatConfig.cmake.in.)
+  target_include_directories(flat_deps SYSTEM BEFORE INTERFACE "$<BUILD_INTERFACE:${CMAKE_BINARY_DIR}/fmt_include>")
 endif()
 if(FLAT_WITH_CUDA)
   target_link_libraries(flat_deps INTERFACE CUDA::cudart)
