@@ -12,8 +12,9 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 bash "$ROOT/scripts/install_deps.sh"
-# Only what the demo runs (the test suite is README command 2).
-FLAT_BUILD_TARGETS="${FLAT_BUILD_TARGETS:-flat_synth flat_latents flat_train flat_eval}" bash "$ROOT/scripts/build.sh"
+# What the demo runs, and flat_infer for README's next commands (the test
+# suite is README command 2; every tool: cmake --build build --target flat_tools).
+FLAT_BUILD_TARGETS="${FLAT_BUILD_TARGETS:-flat_synth flat_latents flat_train flat_eval flat_infer}" bash "$ROOT/scripts/build.sh"
 B="${BUILD_DIR:-$ROOT/build}"
 RUN="${FLAT_SMOKE_DIR:-runs/tiny}"
 cd "$ROOT"
