@@ -1,4 +1,4 @@
-// Wan VAE: parameter counts of the pretrained architecture (docs: wan_vae.md),
+// Wan VAE: parameter counts of the pretrained architecture (../shared/docs/wan_vae.md),
 // streaming == full-sequence for encoder and decoder, frame arithmetic.
 #include <iostream>
 

@@ -1,4 +1,4 @@
-// AttentionBlock(C) of the Wan VAE (docs: wan_vae.md): per frame, RMS_norm
+// AttentionBlock(C) of the Wan VAE (../shared/docs/wan_vae.md): per frame, RMS_norm
 // (images form) -> 1x1 conv to_qkv (C -> 3C) -> single-head attention over the
 // H*W tokens (head dim C, scale 1/sqrt(C), SDPA) -> 1x1 conv proj -> + input.
 // Children "norm", "to_qkv", "proj" as in the checkpoint.

@@ -1,4 +1,4 @@
-// CausalConv3d of the Wan 2.1 VAE (docs: wan_vae.md, Building blocks): a Conv3d
+// CausalConv3d of the Wan 2.1 VAE (../shared/docs/wan_vae.md, Building blocks): a Conv3d
 // whose temporal padding is causal, 2*pt zero frames in the past and none in the
 // future, and whose spatial padding is symmetric. Parameters `weight`
 // (out,in,kt,kh,kw) and `bias` (out) keep the checkpoint's names.

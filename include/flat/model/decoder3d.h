@@ -1,4 +1,4 @@
-// Decoder3d of the Wan 2.1 VAE (docs: wan_vae.md, Decoder3d): conv1, `middle`
+// Decoder3d of the Wan 2.1 VAE (../shared/docs/wan_vae.md, Decoder3d): conv1, `middle`
 // (Res, Attn, Res), `upsamples` (3 residual blocks per stage, then Resample),
 // `head` (RMS_norm, SiLU, CausalConv3d -> 3). Latent (B,z_dim,T',h,w) ->
 // (B,3,1+4(T'-1),8h,8w).

@@ -1,4 +1,4 @@
-// Encoder3d of the Wan 2.1 VAE (docs: wan_vae.md, Encoder3d): conv1, the
+// Encoder3d of the Wan 2.1 VAE (../shared/docs/wan_vae.md, Encoder3d): conv1, the
 // `downsamples` list (residual blocks and Resample), `middle` (Res, Attn, Res),
 // `head` (RMS_norm, SiLU, CausalConv3d -> 2*z_dim). Video (B,3,1+4k,H,W) ->
 // (B,2*z_dim,1+k,H/8,W/8) (before the VAE's 1x1x1 conv1).

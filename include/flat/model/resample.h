@@ -1,4 +1,4 @@
-// Resample of the Wan VAE (docs: wan_vae.md). Children as in the checkpoint:
+// Resample of the Wan VAE (../shared/docs/wan_vae.md). Children as in the checkpoint:
 // "resample.1" (the per-frame Conv2d) and "time_conv" (CausalConv3d).
 //   upsample2d   : nearest x2, Conv2d(C, C/2, 3, pad 1), per frame
 //   upsample3d   : time_conv (C -> 2C, (3,1,1)) doubles frames 1..T-1, then upsample2d

@@ -1,4 +1,4 @@
-// ResidualBlock(in, out) of the Wan VAE (docs: wan_vae.md): residual =
+// ResidualBlock(in, out) of the Wan VAE (../shared/docs/wan_vae.md): residual =
 // [0] RMS_norm(in), [1] SiLU, [2] CausalConv3d(in,out,3), [3] RMS_norm(out),
 // [4] SiLU, [5] Dropout(0), [6] CausalConv3d(out,out,3); shortcut =
 // CausalConv3d(in,out,1) when in != out. Children are named "residual.{0,2,3,6}"

@@ -1,4 +1,4 @@
-// The Wan 2.1 video VAE (docs: wan_vae.md): encoder, the 1x1x1 `conv1`
+// The Wan 2.1 video VAE (../shared/docs/wan_vae.md): encoder, the 1x1x1 `conv1`
 // (2*z_dim -> 2*z_dim, after the encoder), `conv2` (z_dim -> z_dim, before the
 // decoder), decoder. Parameter names are the original checkpoint's
 // (weights.h maps the diffusers names onto them).

@@ -1,5 +1,5 @@
 // Width and depth of the Wan 2.1 VAE. The defaults are the pretrained model
-// (docs: wan_vae.md); small `dim` values give the same architecture for CPU tests.
+// (../shared/docs/wan_vae.md); small `dim` values give the same architecture for CPU tests.
 #pragma once
 #include <cstdint>
 #include <vector>

@@ -1,5 +1,5 @@
 // Checkpoint key names of the Wan 2.1 VAE. Our modules use the ORIGINAL names
-// (Wan2.1_VAE.pth); diffusers' AutoencoderKLWan renames them (docs: wan_vae.md,
+// (Wan2.1_VAE.pth); diffusers' AutoencoderKLWan renames them (../shared/docs/wan_vae.md,
 // Checkpoint key names). Keys outside the VAE (e.g. the scene decoder's
 // "adapter." and "heads.") are the same in both namings.
 #pragma once
