@@ -7,6 +7,7 @@
 #include <spdlog/spdlog.h>
 
 #include "flat/core/error.h"
+#include "flat/core/exception_text.h"
 #include "flat/data/frame_resize.h"
 #include "flat/data/scene_frames.h"
 #include "flat/data/scene_latents.h"
@@ -45,13 +46,14 @@ std::vector<std::string> scene_dirs(const std::string& root) {
 // Frames a scene needs: one latent window (its frames are the window), else one sampled window.
 int64_t frames_needed(const LoaderConfig& c) { return c.latents ? c.input_frames : window_span(c.views()); }
 
-// "17+ frames, latent set 176x320_f17 (17-frame windows at 176x320)"
+// "latent set 176x320_f17 (17-frame windows at 176x320: data.height x data.width,
+// data.input_frames) in scenes of 17+ frames", or "scenes of 17+ frames" without latents.
 std::string stage_needs(const LoaderConfig& c) {
-  return std::to_string(frames_needed(c)) + "+ frames" +
-         (c.latents ? ", latent set " + latent_set_key(c.height, c.width, c.input_frames) + " (" +
-                          std::to_string(c.input_frames) + "-frame windows at " + std::to_string(c.height) + "x" +
-                          std::to_string(c.width) + ")"
-                    : "");
+  const std::string frames = "scenes of " + std::to_string(frames_needed(c)) + "+ frames";
+  if (!c.latents) return frames;
+  return "latent set " + latent_set_key(c.height, c.width, c.input_frames) + " (" + std::to_string(c.input_frames) +
+         "-frame windows at " + std::to_string(c.height) + "x" + std::to_string(c.width) +
+         ": data.height x data.width, data.input_frames) in " + frames;
 }
 
 void log_dataset_report(const DatasetReport& r, const LoaderConfig& c) {
@@ -71,25 +73,96 @@ void log_dataset_report(const DatasetReport& r, const LoaderConfig& c) {
   if (r.bad) spdlog::warn("loader: dataset '{}': {} scenes left out: unreadable (skip_bad_scenes)", r.root, r.bad);
 }
 
+// Why a dataset's scenes were left out, beyond the report's counts: the
+// latent sets those scenes hold and the lengths of those too short, so that an
+// error can say what the data has next to what the stage asks for.
+struct LeftOut {
+  std::map<std::string, int64_t> sets;     // latent set -> left-out scenes holding it ("" = no latents)
+  std::map<int64_t, int64_t> short_frames;  // frames -> scenes too short for one window
+};
+
+std::string scenes_count(int64_t n, const std::string& one, const std::string& many) {
+  return std::to_string(n) + " " + (n == 1 ? one : many);
+}
+
+// "8x8_f5 (3 scenes), 16x16_f9 (1 scene), no latents (1 scene)"
+std::string held_sets(const LeftOut& l) {
+  std::string out;
+  for (const auto& [set, n] : l.sets)
+    out += (out.empty() ? "" : ", ") + (set.empty() ? std::string("no latents") : set) + " (" +
+           scenes_count(n, "scene", "scenes") + ")";
+  return out;
+}
+
+// One dataset's loss: what is left of it and why, with what its scenes hold.
+std::string dataset_loss(const DatasetReport& r, const LeftOut& l, const LoaderConfig& c) {
+  const std::string set = latent_set_key(c.height, c.width, c.input_frames);
+  std::string line = "\n  dataset '" + r.root + "' (weight " + fmt::format("{}", r.weight) + "): ";
+  line += r.used == 0 ? "no usable scene of " + std::to_string(r.found)
+                      : std::to_string(r.missing_set) + " of " + std::to_string(r.found) + " scenes lack the set";
+  std::vector<std::string> why;
+  if (r.missing_set) why.push_back(std::to_string(r.missing_set) + " without latent set " + set);
+  if (r.short_scenes) {
+    std::string lengths;
+    for (auto it = l.short_frames.rbegin(); it != l.short_frames.rend(); ++it)
+      lengths += (lengths.empty() ? "" : ", ") + std::to_string(it->second) + (it->second == 1 ? " has " : " have ") +
+                 std::to_string(it->first) + " frames";
+    why.push_back(std::to_string(r.short_scenes) + " shorter than the " + std::to_string(frames_needed(c)) +
+                  " frames one window spans (" + lengths + ")");
+  }
+  if (r.bad) why.push_back(std::to_string(r.bad) + " unreadable");
+  for (size_t i = 0; i < why.size(); ++i) line += (i ? "; " : ": ") + why[i];
+  if (c.latents && !l.sets.empty()) line += "; the scenes left out hold " + held_sets(l);
+  if (!r.example_missing.empty()) line += " (e.g. " + r.example_missing + ")";
+  return line;
+}
+
+// What makes the stage's data usable, for the datasets at fault.
+std::string remedy(const std::vector<const DatasetReport*>& lost, const LoaderConfig& c) {
+  bool missing = false, too_short = false;
+  std::string roots;
+  for (const auto* r : lost) {
+    missing = missing || r->missing_set > 0;
+    too_short = too_short || r->short_scenes > 0;
+    if (r->missing_set > 0) roots += " " + r->root;
+  }
+  std::string out;
+  if (missing)
+    out += "\nMake the set: flat_latents --configs <this stage's config> (every set the config needs), or "
+           "flat_latents --scenes" + roots + " --size " + std::to_string(c.height) + "x" + std::to_string(c.width) +
+           " --window " + std::to_string(c.input_frames) +
+           " with your VAE weights; or give data.height, data.width and data.input_frames of a set the scenes hold.";
+  if (too_short)
+    out += "\nScenes shorter than a window give no sample, whatever their latents: use scenes of " +
+           std::to_string(frames_needed(c)) + "+ frames or a shorter window (data.input_frames" +
+           (c.latents ? ", of a set the scenes hold" : "") + ").";
+  return out;
+}
+
 // A mixture that silently loses a dataset trains on another distribution: with
 // incomplete_datasets: fail that stops the run, naming every dataset at fault.
-void check_dataset_reports(const std::vector<DatasetReport>& reports, const LoaderConfig& c) {
-  std::string lost;
-  for (const auto& r : reports) {
-    if (r.weight > 0 && r.used == 0)
-      lost += "\n  dataset '" + r.root + "' (weight " + std::to_string(r.weight) + "): no usable scene of " +
-              std::to_string(r.found) + " (" + std::to_string(r.short_scenes) + " too short, " +
-              std::to_string(r.missing_set) + " without the latent set, " + std::to_string(r.bad) + " unreadable)";
-    else if (r.missing_set && c.incomplete_datasets == "fail")
-      lost += "\n  dataset '" + r.root + "': " + std::to_string(r.missing_set) + " of " + std::to_string(r.found) +
-              " scenes lack the latent set (e.g. " + r.example_missing + ")";
+// With no usable scene anywhere the run stops in either mode. Every message
+// carries what the stage needs and what the scenes hold (not only the log).
+void check_dataset_reports(const std::vector<DatasetReport>& reports, const std::vector<LeftOut>& left_out,
+                           const LoaderConfig& c) {
+  std::string lines;
+  std::vector<const DatasetReport*> lost;
+  bool any_used = false;
+  for (size_t i = 0; i < reports.size(); ++i) {
+    const auto& r = reports[i];
+    if (r.weight > 0 && r.used > 0) any_used = true;
+    if ((r.weight > 0 && r.used == 0) || (r.missing_set && c.incomplete_datasets == "fail")) {
+      lines += dataset_loss(r, left_out[i], c);
+      lost.push_back(&r);
+    }
   }
+  const std::string needs = "this stage needs " + stage_needs(c) + ":";
+  if (!any_used)
+    fail("loader: no usable scenes in any dataset with a positive weight: " + needs + lines + remedy(lost, c));
   if (lost.empty()) return;
-  const std::string what = "loader: the stage needs " + stage_needs(c) + ":" + lost;
+  const std::string what = "loader: " + needs + lines + remedy(lost, c);
   if (c.incomplete_datasets == "fail")
-    fail(what + "\n(data.incomplete_datasets: fail; flat_latents --size " + std::to_string(c.height) + "x" +
-         std::to_string(c.width) + " --window " + std::to_string(c.input_frames) +
-         " makes the set, or set data.incomplete_datasets: warn to train on what is there)");
+    fail(what + "\n(data.incomplete_datasets: fail; set data.incomplete_datasets: warn to train on what is there)");
   spdlog::warn("{}\nThe mixture changes: the other datasets' weights are renormalised "
                "(data.incomplete_datasets: fail stops instead)", what);
 }
@@ -115,7 +188,9 @@ Loader::Loader(LoaderConfig config, int64_t start_batch, int64_t rank, int64_t w
              "loader: rank " + std::to_string(rank) + " of world size " + std::to_string(world_size) + " is invalid");
   FLAT_CHECK(start_batch >= 0, "loader: start batch " + std::to_string(start_batch) + " is negative");
   next_claim_ = next_give_ = start_batch;
+  std::vector<LeftOut> left_out;
   for (const auto& src : config_.datasets) {
+    LeftOut l;
     Dataset d;
     d.root = src.root;
     d.weight = src.weight;
@@ -134,13 +209,21 @@ Loader::Loader(LoaderConfig config, int64_t start_batch, int64_t rank, int64_t w
         continue;
       }
       // Scenes that cannot give a sample of this stage are left out and counted by reason.
-      if (scene->size() < frames_needed(config_)) {
+      const bool too_short = scene->size() < frames_needed(config_);
+      const bool lacks_set =
+          !too_short && config_.latents && !find_latent_set(*scene, config_.height, config_.width, config_.input_frames);
+      if (too_short || lacks_set) {
+        if (scene->latent_sets.empty()) ++l.sets[""];
+        for (const auto& set : scene->latent_sets) ++l.sets[latent_set_key(set)];
+      }
+      if (too_short) {
         ++r.short_scenes;
+        ++l.short_frames[scene->size()];
         continue;
       }
       if (config_.latents) {
         // The set of this stage's size and window; the scene's other sets are not read.
-        if (!find_latent_set(*scene, config_.height, config_.width, config_.input_frames)) {
+        if (lacks_set) {
           ++r.missing_set;
           ++r.other_sets[latent_set_list(*scene)];
           if (r.example_missing.empty()) r.example_missing = dir;
@@ -155,14 +238,12 @@ Loader::Loader(LoaderConfig config, int64_t start_batch, int64_t rank, int64_t w
     r.used = int64_t(d.scenes.size());
     log_dataset_report(r, config_);
     reports_.push_back(r);
+    left_out.push_back(std::move(l));
     datasets_.push_back(std::move(d));
   }
-  check_dataset_reports(reports_, config_);
+  check_dataset_reports(reports_, left_out, config_);
   double total = 0;
   for (const auto& d : datasets_) total += d.scenes.empty() ? 0 : d.weight;
-  if (total <= 0)
-    fail("loader: no usable scenes in any dataset with a positive weight (the stage asks for " +
-         stage_needs(config_) + "; see the per-dataset lines above)");
   double acc = 0;
   for (const auto& d : datasets_) {
     acc += d.scenes.empty() ? 0 : d.weight / total;
@@ -263,7 +344,7 @@ Sample Loader::sample(int64_t index) {
     try {
       return load_sample(scene, rng);
     } catch (const std::exception& e) {
-      const std::string why = e.what();
+      const std::string why = exception_text(e);
       if (!config_.skip_bad_scenes) fail("loader: scene '" + scene.name + "' (" + scene.dir + "): " + why);
       mark_bad(scene.dir, why);
     }

@@ -14,6 +14,7 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
+#include "flat/core/exception_text.h"
 #include "flat/core/log.h"
 #include "flat/core/progress.h"
 #include "flat/data/scene.h"
@@ -211,8 +212,8 @@ EvalRunSummary run_evaluation(const EvalRunOptions& o) {
         score = SceneScore{};
         score.scene = fs::path(ref.dir).filename().string();
         score.dir = ref.dir;
-        score.error = e.what();
-        spdlog::warn("{}: failed: {}", ref.dir, e.what());
+        score.error = exception_text(e);  // a libtorch error without its stack trace
+        spdlog::warn("{}: failed: {}", ref.dir, score.error);
       }
       score.dataset = ref.dataset;
       write_file_atomic(file, score_to_json(score).dump(2) + "\n");

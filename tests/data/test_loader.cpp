@@ -459,3 +459,43 @@ TEST_CASE("loader: a mixture losing a dataset's scenes is named per dataset, and
   c.width = 32;
   REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("32x32_f9") && FLAT_CONTAINS("no usable scenes"));
 }
+
+// Issue #45: a stage whose size or window differs from the scenes' latents
+// stopped with "no usable scenes in any dataset with a positive weight" alone.
+// The error itself now says which set the stage needs, which sets the scenes
+// hold (with counts) and what makes the set, in both incomplete_datasets modes.
+TEST_CASE("loader: a stage whose size or window the scenes' latents lack names the set it needs, the sets they hold "
+          "and the command that makes it",
+          "[data][loader]") {
+  auto root = make_dataset("loader_stage_mismatch", 3, 9);
+  for (const char* s : {"s0", "s1", "s2"}) add_set(root / s, 8, 8, 5, 1.0f);
+  add_set(root / "s2", 16, 16, 9, 2.0f);
+  auto c = tiny_config(root);
+  c.workers = 0;
+  c.latents = true;
+  c.target_views = 4;
+  for (const std::string mode : {"warn", "fail"}) {
+    INFO("incomplete_datasets: " << mode);
+    c.incomplete_datasets = mode;
+    // Another size (data.height): 16x8_f5 is needed; 3 scenes hold 8x8_f5, 1 holds 16x16_f9.
+    c.height = 16;
+    c.width = 8;
+    c.input_frames = 5;
+    REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("no usable scene") && FLAT_CONTAINS("latent set 16x8_f5") &&
+                                             FLAT_CONTAINS("8x8_f5 (3 scenes)") &&
+                                             FLAT_CONTAINS("16x16_f9 (1 scene)") && FLAT_CONTAINS(root.string()) &&
+                                             FLAT_CONTAINS("flat_latents --configs") &&
+                                             FLAT_CONTAINS("--size 16x8 --window 5"));
+    // Another window the scenes are long enough for (data.input_frames): 8x8_f9 is needed.
+    c.height = 8;
+    c.input_frames = 9;
+    REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("latent set 8x8_f9") && FLAT_CONTAINS("8x8_f5 (3 scenes)") &&
+                                             FLAT_CONTAINS("flat_latents --configs"));
+    // A window longer than the scenes (data.input_frames 13 on 9-frame scenes): their
+    // length and the sets they hold, and that a set alone does not help.
+    c.input_frames = 13;
+    REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("latent set 8x8_f13") && FLAT_CONTAINS("3 have 9 frames") &&
+                                             FLAT_CONTAINS("8x8_f5 (3 scenes)") &&
+                                             FLAT_CONTAINS("data.input_frames"));
+  }
+}
