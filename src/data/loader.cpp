@@ -127,7 +127,11 @@ std::string remedy(const std::vector<const DatasetReport*>& lost, const LoaderCo
     if (r->missing_set > 0) roots += " " + r->root;
   }
   std::string out;
-  if (missing)
+  if (missing && (c.height % 8 != 0 || c.width % 8 != 0))
+    out += "\nNo latent set can be " + std::to_string(c.height) + "x" + std::to_string(c.width) +
+           ": latents are made at multiples of 8 (the VAE's stride); give data.height and data.width of a set the "
+           "scenes hold.";
+  else if (missing)
     out += "\nMake the set: flat_latents --configs <this stage's config> (every set the config needs), or "
            "flat_latents --scenes" + roots + " --size " + std::to_string(c.height) + "x" + std::to_string(c.width) +
            " --window " + std::to_string(c.input_frames) +

@@ -491,6 +491,12 @@ TEST_CASE("loader: a stage whose size or window the scenes' latents lack names t
     c.input_frames = 9;
     REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("latent set 8x8_f9") && FLAT_CONTAINS("8x8_f5 (3 scenes)") &&
                                              FLAT_CONTAINS("flat_latents --configs"));
+    // A size no latent set can have (not a multiple of 8): said instead of a command that would refuse it.
+    c.height = 12;
+    c.input_frames = 5;
+    REQUIRE_THROWS_WITH(data::Loader(c), FLAT_CONTAINS("latent set 12x8_f5") && FLAT_CONTAINS("multiples of 8") &&
+                                             FLAT_CONTAINS("8x8_f5 (3 scenes)"));
+    c.height = 8;
     // A window longer than the scenes (data.input_frames 13 on 9-frame scenes): their
     // length and the sets they hold, and that a set alone does not help.
     c.input_frames = 13;
