@@ -19,6 +19,9 @@ struct DocCommand {
   std::string tool;                // e.g. flat_bench
   std::vector<std::string> args;   // the words after the tool, quotes removed
   std::string text;                // the command line as written (joined), for messages
+  // A fenced line of flags alone ("  --mode streaming|full  --device cpu|cuda")
+  // under a command: the flags of that tool, of whichever subcommand.
+  bool flags_only = false;
 };
 
 // A word of a shell line: its text with quotes removed, and whether any of
@@ -153,6 +156,30 @@ inline std::vector<DocCommand> extract_commands(const std::string& markdown, con
     }
     para.clear();
   };
+  // A logical line of a fenced block; one that starts with a flag lists flags
+  // of the block's last tool (no shell command starts with --).
+  std::string fence_tool;
+  auto fenced_line = [&](const std::string& line, int line_no) {
+    const size_t first = line.find_first_not_of(" \t");
+    if (first != std::string::npos && line.compare(first, 2, "--") == 0 && !fence_tool.empty()) {
+      const auto cmds = split_shell(line);
+      DocCommand c;
+      c.line = line_no;
+      c.tool = fence_tool;
+      c.flags_only = true;
+      c.text = fence_tool + " ...";
+      for (const auto& cmd : cmds)  // a | here separates values (fp32|bf16), not commands
+        for (const auto& w : cmd) {
+          c.args.push_back(w.text);
+          c.text += " " + w.text;
+        }
+      out.push_back(c);
+      return;
+    }
+    const size_t before = out.size();
+    commands_in_line(line, line_no, tools, out);
+    if (out.size() > before) fence_tool = out.back().tool;
+  };
   bool in_fence = false, skip_fence = false;
   std::string fence_marker;
   std::string pending;  // a fenced line continued with a backslash
@@ -166,6 +193,7 @@ inline std::vector<DocCommand> extract_commands(const std::string& markdown, con
     if (!in_fence && is_marker) {
       flush_paragraph();
       in_fence = true;
+      fence_tool.clear();
       fence_marker = body.substr(0, 3);
       const size_t info = body.find_first_not_of(fence_marker[0]);
       std::string lang = info == std::string::npos ? "" : body.substr(info);
@@ -177,7 +205,7 @@ inline std::vector<DocCommand> extract_commands(const std::string& markdown, con
     if (in_fence) {
       if (body.rfind(fence_marker, 0) == 0 && body.find_first_not_of(fence_marker[0]) == std::string::npos) {
         in_fence = false;
-        if (!pending.empty()) commands_in_line(pending, pending_line, tools, out);
+        if (!pending.empty()) fenced_line(pending, pending_line);
         pending.clear();
         continue;
       }
@@ -188,7 +216,7 @@ inline std::vector<DocCommand> extract_commands(const std::string& markdown, con
         continue;
       }
       pending += l;
-      commands_in_line(pending, pending_line, tools, out);
+      fenced_line(pending, pending_line);
       pending.clear();
       continue;
     }

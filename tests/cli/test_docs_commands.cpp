@@ -105,6 +105,12 @@ std::vector<std::string> check_command(const std::string& file, const DocCommand
   std::vector<const HelpInfo*> scope = {&h.top};
   std::string scope_name = c.tool;
   bool sub_chosen = h.subs.empty();
+  if (c.flags_only && !sub_chosen) {  // a line of flags under a command: any subcommand's
+    scope.clear();
+    for (const auto& s : h.subs) scope.push_back(&s.second);
+    scope_name = c.tool + " <subcommand>";
+    sub_chosen = true;
+  }
   for (size_t i = 0; i < c.args.size(); ++i) {
     const std::string& a = c.args[i];
     const std::vector<std::string> flags = flags_of(a);
@@ -233,13 +239,14 @@ TEST_CASE("docs commands: extraction from fences, continuations, comments, pipes
       "CUDA_VISIBLE_DEVICES=0 torchrun --nproc-per-node 8 --no-python flat_train --nproc 2\n"
       "srun bash -c 'X=1 flat_eval --model m'\n"
       "flat_test_train \"[cli]\"   # not a tool\n"
+      "  --precision fp32|bf16  --repeats 3   # flags of the last tool above\n"
       "```\n"
       "\n"
       "```json\n"
       "{\"cmd\": \"flat_train --json\"}\n"
       "```\n";
   const auto cmds = extract_commands(md, tools);
-  REQUIRE(cmds.size() == 6);
+  REQUIRE(cmds.size() == 7);
   CHECK(cmds[0].tool == "flat_train");
   CHECK(cmds[0].line == 1);
   CHECK(cmds[0].args == std::vector<std::string>{"--config", "a.yaml", "--set", "x=1"});  // across the line break
@@ -251,6 +258,10 @@ TEST_CASE("docs commands: extraction from fences, continuations, comments, pipes
   CHECK(cmds[4].args == std::vector<std::string>{"--nproc", "2"});                         // after the launcher
   CHECK(cmds[5].tool == "flat_eval");                                                     // inside bash -c '...'
   CHECK(cmds[5].line == 9);
+  CHECK(cmds[6].tool == "flat_eval");  // the block's last tool
+  CHECK(cmds[6].flags_only);
+  CHECK(cmds[6].args == std::vector<std::string>{"--precision", "fp32", "bf16", "--repeats", "3"});
+  CHECK(!cmds[0].flags_only);
 
   CHECK(flag_of("--size=16x24") == "--size");
   CHECK(flag_of("[--remove-files]") == "--remove-files");
@@ -291,6 +302,16 @@ TEST_CASE("docs commands: the check names the file, line and flag of a flag --he
   CHECK(problems_of("fake --count 2 run").size() == 1);  // a subcommand's flag before the subcommand
   CHECK_THAT(problems_of("fake walk --count 2")[0], FLAT_CONTAINS("fake has no subcommand walk"));
   CHECK(problems_of("fake run --scenes/--folders a").empty());  // alternatives, each listed
+  {
+    // A line of flags under a command: any subcommand's flags pass, others fail.
+    const auto cmds = extract_commands("```\nfake run --count 1\n  --scenes a --count 2\n  --dtype bf16\n```\n", {"fake"});
+    REQUIRE(cmds.size() == 3);
+    CHECK(check_command("docs/x.md", cmds[1], helps, keys).empty());
+    const auto stale_line = check_command("docs/x.md", cmds[2], helps, keys);
+    REQUIRE(stale_line.size() == 1);
+    CHECK_THAT(stale_line[0], FLAT_CONTAINS("docs/x.md:4:"));
+    CHECK_THAT(stale_line[0], FLAT_CONTAINS("has no --dtype"));
+  }
   CHECK(problems_of("fake run --scenes/--scene a").size() == 1);
   // --set takes full key paths (a list whole, or an element by index); $KEY is not checked.
   CHECK(problems_of("fake run --set steps=4 --set=data.datasets[0].root=x --set data.datasets=[]").empty());
