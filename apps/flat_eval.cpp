@@ -13,10 +13,12 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/cli.h"
+#include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/shape.h"
 #include "flat/eval/evaluation_run.h"
+#include "flat/pipeline/scene_pipeline.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"flat_eval: Table-1 metrics of a trained decoder over scene folders, or a comparison of runs"};
@@ -29,7 +31,7 @@ int main(int argc, char** argv) {
   app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors");
   app.add_option("--scenes", o.datasets, "NAME=FOLDER (or FOLDER, or a list file); repeat per dataset")->take_all();
   app.add_option("--out", o.out_dir, "output folder (resumable; reuse it to continue)");
-  app.add_option("--name", o.name, "the method's label in the table (default: the run folder's name)");
+  app.add_option("--name", o.name, "the method's name in the table (default: the run folder's name)");
   // Checked at parse time: a bad value is a usage error (exit 2), not a failure of every scene.
   app.add_option("--views", o.settings.views, "scene | window | unseen")
       ->check(CLI::IsMember({"scene", "window", "unseen"}))
@@ -39,7 +41,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--latent-set", o.settings.latent_set,
                  "which latent set of each scene, HxW_fF (e.g. 176x320_f17; default: each scene's only set)");
-  app.add_option("--window", o.settings.window, "which latent window of each scene decodes it")
+  app.add_option("--window", o.settings.window, "which latent window (of frames) of each scene decodes it")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   app.add_option("--size", size, "render and compare at HxW (default: the latents' frame size)");
@@ -48,7 +50,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
-  app.add_option("--set", o.overrides, "override a pipeline key: --set prune_opacity=0.4")->take_all();
+  flat::cli::add_set(app, o.overrides, "pipeline.prune_opacity=0.4");
   flat::cli::add_device(app, o.device);
   int threads = 0;
   flat::cli::add_threads(app, threads);
@@ -62,8 +64,11 @@ int main(int argc, char** argv) {
   app.add_flag("--overwrite", overwrite, "--compare: replace an existing --out-table file");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   flat::cli::apply_threads(threads);
-  try {
+  return flat::cli::run([&] {
     flat::setup_logging(o.log_level);
+    // Full key paths, as flat_train's; the model's config is the pipeline section.
+    o.overrides = flat::cli::section_overrides(o.overrides, "pipeline",
+                                               flat::config::to_yaml(flat::pipeline::PipelineConfig{}), "flat_eval");
     if (!compare.empty()) {
       if (!o.model.empty() || !o.datasets.empty()) {
         std::cerr << "flat_eval: --compare reads earlier results; it takes no --model or --scenes\n";
@@ -98,7 +103,5 @@ int main(int argc, char** argv) {
               << " reused from earlier runs, " << s.failed << " failed -> " << s.out_dir
               << "/{table.md,results.json,scenes.csv}\n";
     return s.failed == s.scenes ? 1 : 0;
-  } catch (...) {
-    return flat::report_current_error();
-  }
+  });
 }

@@ -12,10 +12,12 @@
 #include <CLI/CLI.hpp>
 
 #include "flat/core/cli.h"
+#include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
 #include "flat/core/shape.h"
 #include "flat/infer/inference.h"
+#include "flat/pipeline/scene_pipeline.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"flat_infer: latents -> triangle scene (PLY, GLB), renders, videos and a browser viewer"};
@@ -26,19 +28,21 @@ int main(int argc, char** argv) {
   bool full_sequence = false, no_ply = false, no_glb = false, no_renders = false, no_video = false, no_viewer = false;
   app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors")->required();
   app.add_option("--scene", o.input.scene_dir, "scene folder with precomputed latents (flat_latents)");
-  app.add_option("--window", o.input.window, "which latent window of --scene")->capture_default_str();
+  app.add_option("--window", o.input.window, "which latent window (of frames) of --scene")->capture_default_str();
   app.add_option("--latent-set", o.input.latent_set,
                  "which latent set of --scene, HxW_fF (e.g. 176x320_f17; default: the scene's only set)");
   app.add_option("--latents", o.input.latents_file, "latent file: 'video' (16,T',h,w) [+ 'camera' (32,T',h,w)]");
   app.add_option("--cameras", o.input.cameras_file, "the latents' trajectory: cameras JSON with 1+4(T'-1) cameras");
-  app.add_option("--vae", o.input.vae_weights, "Wan VAE weights, to encode camera latents the latent file lacks");
+  app.add_option("--vae", o.input.vae_weights,
+                 "Wan 2.1 VAE weights (.safetensors or a diffusers folder), to encode camera latents the latent file "
+                 "lacks");
   app.add_option("--out", o.out_dir,
                  "output folder (must not exist unless --overwrite); built in <out>.incomplete-<pid>, which a killed "
                  "run leaves and the next run on the same --out removes")
       ->required();
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
   app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
-  app.add_option("--set", o.overrides, "override a pipeline key: --set raster.window=ts")->take_all();
+  flat::cli::add_set(app, o.overrides, "pipeline.raster.window=ts");
   flat::cli::add_device(app, o.device);
   int threads = 0;
   flat::cli::add_threads(app, threads);
@@ -61,8 +65,11 @@ int main(int argc, char** argv) {
   app.add_flag("--no-viewer", no_viewer, "skip the browser viewer");
   if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   flat::cli::apply_threads(threads);
-  try {
+  return flat::cli::run([&] {
     flat::setup_logging(o.log_level);
+    // Full key paths, as flat_train's; the model's config is the pipeline section.
+    o.overrides = flat::cli::section_overrides(o.overrides, "pipeline",
+                                               flat::config::to_yaml(flat::pipeline::PipelineConfig{}), "flat_infer");
     o.streaming = !full_sequence;
     o.novel.preset = novel;
     o.ply = !no_ply;
@@ -91,7 +98,5 @@ int main(int argc, char** argv) {
     auto summary = flat::infer::run_inference(o);
     std::cout << flat::infer::format_summary(summary);
     return 0;
-  } catch (...) {
-    return flat::report_current_error();
-  }
+  });
 }

@@ -40,7 +40,7 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile)
       ->take_all();
   app.add_option("--resume", resume_dir, "continue the run in this folder from its newest checkpoint");
-  app.add_option("--set", overrides, "override a key: --set steps=500 --set optim.lr=2e-4")->take_all();
+  flat::cli::add_set(app, overrides, "steps=500 --set optim.lr=2e-4 --set pipeline.prune_opacity=0.4");
   app.add_flag("--overwrite", overwrite,
                "start afresh in a run_dir that holds a run (replaced only once the new run has loaded everything; "
                "a folder that is not a run folder is refused)");
@@ -48,19 +48,17 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   app.add_option("--device", device, "auto | cpu | cuda: overrides the config's device (auto = cuda when present)")
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
-  app.add_option("--precision", precision, "fp32 | bf16: overrides the config's precision")
+  app.add_option("--precision", precision, "compute dtype: fp32 | bf16: overrides the config's precision")
       ->check(CLI::IsMember({"fp32", "bf16"}));
+  int threads = 0;
+  auto* threads_option = app.add_option("--threads", threads, "CPU threads (0: every core): overrides the config's threads")
+                             ->check(CLI::Range(0, 4096));
   app.add_option("--nproc", nproc, "data-parallel: start N worker processes on this host (one per GPU)")
       ->check(CLI::Range(1, 1024));
   app.add_flag("--print-config", print_config, "print the effective config and exit");
   app.add_flag("--help-config", help_config, "print every config key with its default and meaning");
   app.set_version_flag("--version", std::string("flat_train ") + flat::cli::kVersion);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
-  }
-  flat::cli::restart_with_sleeping_openmp_threads(argv);
+  if (int rc = flat::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     flat::setup_logging(log_level.empty() ? "info" : log_level);
     if (help_config) {
@@ -70,6 +68,7 @@ int main(int argc, char** argv) {
     if (!log_level.empty()) overrides.push_back("log.level=" + log_level);
     if (!device.empty()) overrides.push_back(std::string("device=") + (flat::cli::resolve_device(device).is_cuda() ? "cuda" : "cpu"));
     if (!precision.empty()) overrides.push_back("precision=" + precision);
+    if (threads_option->count() > 0) overrides.push_back("threads=" + std::to_string(threads));
     if (resume_dir.empty() == config_files.empty()) {
       std::cerr << "flat_train: give exactly one of --config FILE (a new run, e.g. configs/tiny/stage1.yaml) or "
                    "--resume RUN_DIR\n";

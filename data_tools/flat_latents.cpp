@@ -5,8 +5,8 @@
 // committed when encoded, resumable, a bad scene reported and skipped.
 //
 //   flat_latents --configs configs/stage1.yaml configs/stage2.yaml configs/stage3.yaml configs/stage4.yaml
-//                --weights Wan2.1_VAE.safetensors --device cuda --precision bf16      (every stage's sets)
-//   flat_latents --scenes data/re10k --weights Wan2.1_VAE.safetensors --window 17 --size 176x320
+//                --vae Wan2.1_VAE.safetensors --device cuda --precision bf16      (every stage's sets)
+//   flat_latents --scenes data/re10k --vae Wan2.1_VAE.safetensors --window 17 --size 176x320
 //   flat_latents --scenes data/synth --vae runs/vae/vae.safetensors       # a VAE trained by flat_train (task: vae)
 //   flat_latents --scenes data/synth --random-weights --seed 0 --dim 8   # pipeline tests only
 //   CUDA_VISIBLE_DEVICES=k flat_latents ... --shard k/N                  # one process per GPU
@@ -67,7 +67,7 @@ std::vector<latents::LatentSetSpec> requested_sets(const Options& o) {
 int run(Options& o, PendingLog& log) {
   auto& e = o.encode.encoder;
   if (e.random_weights == !e.weights.empty())
-    throw cli::UsageError("flat_latents: give exactly one of --weights FILE or --random-weights");
+    throw cli::UsageError("flat_latents: give exactly one of --vae FILE or --random-weights");
   if (!e.weights.empty() && e.dim != 0) throw cli::UsageError("flat_latents: --dim applies only to --random-weights");
   if (!o.shard.empty()) {
     try {
@@ -135,11 +135,14 @@ int main(int argc, char** argv) {
                  "override a key of each of --configs after the overlays, full key path as flat_train's --set: "
                  "--set 'data.datasets=[{root: data/mine}]'")
       ->take_all();
-  app.add_option("--weights,--vae", e.weights,
+  app.add_option("--vae", e.weights,
                  "Wan 2.1 VAE weights: .safetensors (Wan or diffusers naming), a diffusers folder, or the "
                  "vae.safetensors of a flat_train VAE stage (its width is read from the file)");
-  app.add_option("--weights-prefix", e.weights_prefix, "strip this prefix from the file's keys (default: detected)");
-  app.add_flag("--random-weights", e.random_weights, "random encoder (pipeline tests only; recorded as such)");
+  app.add_option("--vae-prefix", e.weights_prefix, "strip this prefix from the --vae file's keys (default: detected)");
+  cli::add_old_name(app, "--weights", "--vae");
+  cli::add_old_name(app, "--weights-prefix", "--vae-prefix");
+  app.add_flag("--random-weights", e.random_weights,
+               "random encoder weights instead of --vae (pipeline tests only; recorded as such)");
   app.add_option("--seed", e.seed, "seed for --random-weights (and the spread sample)");
   app.add_option("--dim", e.dim, "base width of --random-weights (default 96, as Wan 2.1)")->check(CLI::PositiveNumber);
   app.add_option("--window", o.window, "frames per latent window, 1+4k (17 or 49)")->capture_default_str();
@@ -147,7 +150,7 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--size", o.size, "frame size HxW to encode at (multiples of 8; default: the scene's, floored to 8)");
   app.add_flag("--overwrite", o.encode.overwrite,
-               "re-encode sets that exist (without it a scene's existing set is kept when made the same way, and "
+               "replace (re-encode) sets that exist (without it a scene's existing set is kept when made the same way, and "
                "reported when made another way); other sets are never touched");
   app.add_option("--shard", o.shard, "K/N: encode only the scenes K, K+N, ... of the sorted list (one process per GPU)");
   app.add_option("--spread-sample", o.encode.spread_sample,
@@ -161,7 +164,7 @@ int main(int argc, char** argv) {
   int threads = 0;
   cli::add_threads(app, threads);
   cli::add_precision(app, e.precision);
-  app.add_option("--dtype", e.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
+  cli::add_old_name(app, "--dtype", "--precision");
   cli::add_store(app, e.store);
   app.add_option("--camera-rays", o.camera_rays,
                  "camera latents to write: rppc (the paper), or rppc,plucker (also Plucker-ray latents, for the "

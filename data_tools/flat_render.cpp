@@ -52,10 +52,10 @@ int run(int argc, char** argv) {
   app.add_option("--cameras", cams_path, "cameras JSON (docs/formats.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--out", out_dir, "output folder (must not exist unless --overwrite)")->required();
   app.add_flag("--overwrite", overwrite, "replace an existing output folder (only once the new one is complete)");
-  app.add_option("--format", format, "png | exr | safetensors (png: rgb/alpha 8-bit, depth/normal need exr)")
+  app.add_option("--format", format, "output format: png | exr | safetensors (png: rgb/alpha 8-bit, depth/normal need exr)")
       ->check(CLI::IsMember({"png", "exr", "safetensors"}));
-  app.add_option("--window", window, "window function: flat (paper) | ts (Triangle Splatting)")
-      ->check(CLI::IsMember({"flat", "ts"}));
+  flat::cli::add_window_fn(app, window);
+  flat::cli::add_old_name(app, "--window", "--window-fn");
   app.add_option("--eps", eps, "FLAT window support beyond each edge, in inradii")->check(CLI::Range(0.0, 1.0));
   app.add_option("--background", background, "background colour r,g,b in [0,1]");
   flat::cli::add_device(app, device);

@@ -1,6 +1,6 @@
 // flat_synth: deterministic synthetic scenes with exact RGB, metric depth and
 // camera-space normals, ray cast from analytic shapes (docs/data_tools.md).
-//   flat_synth --out DIR --scenes 8 --seed 0 --family room --frames 49 --size 176x320 --motion mixed
+//   flat_synth --out DIR --count 8 --seed 0 --family room --frames 49 --size 176x320 --motion mixed
 // Scenes are named <family>_<index>; an existing scene of the batch is refused
 // before anything is rendered (never mixed with a new one) unless --overwrite,
 // and --first-index continues the numbering of an earlier batch.
@@ -34,7 +34,8 @@ int main(int argc, char** argv) {
   flat::data::SynthOptions o;
   flat::cli::add_common(app, "flat_synth", log_level);
   app.add_option("--out", out, "output folder (one sub-folder per scene, <family>_<index>)")->required();
-  app.add_option("--scenes", scenes, "number of scenes")->check(CLI::PositiveNumber);
+  app.add_option("--count", scenes, "number of scenes (export mode: of clips or scenes)")->check(CLI::PositiveNumber);
+  flat::cli::add_old_name(app, "--scenes", "--count");
   app.add_option("--first-index", first, "index of the first scene (continue an earlier batch in the same folder)")
       ->check(CLI::NonNegativeNumber);
   flat::cli::add_threads(app, threads);
@@ -48,10 +49,9 @@ int main(int argc, char** argv) {
   std::string format;
   bool no_truth = false;
   app.add_option("--format", format,
-                 "export mode: write the rooms as RealEstate10K clips (re10k) or DL3DV/nerfstudio scenes (dl3dv) "
-                 "under --out, with manifest.json and the metric truth (docs/data_tools.md)")
+                 "export mode, the format written: the rooms as RealEstate10K clips (re10k) or DL3DV/nerfstudio "
+                 "scenes (dl3dv) under --out, with manifest.json and the metric truth (docs/data_tools.md)")
       ->check(CLI::IsMember({"re10k", "dl3dv"}));
-  auto* count_opt = app.add_option("--count", x.count, "export mode: number of clips/scenes")->check(CLI::PositiveNumber);
   auto* unit_opt = app.add_option("--unit", x.unit, "export mode: metres per written unit of translation and depth "
                                                     "(import with --scale UNIT to restore metres)")
                        ->check(CLI::PositiveNumber);
@@ -64,12 +64,12 @@ int main(int argc, char** argv) {
     if (!flat::parse_size(size, o.height, o.width))
       throw flat::cli::UsageError("flat_synth: --size must be HxW (e.g. 176x320), got '" + size + "'");
     if (format.empty()) {
-      for (auto* opt : {count_opt, unit_opt, corrupt_opt, truth_opt})
+      for (auto* opt : {unit_opt, corrupt_opt, truth_opt})
         if (opt->count()) throw flat::cli::UsageError("flat_synth: " + opt->get_name() + " needs --format re10k|dl3dv");
     } else {
-      if (app.count("--scenes") || app.count("--first-index"))
-        throw flat::cli::UsageError("flat_synth: --format exports --count clips; --scenes and --first-index are for "
-                                    "scene folders");
+      if (app.count("--first-index"))
+        throw flat::cli::UsageError("flat_synth: --format exports --count clips; --first-index is for scene folders");
+      x.count = scenes;
       if (x.corrupt > x.count)
         throw flat::cli::UsageError("flat_synth: --corrupt " + std::to_string(x.corrupt) + " exceeds --count " +
                                     std::to_string(x.count));
@@ -107,7 +107,7 @@ int main(int argc, char** argv) {
       return std::string(name);
     };
     // Refuse up front: a second batch must not replace the first one's scenes halfway.
-    // One listing of --out, not a look-up per scene (--scenes 100000000 would stat for minutes).
+    // One listing of --out, not a look-up per scene (--count 100000000 would stat for minutes).
     std::vector<std::string> existing;
     std::error_code ec;
     if (fs::is_directory(out, ec))

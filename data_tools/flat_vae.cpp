@@ -1,13 +1,13 @@
 // flat_vae: encode videos to Wan 2.1 latents and decode latents to videos.
 //
-//   flat_vae encode --weights Wan2.1_VAE.safetensors --in frames/ --out latents.safetensors
-//   flat_vae decode --weights Wan2.1_VAE.safetensors --in latents.safetensors --out video.safetensors
+//   flat_vae encode --vae Wan2.1_VAE.safetensors --in frames/ --out latents.safetensors
+//   flat_vae decode --vae Wan2.1_VAE.safetensors --in latents.safetensors --out video.safetensors
 //
 // encode: --in is an image folder (sorted by name) or a safetensors file with
 // tensor `video` (B,3,F,H,W) in [-1,1]; writes `latent` (B,16,T',H/8,W/8), the
 // normalised mean. decode: reads `latent`, writes `video` (B,3,F,H,W) in [-1,1]
 // to a .safetensors file, or PNG frames (B=1) to a folder. Weights in the
-// original Wan or the diffusers naming are detected; --random-weights --seed S
+// original Wan or the diffusers naming are detected (--vae); --random-weights --seed S
 // runs without a checkpoint. Outputs record in their metadata whether the
 // weights were pretrained or random. An existing output is refused (before any
 // work) unless --overwrite; a frame folder appears whole or not at all.
@@ -42,13 +42,17 @@ struct Options {
 };
 
 void add_common(CLI::App* cmd, Options& o) {
-  cmd->add_option("--weights,--vae", o.weights,
+  cmd->add_option("--vae", o.weights,
                   "VAE weights: .safetensors (Wan or diffusers naming), a diffusers folder, or the vae.safetensors "
                   "of a flat_train VAE stage (the width is read from the file)");
-  cmd->add_option("--weights-prefix", o.weights_prefix, "strip this prefix from the file's keys (default: detected)");
-  cmd->add_flag("--random-weights", o.random_weights, "use randomly initialised weights (testing without a checkpoint)");
+  cmd->add_option("--vae-prefix", o.weights_prefix, "strip this prefix from the --vae file's keys (default: detected)");
+  cmd->add_flag("--random-weights", o.random_weights,
+                "randomly initialised weights instead of --vae (testing without a checkpoint)");
+  cli::add_old_name(*cmd, "--weights", "--vae");
+  cli::add_old_name(*cmd, "--weights-prefix", "--vae-prefix");
+  cli::add_old_name(*cmd, "--dtype", "--precision");
   cmd->add_option("--seed", o.seed, "seed for --random-weights")->capture_default_str();
-  cmd->add_option("--in", o.in, "input")->required();
+  cmd->add_option("--in", o.in, "input file or folder (above)")->required();
   cmd->add_option("--out", o.out, "output (must not exist unless --overwrite)")->required();
   cmd->add_flag("--overwrite", o.overwrite, "replace an existing output (only once the new one is complete)");
   cmd->add_option("--mode", o.mode, "streaming (bounded memory) or full (whole sequence at once)")
@@ -57,7 +61,6 @@ void add_common(CLI::App* cmd, Options& o) {
   cli::add_device(*cmd, o.device);
   cli::add_threads(*cmd, o.threads);
   cli::add_precision(*cmd, o.precision);
-  cmd->add_option("--dtype", o.precision, "old name of --precision")->check(CLI::IsMember({"fp32", "bf16"}))->group("");
   cmd->add_option("--dim", o.dim, "base width of --random-weights (default 96, as Wan 2.1)")
       ->check(CLI::PositiveNumber);
   cmd->add_option("--log-level", o.log_level, "trace | debug | info | warn | error")
@@ -67,7 +70,7 @@ void add_common(CLI::App* cmd, Options& o) {
 // Usage checks before any work: one weights source, an output that may be written.
 void check_usage(const Options& o, bool decode) {
   if (o.random_weights == !o.weights.empty())
-    throw cli::UsageError("flat_vae: give exactly one of --weights FILE or --random-weights");
+    throw cli::UsageError("flat_vae: give exactly one of --vae FILE or --random-weights");
   if (!o.weights.empty() && o.dim != 0) throw cli::UsageError("flat_vae: --dim applies only to --random-weights");
   const std::string ext = fs::path(o.out).extension().string();
   if (!decode && ext != ".safetensors")

@@ -6,7 +6,7 @@
 // op in the other).
 //
 //   flat_bench adamw8bit                    # fp32 parameters
-//   flat_bench adamw8bit --dtype bf16 --steps 50
+//   flat_bench adamw8bit --precision bf16 --steps 50
 //
 // Timing: median of --steps steps after --warmup, each bracketed by device
 // synchronisation. Bytes per value of the fused step: parameter read and
@@ -17,6 +17,7 @@
 
 #include "bench_registry.h"
 #include "flat/bench/adamw8bit_benchmark.h"
+#include "flat/core/cli.h"
 
 namespace flat::bench {
 
@@ -24,9 +25,8 @@ void add_adamw8bit(CLI::App& app) {
   auto o = std::make_shared<AdamW8bitBenchOptions>();
   auto* cmd = app.add_subcommand("adamw8bit", "8-bit AdamW step on the scene decoder's parameters: fused CUDA "
                                                "kernel vs ATen ops");
-  cmd->add_option("--dtype", o->dtype, "parameter dtype")
-      ->check(CLI::IsMember({"fp32", "bf16"}))
-      ->capture_default_str();
+  cli::add_precision(*cmd, o->dtype)->description("compute dtype of the parameters (and gradients): fp32 | bf16");
+  cli::add_old_name(*cmd, "--dtype", "--precision");
   cmd->add_option("--dim", o->dim, "decoder base width (96 = paper)")->capture_default_str();
   cmd->add_option("--steps", o->steps, "timed steps")->capture_default_str();
   cmd->add_option("--warmup", o->warmup, "untimed steps first")->capture_default_str();

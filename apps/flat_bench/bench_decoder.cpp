@@ -38,7 +38,7 @@ void add_decoder(CLI::App& app) {
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   cli::add_precision(*cmd, opts->dtype);
-  cmd->add_option("--dtype", opts->dtype, "old name of --precision")->check(CLI::IsMember({"bf16", "fp32"}))->group("");
+  cli::add_old_name(*cmd, "--dtype", "--precision");
   cli::add_device(*cmd, opts->device);
   cmd->add_option("--dim", opts->dim, "decoder base width (96 = paper)")->capture_default_str();
   cmd->add_option("--repeats", opts->repeats, "timed runs")->capture_default_str();

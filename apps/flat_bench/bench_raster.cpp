@@ -33,7 +33,8 @@ void add_raster(CLI::App& app) {
                   "workload's triangles, one each, 1-sigma ellipse = incircle)")
       ->check(CLI::IsMember({"triangles", "3dgs", "2dgs"}))
       ->capture_default_str();
-  sub->add_option("--window", opts->window, "flat | ts")->check(CLI::IsMember({"flat", "ts"}))->capture_default_str();
+  cli::add_window_fn(*sub, opts->window);
+  cli::add_old_name(*sub, "--window", "--window-fn");
   sub->add_option("--views-per-bin", opts->views_per_bin,
                   "views binned by one sort: 1 | 2 (the rasterizer's default)")
       ->check(CLI::Range(1, 2))

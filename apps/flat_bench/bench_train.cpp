@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 
 #include "bench_registry.h"
+#include "flat/core/cli.h"
 #include "flat/core/config.h"
 #include "flat/bench/step_benchmark.h"
 
@@ -22,7 +23,7 @@ void add_train(CLI::App& app) {
   auto o = std::make_shared<Options>();
   auto* sub = app.add_subcommand("train", "time one training step of a stage config, by part, with peak memory");
   sub->add_option("--config", o->config, "stage config (YAML)")->required()->check(CLI::ExistingFile);
-  sub->add_option("--set", o->overrides, "override a key (as flat_train)")->take_all();
+  cli::add_set(*sub, o->overrides, "data.batch_size=2");
   sub->add_option("--warmup", o->warmup, "untimed steps first")->capture_default_str();
   sub->add_option("--steps", o->steps, "timed steps")->capture_default_str();
   sub->add_flag("--random-lpips", o->random_lpips,

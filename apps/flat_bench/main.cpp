@@ -21,7 +21,9 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   for (const auto& add : flat::bench::registry()) add(app);
   // The subcommands run in CLI11 callbacks, i.e. inside parse, so the restart
-  // comes first (also for --help, which costs a start-up).
+  // comes first (also for --help, which costs a start-up); old flag names
+  // before it, so that the restarted process reads the new ones.
+  flat::cli::rename_old_names(app, argc, argv);
   flat::cli::restart_with_sleeping_openmp_threads(argv);
   // Errors are mapped here.
   return flat::cli::run([&] {

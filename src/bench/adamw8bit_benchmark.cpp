@@ -6,7 +6,7 @@
 // op in the other).
 //
 //   flat_bench adamw8bit                    # fp32 parameters
-//   flat_bench adamw8bit --dtype bf16 --steps 50
+//   flat_bench adamw8bit --precision bf16 --steps 50
 //
 // Timing: median of --steps steps after --warmup, each bracketed by device
 // synchronisation. Bytes per value of the fused step: parameter read and

@@ -1,16 +1,21 @@
 // The shared command-line vocabulary (include/flat/core/cli.h, docs/cli.md).
 #include "flat/core/cli.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <unistd.h>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <sstream>
+#include <utility>
 
 #include <ATen/Parallel.h>
 #include <spdlog/spdlog.h>
+#include <yaml-cpp/yaml.h>
 
 #if FLAT_WITH_CUDA
 #include <cuda_runtime_api.h>
@@ -57,6 +62,98 @@ CLI::Option* add_threads(CLI::App& app, int& threads) {
       ->capture_default_str();
 }
 
+CLI::Option* add_window_fn(CLI::App& app, std::string& window_fn) {
+  return app.add_option("--window-fn", window_fn, "window function: flat (paper) | ts (Triangle Splatting)")
+      ->check(CLI::IsMember({"flat", "ts"}))
+      ->capture_default_str();
+}
+
+namespace {
+
+// Old flag names per app or subcommand: old -> new. Tools register them once, before parsing.
+std::map<const CLI::App*, std::vector<std::pair<std::string, std::string>>>& old_names() {
+  static std::map<const CLI::App*, std::vector<std::pair<std::string, std::string>>> names;
+  return names;
+}
+
+const std::string* new_name_of(const CLI::App* app, const std::string& name) {
+  auto it = old_names().find(app);
+  if (it == old_names().end()) return nullptr;
+  for (const auto& [old_name, new_name] : it->second)
+    if (old_name == name) return &new_name;
+  return nullptr;
+}
+
+}  // namespace
+
+void add_old_name(CLI::App& app, const std::string& old_name, const std::string& new_name) {
+  old_names()[&app].emplace_back(old_name, new_name);
+}
+
+void rename_old_names(const CLI::App& app, int argc, char** argv) {
+  if (old_names().empty() || argc < 1) return;
+  const CLI::App* current = &app;
+  std::string where = argv[0];
+  where = where.substr(where.find_last_of('/') + 1);
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--") break;
+    if (arg.rfind("--", 0) == 0) {
+      const size_t eq = arg.find('=');
+      const std::string name = arg.substr(0, eq);
+      // Options of an enclosing app stay valid after a subcommand's name.
+      for (const CLI::App* a = current; a != nullptr; a = a->get_parent()) {
+        const std::string* new_name = new_name_of(a, name);
+        if (new_name == nullptr) continue;
+        std::cerr << where << ": warning: " << name << " is an old name; use " << *new_name
+                  << " (the old name still works, hidden from --help)\n";
+        const std::string renamed = *new_name + (eq == std::string::npos ? "" : arg.substr(eq));
+        argv[i] = strdup(renamed.c_str());  // lives to the end: the restart and --nproc read argv later
+        break;
+      }
+      continue;
+    }
+    if (arg.empty() || arg[0] == '-') continue;
+    for (const CLI::App* sub : current->get_subcommands([](const CLI::App*) { return true; }))
+      if (sub->get_name() == arg) {
+        current = sub;
+        where += " " + arg;
+        break;
+      }
+  }
+}
+
+CLI::Option* add_set(CLI::App& app, std::vector<std::string>& overrides, const std::string& example) {
+  return app
+      .add_option("--set", overrides,
+                  "override a config key by its full key path, as flat_train's --set (repeat it): --set " + example)
+      ->take_all();
+}
+
+std::vector<std::string> section_overrides(const std::vector<std::string>& overrides, const std::string& section,
+                                           const std::string& section_yaml, const std::string& tool) {
+  const YAML::Node keys = YAML::Load(section_yaml);
+  const std::string prefix = section + ".";
+  std::vector<std::string> relative;
+  for (const auto& ov : overrides) {
+    if (ov.rfind(prefix, 0) == 0) {
+      relative.push_back(ov.substr(prefix.size()));
+      continue;
+    }
+    const std::string first = ov.substr(0, std::min(ov.find('.'), ov.find('=')));
+    if (keys.IsMap() && keys[first]) {
+      std::cerr << tool << ": warning: --set " << ov << " is the old " << section
+                << "-relative spelling; use --set " << prefix << ov << " (full key paths, as flat_train's)\n";
+      relative.push_back(ov);
+      continue;
+    }
+    throw UsageError(tool + ": --set " + ov + ": " + tool + " reads only the model's " + section +
+                     " config; give its keys by their full path, " + prefix + "<key> (e.g. --set " + prefix +
+                     "prune_opacity=0.4); '" + first + "' is not a key of " + section);
+  }
+  return relative;
+}
+
 void apply_threads(int threads) {
   if (threads > 0) at::set_num_threads(threads);
 }
@@ -86,6 +183,7 @@ std::string stored_dtype_name(const std::string& store) {
 }
 
 int parse(CLI::App& app, int argc, char** argv) {
+  rename_old_names(app, argc, argv);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

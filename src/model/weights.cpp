@@ -144,7 +144,7 @@ LoadReport load_state(torch::nn::Module& module, const TensorMap& tensors, const
     os << label << ": weights do not match the model (" << naming_name(report.naming) << " naming; "
        << copies.size() << " tensors match).";
     if (copies.empty() && !unexpected.empty())
-      os << "\n  hint: no key matches; if the file's keys carry a prefix, pass it (--weights-prefix PREFIX.)";
+      os << "\n  hint: no key matches; if the file's keys carry a prefix, pass it (--vae-prefix PREFIX.)";
     if (!missing.empty()) os << "\n  missing (" << missing.size() << "): " << join_list(missing);
     if (!unexpected.empty()) os << "\n  unexpected (" << unexpected.size() << "): " << join_list(unexpected);
     if (!wrong_shape.empty()) os << "\n  wrong shape (" << wrong_shape.size() << "): " << join_list(wrong_shape);

@@ -172,5 +172,5 @@ TEST_CASE("Weights files that are not weights are refused with the tensor named"
   for (const auto& [k, v] : good) foreign.emplace("unet.blocks." + k, v);
   foreign.emplace("text.weight", torch::zeros({2}));  // not one common prefix
   flat::save_safetensors((dir / "foreign.safetensors").string(), foreign);
-  REQUIRE_THROWS_WITH(load_weights(*vae, (dir / "foreign.safetensors").string()), FLAT_CONTAINS("--weights-prefix"));
+  REQUIRE_THROWS_WITH(load_weights(*vae, (dir / "foreign.safetensors").string()), FLAT_CONTAINS("--vae-prefix"));
 }

@@ -1,4 +1,5 @@
-// The command-line vocabulary every FLAT tool shares (docs/cli.md): --version,
+// The command-line vocabulary every FLAT tool shares (docs/cli.md; one
+// meaning per flag name, docs/cli_vocabulary.txt): --version,
 // --log-level, --device auto|cpu|cuda, --precision fp32|bf16, --store
 // fp32|bf16|fp16, the exit codes, the log file beside a tool's outputs, and
 // the memory check that refuses a request before anything is allocated.
@@ -8,6 +9,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 #include <c10/core/Device.h>
@@ -43,7 +45,32 @@ CLI::Option* add_store(CLI::App& app, std::string& store);
 // every core). apply_threads sets them; tools running side by side should
 // share the cores between them.
 CLI::Option* add_threads(CLI::App& app, int& threads);
+// --window-fn flat|ts: the rasterizer's window function (flat: the paper's,
+// ts: Triangle Splatting's). --window is a window of frames, never this.
+CLI::Option* add_window_fn(CLI::App& app, std::string& window_fn);
 void apply_threads(int threads);
+
+// Old spellings of flags (docs/cli_vocabulary.txt): hidden from --help, still
+// read. parse() rewrites `old_name` on this app (or subcommand) to `new_name`
+// in argv before CLI11 sees it, and warns on stderr "flat_render: --window is
+// an old name; use --window-fn". argv is rewritten in place, so the OpenMP
+// restart and flat_train's --nproc workers get the new name (and no second
+// warning).
+void add_old_name(CLI::App& app, const std::string& old_name, const std::string& new_name);
+// What parse() does first; flat_bench, which parses inside run(), calls it itself.
+void rename_old_names(const CLI::App& app, int argc, char** argv);
+
+// --set KEY=VALUE, repeatable: a config key by its full path, as flat_train
+// takes it (pipeline.prune_opacity=0.4) in every tool. `example` is shown in --help.
+CLI::Option* add_set(CLI::App& app, std::vector<std::string>& overrides, const std::string& example);
+// The --set overrides of a tool that reads one section of the training config
+// (flat_eval, flat_infer: `pipeline`), relative to that section:
+// "pipeline.prune_opacity=0.4" -> "prune_opacity=0.4". A key without the
+// prefix whose first name is a key of the section (its defaults as YAML,
+// `section_yaml`) is the old relative spelling: kept, with a warning that gives
+// the full path. Any other key (data.height=50) is a UsageError naming it.
+std::vector<std::string> section_overrides(const std::vector<std::string>& overrides, const std::string& section,
+                                           const std::string& section_yaml, const std::string& tool);
 
 // "auto" -> cuda when a CUDA device is present, else cpu; "cuda" without one
 // is a flat::Error that says so.
@@ -52,7 +79,7 @@ c10::ScalarType precision_dtype(const std::string& precision);  // fp32 | bf16
 // The store flag's name as files name it: fp32 -> float32, bf16 -> bfloat16, fp16 -> float16.
 std::string stored_dtype_name(const std::string& store);
 
-// Parses argv. Returns -1 to go on; otherwise the exit code to return at once
+// Parses argv (old flag names first, see add_old_name). Returns -1 to go on; otherwise the exit code to return at once
 // (0 after --help or --version, 2 for a usage error, with CLI11's message).
 // Going on, it first calls restart_with_sleeping_openmp_threads(argv).
 int parse(CLI::App& app, int argc, char** argv);
