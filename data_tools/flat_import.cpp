@@ -25,8 +25,8 @@ int main(int argc, char** argv) {
       ->required()
       ->check(CLI::IsMember({"transforms", "re10k"}));
   app.add_option("--in", in,
-                 "transforms.json (or its folder), or a folder of scene folders (batch); for re10k the camera .txt "
-                 "file, or a folder of <clip>.txt files (batch)")
+                 "input: transforms.json (or its folder), or a folder of scene folders (batch); for re10k the camera "
+                 ".txt file, or a folder of <clip>.txt files (batch)")
       ->required();
   app.add_option("--frames-dir", frames_dir,
                  "re10k: folder of frames (<timestamp>.png/jpg, or one image per line in name order); batch: the "
