@@ -54,7 +54,7 @@ for t in '"${TOOLS[*]}"'; do
   "$t" --help > "help_$t.txt" || { echo "$t --help failed"; cat "help_$t.txt"; exit 1; }
 done
 echo "every tool: --help ok"
-flat_synth --out scenes --scenes 1 --frames 5 --size 16x24 --seed 3
+flat_synth --out scenes --count 1 --frames 5 --size 16x24 --seed 3
 flat_latents --scenes scenes --random-weights --dim 4 --window 5
 cat > stage.yaml <<EOF
 run_dir: run
