@@ -2,9 +2,11 @@
 
 #include <cmath>
 
+#include <spdlog/fmt/fmt.h>
 #include <torch/nn/module.h>
 
 #include "flat/core/error.h"
+#include "flat/distributed/weights_in_sync.h"
 
 namespace flat::train {
 
@@ -31,6 +33,24 @@ void DataParallel::share_weights(torch::nn::Module& model) {
   std::vector<at::Tensor> tensors = model.parameters();
   for (const auto& b : model.buffers()) tensors.push_back(b);
   distributed::broadcast_tensors(*group_, tensors, 0);
+}
+
+void DataParallel::check_weights_in_sync(torch::nn::Module& model, const std::string& when) {
+  std::vector<std::pair<std::string, at::Tensor>> named;
+  for (const auto& p : model.named_parameters()) named.emplace_back(p.key(), p.value());
+  for (const auto& b : model.named_buffers()) named.emplace_back(b.key(), b.value());
+  const auto s = distributed::check_weights_in_sync(*group_, named);
+  if (s.in_sync()) return;
+  std::string ranks;
+  for (const auto r : s.differing_ranks) ranks += (ranks.empty() ? "" : ", ") + std::to_string(r);
+  throw Error(fmt::format("data parallel: at {} the weights of rank(s) {} differ from rank 0's{}: the ranks no longer "
+                          "train one model, so neither rank 0's checkpoint nor the validation (each rank scores its "
+                          "share of the scenes with its own copy) describes the run. Resume from the last checkpoint "
+                          "(every rank then starts from rank 0's weights) and report it",
+                          when, ranks,
+                          s.first_tensor.empty() ? ""
+                                                 : fmt::format(" (here: '{}' sums to {:.17g}, rank 0's to {:.17g})",
+                                                               s.first_tensor, s.here_sum, s.rank0_sum)));
 }
 
 int64_t DataParallel::broadcast(int64_t value) {

@@ -425,6 +425,8 @@ void Run::open_run_folder() {
 
 void Run::run_validation(int64_t step) {
   if (!val_loader_) return;
+  // Every rank scores its share of the scenes with its own weights: they must be rank 0's.
+  if (dp_) dp_->check_weights_in_sync(net(), "step " + std::to_string(step));
   const auto t0 = std::chrono::steady_clock::now();
   auto r = session_->vae_task()
                ? validate_vae(session_->vae, *val_loader_, cfg_.validation.scenes, session_->vae_lpips,

@@ -46,6 +46,10 @@ class DataParallel {
 
   // Rank 0's parameters and buffers on every rank (after init and resume).
   void share_weights(torch::nn::Module& model);
+  // Throws flat::Error naming the ranks whose parameters or buffers are no
+  // longer bit-identical to rank 0's (distributed/weights_in_sync.h), with
+  // `when` ("step 80") in the message. Every rank calls it.
+  void check_weights_in_sync(torch::nn::Module& model, const std::string& when);
   // Rank 0's value of `value` (e.g. the step a resumed run continues at).
   int64_t broadcast(int64_t value);
 
