@@ -48,19 +48,8 @@ int main(int argc, char** argv) {
   app.add_option("--stride", o.stride, "keep every n-th frame")->check(CLI::PositiveNumber);
   app.add_option("--max-frames", o.max_frames, "keep at most this many frames (0 = all)")->check(CLI::NonNegativeNumber);
   app.add_flag("--skip-missing", o.skip_missing, "transforms: skip frames whose image file is missing (with a warning)");
-  flat::data::add_geometry_options(app, o.geometry);  // --depth, --normals and their formats (geometry_maps.h)
-  // Their folders must exist, except batch patterns with {clip} (each clip's folder is checked when imported;
-  // one clip with {clip} is a usage error below).
-  for (const char* flag : {"--depth", "--normals"}) {
-    CLI::Option* option = app.get_option(flag);
-    option->get_validator(0)->active(false);  // CLI::ExistingDirectory, the only check add_geometry_options sets
-    option->check(CLI::Validator(
-        [](std::string& value) {
-          return value.find(flat::data::kClipPlaceholder) != std::string::npos ? std::string()
-                                                                               : CLI::ExistingDirectory(value);
-        },
-        "DIR", "folder or {clip} pattern"));
-  }
+  // --depth, --normals and their formats; their folders, or batch {clip} patterns, checked (geometry_maps.h).
+  flat::data::add_geometry_options(app, o.geometry);
   int threads = 0;
   flat::cli::add_threads(app, threads);
   app.footer(

@@ -227,6 +227,19 @@ void run_decoder_benchmark(const DecoderBenchOptions& o) {
 
   for (int64_t t : o.frames) {
     const int64_t F = video_frames(t);
+    // The inputs and the output of a forward must fit before anything is
+    // allocated (a lower bound: the activations between come on top).
+    const double elem = double(c10::elementSize(dtype)), hw = double(o.height) * double(o.width);
+    const double latents = 48.0 * double(t) * hw * (sizeof(float) + elem);  // video + camera, drawn in fp32
+    const double output = double(scene->channels().total) * double(F) * 16.0 * hw * elem;
+    cli::check_memory(latents + output,
+                      "flat_bench decoder: T'=" + std::to_string(t) + " latent frame(s) of " +
+                          std::to_string(o.height) + "x" + std::to_string(o.width) + " (" + std::to_string(F) +
+                          " view(s) of " + std::to_string(8 * o.height) + "x" + std::to_string(8 * o.width) +
+                          "), inputs and output (1," + std::to_string(scene->channels().total) + "," +
+                          std::to_string(F) + "," + std::to_string(4 * o.height) + "," + std::to_string(4 * o.width) +
+                          ") in " + o.dtype,
+                      dev);
     at::Tensor latent = torch::randn({1, 16, t, o.height, o.width}).to(dev, dtype);
     at::Tensor cam_pre = torch::randn({1, 32, t, o.height, o.width}).to(dev, dtype);
     camera::Cameras cams = orbit(F);

@@ -19,6 +19,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/data/loader.h"
 #include "flat/data/pack.h"
@@ -76,6 +77,12 @@ void time_loader(const LoaderBenchOptions& o, const std::string& root, const std
               double(o.batches * o.batch * o.targets) / s, bytes / s / 1e6);
 }
 
+// Bytes of one batch's target frames (RGB, depth, normals as float32): a lower
+// bound of what the loader holds, so a refusal never stops a run that fits.
+double batch_bytes(const LoaderBenchOptions& o, int64_t height, int64_t width) {
+  return double(o.batch) * double(o.targets) * (3 + 1 + 3) * double(height) * double(width) * sizeof(float);
+}
+
 // The synthesised dataset is removed on every way out, a failure included.
 struct TempTree {
   std::filesystem::path root;
@@ -95,9 +102,19 @@ struct TempTree {
 
 void run_loader_benchmark(const LoaderBenchOptions& o) {
   namespace fs = std::filesystem;
+  // A missing folder is named as such before anything is said about packing it.
+  std::error_code ec;
+  if (!o.data.empty() && !fs::is_directory(o.data, ec))
+    fail("--data " + o.data + (fs::exists(o.data, ec) ? ": not a folder (a dataset folder holds scene folders)"
+                                                       : ": the dataset folder does not exist"));
   if (o.mode != "files" && !o.data.empty())
     fail("--mode packed with --data would pack (modify) your scenes; pack them with flat_pack");
-  parse_size(o.size);  // a bad --size is refused before anything is synthesised
+  // A bad --size, or one whose batches cannot fit, is refused before anything is synthesised.
+  const auto [height, width] = parse_size(o.size);
+  cli::check_memory(batch_bytes(o, height, width),
+                    "flat_bench loader: a batch of " + std::to_string(o.batch) + " x " + std::to_string(o.targets) +
+                        " target views at " + o.size + " (RGB, depth, normals in float32)",
+                    c10::Device(c10::kCPU));
   std::string root = o.data;
   fs::path tmp;
   TempTree temp_tree;

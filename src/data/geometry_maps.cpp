@@ -18,6 +18,7 @@
 #include "flat/core/shape.h"
 #include "flat/data/frame_io.h"
 #include "flat/data/frame_resize.h"
+#include "flat/data/import_batch.h"
 
 namespace flat::data {
 
@@ -134,13 +135,30 @@ void check_member(const std::string& value, const std::vector<std::string>& allo
     fail(what + " '" + value + "' is not one of " + join(allowed, ", "));
 }
 
+// --depth / --normals: a plain folder must exist. A batch pattern with {clip}
+// is checked per clip as each is imported (import_batch.cpp); the folder above
+// its first {clip} must exist now, so a typo there fails at once, not per clip.
+CLI::Validator maps_folder(const std::string& what) {
+  return CLI::Validator(
+      [what](std::string& value) -> std::string {
+        std::error_code ec;
+        const auto at = value.find(kClipPlaceholder);
+        if (at == std::string::npos)
+          return fs::is_directory(value, ec) ? "" : value + ": no such folder (" + what + " maps)";
+        const fs::path above = fs::path(value.substr(0, at)).parent_path();
+        if (above.empty() || fs::is_directory(above, ec)) return "";
+        return value + ": no such folder " + above.string() + " (the part above " + kClipPlaceholder + ")";
+      },
+      "DIR", "folder, or batch pattern with " + std::string(kClipPlaceholder));
+}
+
 }  // namespace
 
 void add_geometry_options(CLI::App& app, GeometryOptions& o) {
   auto* depth = app.add_option("--depth", o.depth_dir,
                                "folder of per-frame depth maps from a predictor (e.g. MapAnything): <image stem>.exr, "
                                ".npy or .png; metric z-depth, 0 = unknown")
-                    ->check(CLI::ExistingDirectory);
+                    ->check(maps_folder("depth"));
   app.add_option("--depth-format", o.depth_format, "depth file kind: auto (first of exr, npy, png), exr, npy, png16")
       ->check(CLI::IsMember({"auto", "exr", "npy", "png16"}))
       ->needs(depth);
@@ -155,7 +173,7 @@ void add_geometry_options(CLI::App& app, GeometryOptions& o) {
   auto* normals = app.add_option("--normals", o.normals_dir,
                                  "folder of per-frame camera-space normal maps from a predictor (e.g. NormalCrafter): "
                                  "<image stem>.exr, .npy or .png (0.5 n + 0.5); 0 = unknown")
-                      ->check(CLI::ExistingDirectory);
+                      ->check(maps_folder("normals"));
   app.add_option("--normals-format", o.normals_format, "normals file kind: auto (first of exr, npy, png), exr, npy, png")
       ->check(CLI::IsMember({"auto", "exr", "npy", "png"}))
       ->needs(normals);

@@ -83,6 +83,28 @@ bool config_near(const fs::path& model_file, YAML::Node& node, std::string& sour
   return false;
 }
 
+// A decoder of another width (pipeline.model.vae.dim): both widths first, read
+// from the decoder's first conv (dim * dim_mult.back() outputs), instead of a
+// list of a hundred wrong shapes that never says which width either side has.
+void check_decoder_width(const TensorMap& tensors, const model::SceneDecoder& decoder,
+                         const model::WanVAEConfig& vae, const std::string& label, const std::string& config_source) {
+  const std::string name = "decoder.conv1.weight";
+  const auto params = decoder->named_parameters(/*recurse=*/true);
+  const at::Tensor* mine = params.find(name);
+  auto theirs = tensors.find(name);
+  if (theirs == tensors.end()) theirs = tensors.find("decoder.conv_in.weight");  // diffusers naming
+  if (mine == nullptr || theirs == tensors.end() || theirs->second.dim() != mine->dim() ||
+      theirs->second.size(0) == mine->size(0))
+    return;
+  const int64_t mult = vae.dim_mult.empty() ? 1 : vae.dim_mult.back(), outputs = theirs->second.size(0);
+  const std::string file_dim = outputs % mult == 0 ? "dim " + std::to_string(outputs / mult)
+                                                   : "another width (not a multiple of " + std::to_string(mult) + ")";
+  fail(label + ": the file's decoder has " + file_dim + " but this config's has dim " + std::to_string(vae.dim) +
+       " (pipeline.model.vae.dim; " + theirs->first + " is " + shape_str(theirs->second) + " in the file, " +
+       shape_str(*mine) + " in this config's model; the config: " + (config_source.empty() ? "defaults" : config_source) +
+       "). Give the model's training config with --config, or set pipeline.model.vae.dim to the file's width");
+}
+
 }  // namespace
 
 ModelSignature model_signature(const PipelineConfig& p) {
@@ -185,6 +207,7 @@ TrainedModel load_trained_model(const std::string& path, const std::string& conf
 
   m.decoder = model::SceneDecoder(m.config.model, m.config.channels());
   const ModelSignature found{meta.count("model_signature") ? meta["model_signature"] : "", ""};
+  if (found.yaml.empty()) check_decoder_width(tensors, m.decoder, m.config.model.vae, m.model_file, m.config_source);
   load_model_weights(*m.decoder, tensors, found, model_signature(m.config), m.model_file);
   m.decoder->eval();
   return m;

@@ -55,6 +55,9 @@ struct GeometryOptions {
 
 // --depth DIR --depth-format --depth-png-scale --normals DIR --normals-format
 // --normals-convention (the format and convention options need their folder).
+// A --depth / --normals folder must exist (a usage error naming the flag and
+// the path); a batch pattern with {clip} (import_batch.h) is checked per clip
+// as it is imported, and the folder above its first {clip} at once.
 void add_geometry_options(CLI::App& app, GeometryOptions& options);
 
 // The map file of the frame whose source image is `image` in `dir` for
