@@ -19,7 +19,8 @@
 #   PHASES="build data import latents train eval mesh" NPROC=2 bash scripts/gpu_rehearsal.sh
 # Variables: PHASES (default all), NPROC (GPUs, default: all visible),
 #   STEPS ("s1 s2 s3 s4", default "200 100 60 40"), CLIPS ("re10k dl3dv val_re10k
-#   val_dl3dv", default "16 8 4 4"), FRAMES (default 57), W (work folder,
+#   val_dl3dv", default "16 8 4 4"), FRAMES (default 57), SIZE (clips' frame size,
+#   default 432x768), STAGES (default "1 2 3 4"), W (work folder,
 #   default /tmp/rehearsal), BUILD (default build-gpu), GPU_CMAKE_ARGS (e.g.
 #   -DFLAT_CUTLASS=OFF: every conv through cuDNN, a shorter build).
 # Logs and the summary go to $OUT (or ./gpu_out).
@@ -33,6 +34,8 @@ NPROC="${NPROC:-$(nvidia-smi -L 2>/dev/null | wc -l)}"
 read -r S1 S2 S3 S4 <<<"${STEPS:-200 100 60 40}"
 read -r N_RE N_DL N_VRE N_VDL <<<"${CLIPS:-16 8 4 4}"
 FRAMES="${FRAMES:-57}"
+SIZE="${SIZE:-432x768}"        # the clips' frame size (432x768: every stage's set can be made)
+STAGES="${STAGES:-1 2 3 4}"    # the stages whose sets, runs and evaluations are made
 UNIT=0.5  # flat_synth writes poses and depth in units of 0.5 m; --scale 0.5 gives metres back
 SUMMARY="$OUT/rehearsal_summary.txt"
 has() { [[ " $PHASES " == *" $1 "* ]]; }
@@ -62,13 +65,13 @@ if has data; then
   rm -rf "$W"; mkdir -p "$RAW"
   # Training clips with two corrupt ones of each format; held-out clips of other seeds.
   timed "flat_synth re10k x$N_RE (2 corrupt)" "$OUT/synth_re10k.log" "$B/flat_synth" --format re10k --out "$RAW/re10k" \
-    --count "$N_RE" --corrupt 2 --seed 11 --frames "$FRAMES" --size 432x768 --unit $UNIT --no-truth --motion mixed
+    --count "$N_RE" --corrupt 2 --seed 11 --frames "$FRAMES" --size "$SIZE" --unit $UNIT --no-truth --motion mixed
   timed "flat_synth dl3dv x$N_DL (2 corrupt)" "$OUT/synth_dl3dv.log" "$B/flat_synth" --format dl3dv --out "$RAW/dl3dv" \
-    --count "$N_DL" --corrupt 2 --seed 12 --frames "$FRAMES" --size 432x768 --unit $UNIT --no-truth --motion mixed
+    --count "$N_DL" --corrupt 2 --seed 12 --frames "$FRAMES" --size "$SIZE" --unit $UNIT --no-truth --motion mixed
   timed "flat_synth held-out re10k x$N_VRE" "$OUT/synth_val_re10k.log" "$B/flat_synth" --format re10k \
-    --out "$RAW/val_re10k" --count "$N_VRE" --seed 21 --frames "$FRAMES" --size 432x768 --unit $UNIT --no-truth --motion mixed
+    --out "$RAW/val_re10k" --count "$N_VRE" --seed 21 --frames "$FRAMES" --size "$SIZE" --unit $UNIT --no-truth --motion mixed
   timed "flat_synth held-out dl3dv x$N_VDL" "$OUT/synth_val_dl3dv.log" "$B/flat_synth" --format dl3dv \
-    --out "$RAW/val_dl3dv" --count "$N_VDL" --seed 22 --frames "$FRAMES" --size 432x768 --unit $UNIT --no-truth --motion mixed
+    --out "$RAW/val_dl3dv" --count "$N_VDL" --seed 22 --frames "$FRAMES" --size "$SIZE" --unit $UNIT --no-truth --motion mixed
 fi
 
 if has import; then
@@ -106,7 +109,7 @@ CONFIGS=(configs/stage1.yaml configs/stage2.yaml configs/stage3.yaml configs/sta
 if has latents; then
   # Every stage's set, one stage at a time so each gets its own wall time;
   # one process per GPU, each a shard of the scenes.
-  for n in 1 2 3 4; do
+  for n in $STAGES; do
     t0=$(now); pids=()
     for k in $(seq 0 $((NPROC - 1))); do
       CUDA_VISIBLE_DEVICES=$k OMP_NUM_THREADS=4 "$B/flat_latents" --configs "${CONFIGS[$((n - 1))]}" \
@@ -124,7 +127,7 @@ stage_steps() { case $1 in 1) echo $S1 ;; 2) echo $S2 ;; 3) echo $S3 ;; 4) echo 
 stage_set() { case $1 in 1) echo 176x320_f17 ;; 2) echo 176x320_f49 ;; 3) echo 360x640_f49 ;; 4) echo 432x768_f49 ;; esac; }
 
 if has train; then
-  for n in 1 2 3 4; do
+  for n in $STAGES; do
     s=$(stage_steps $n)
     init=(--set "init.path=$RUNS/stage$((n - 1))")
     [ $n -eq 1 ] && init=(--set init.from=scratch --set 'init.path=""')
@@ -139,16 +142,18 @@ if has train; then
 fi
 
 if has eval; then
-  for n in 1 2 3 4; do
+  for n in $STAGES; do
     [ -f "$RUNS/stage$n/model.safetensors" ] || continue
     timed "flat_eval stage $n ($(stage_set $n))" "$OUT/eval_stage$n.log" "$B/flat_eval" --model "$RUNS/stage$n" \
       --scenes "re10k=$DATA/val_re10k" "dl3dv=$DATA/val_dl3dv" --latent-set "$(stage_set $n)" --max-views 16 \
       --device cuda --precision bf16 --out "$W/eval/stage$n"
     [ -f "$W/eval/stage$n/table.md" ] && cp "$W/eval/stage$n/table.md" "$OUT/eval_stage$n.md"
   done
-  first=$(ls -d "$DATA"/val_re10k/*/ | head -1)
-  timed "flat_infer stage 4, $(basename "$first")" "$OUT/infer.log" "$B/flat_infer" --model "$RUNS/stage4" \
-    --scene "$first" --latent-set 432x768_f49 --device cuda --out "$W/infer"
+  if [ -f "$RUNS/stage4/model.safetensors" ]; then
+    first=$(ls -d "$DATA"/val_re10k/*/ | head -1)
+    timed "flat_infer stage 4, $(basename "$first")" "$OUT/infer.log" "$B/flat_infer" --model "$RUNS/stage4" \
+      --scene "$first" --latent-set 432x768_f49 --device cuda --out "$W/infer"
+  fi
 fi
 if has mesh; then
   timed "flat_mesh (defaults)" "$OUT/mesh.log" timeout 240 "$B/flat_mesh" --from "$W/infer" --out "$W/mesh" --device cuda
