@@ -6,6 +6,8 @@
 # from its PyPI wheel in the background while ours compiles.
 # Usage on the GPU machine (repo root; .deps carried, .deps/wheels holding the
 # gsplat wheel and its pure-Python dependencies): bash scripts/gpu_gaussians.sh
+# A failed install of those wheels, or a gsplat that does not build, exits 1
+# with the log's tail (SKIP_GSPLAT=1: ours only).
 # Logs and tables go to $OUT; GPU_BUILD_DIR is shared with scripts/gpu_recipe.sh.
 set -uo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -18,11 +20,29 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.t
 
 GS_PID=""
 if [ -d "$ROOT/.deps/wheels" ] && [ "${SKIP_GSPLAT:-0}" != 1 ]; then
+  # The carried wheels are gsplat and its pure-Python dependencies; numpy and
+  # torch are the machine's. A resolving install fails where numpy is not among
+  # the wheels, so they go in as they are (--no-deps). In the foreground: a
+  # failed install stops the script here, loudly, not after the GPU work.
+  shopt -s nullglob
+  WHEELS=("$ROOT"/.deps/wheels/*.whl)
+  shopt -u nullglob
+  if [ "${#WHEELS[@]}" -eq 0 ]; then
+    echo "gpu_gaussians: no .whl files in $ROOT/.deps/wheels (SKIP_GSPLAT=1 runs without the gsplat anchor)" >&2
+    exit 1
+  fi
+  if ! pip install --no-deps --no-index --target /tmp/gsplat_py "${WHEELS[@]}" >"$OUT/gsplat_install.log" 2>&1; then
+    echo "gpu_gaussians: installing the ${#WHEELS[@]} carried wheels failed (pip install --no-deps; log:" \
+      "$OUT/gsplat_install.log); SKIP_GSPLAT=1 runs without the gsplat anchor:" >&2
+    tail -20 "$OUT/gsplat_install.log" >&2
+    exit 1
+  fi
+  say "gsplat wheels installed (${#WHEELS[@]})"
+  # gsplat compiles its CUDA extension on first import: in the background while ours builds.
   (
-    pip install --no-index --find-links "$ROOT/.deps/wheels" --target /tmp/gsplat_py gsplat jaxtyping rich ninja \
-      >"$OUT/gsplat_install.log" 2>&1 || exit 1
     export PATH=/tmp/gsplat_py/bin:$PATH PYTHONPATH=/tmp/gsplat_py MAX_JOBS=${GSPLAT_JOBS:-6} TORCH_CUDA_ARCH_LIST=9.0
-    python3 -c "import gsplat; from gsplat.cuda._backend import _C; print('gsplat', gsplat.__version__, 'built:', _C is not None)"
+    python3 -c "import sys, gsplat; from gsplat.cuda._backend import _C
+print('gsplat', gsplat.__version__, 'built:', _C is not None); sys.exit(0 if _C is not None else 1)"
   ) >"$OUT/gsplat_build.log" 2>&1 &
   GS_PID=$!
 fi
@@ -46,7 +66,12 @@ timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workl
 echo "flat_bench raster rc=$?"; grep -E "^\|" "$OUT/bench_raster.log"; grep -E "error" "$OUT/bench_raster.log" | head -5
 say "ours timed"
 if [ -n "$GS_PID" ]; then
-  wait "$GS_PID"; tail -3 "$OUT/gsplat_build.log"
+  if ! wait "$GS_PID"; then
+    echo "gpu_gaussians: gsplat did not build or import (log: $OUT/gsplat_build.log); the anchor did not run:" >&2
+    tail -20 "$OUT/gsplat_build.log" >&2
+    exit 1
+  fi
+  tail -3 "$OUT/gsplat_build.log"
   say "gsplat built"
   PATH=/tmp/gsplat_py/bin:$PATH PYTHONPATH=/tmp/gsplat_py FLAT_SHARED_BENCH="$ROOT/shared_bench" \
     timeout "${GSPLAT_SECONDS:-150}" python3 scripts/bench_gsplat.py --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_gsplat.log" 2>&1
