@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "flat/mesh/edge_components.h"
 #include "union_find.h"
 
 namespace flat::mesh {
@@ -111,6 +112,7 @@ MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_
   }
   s.isolated_faces_pct = pct(isolated, s.faces);
   s.connected_components = uf.count();
+  s.edge_connected_pieces = edge_connected_pieces(mesh);
   return s;
 }
 
@@ -123,15 +125,17 @@ nlohmann::json to_json(const MeshStatistics& s) {
           {"mean_face_neighbours", s.mean_face_neighbours},
           {"non_manifold_edges_pct", s.non_manifold_edges_pct},
           {"boundary_edges_pct", s.boundary_edges_pct},
-          {"connected_components", s.connected_components}};
+          {"connected_components", s.connected_components},
+          {"edge_connected_pieces", s.edge_connected_pieces}};
 }
 
 std::string format_statistics(const MeshStatistics& s) {
   return fmt::format(
-      "{} vertices, {} faces, {} edges, {} connected components\n"
+      "{} vertices, {} faces, {} edges, {} connected components (through shared vertices), {} edge-connected "
+      "pieces\n"
       "degenerate faces {:.2f}%, isolated triangles {:.2f}%, mean triangle neighbours {:.2f}, "
       "non-manifold edges {:.2f}%, boundary edges {:.2f}%",
-      s.vertices, s.faces, s.edges, s.connected_components, s.degenerate_faces_pct, s.isolated_faces_pct,
+      s.vertices, s.faces, s.edges, s.connected_components, s.edge_connected_pieces, s.degenerate_faces_pct, s.isolated_faces_pct,
       s.mean_face_neighbours, s.non_manifold_edges_pct, s.boundary_edges_pct);
 }
 

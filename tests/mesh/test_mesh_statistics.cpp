@@ -62,3 +62,29 @@ TEST_CASE("mesh statistics: out-of-range face indices are an error naming them",
   m.faces[0][0] = 17;
   REQUIRE_THROWS_WITH(mesh_statistics(m), FLAT_CONTAINS("face index out of range"));
 }
+
+TEST_CASE("mesh statistics: edge-connected pieces join faces through shared edges only", "[mesh]") {
+  // Two triangles sharing the edge (1,2): one piece either way.
+  const auto shared_edge = flat::test::make_mesh({0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0}, {0, 1, 2, 1, 3, 2});
+  const auto a = mesh_statistics(shared_edge);
+  CHECK(a.connected_components == 1);
+  CHECK(a.edge_connected_pieces == 1);
+  // Two triangles sharing only vertex 0 (a bow-tie): welded, not stitched.
+  const auto shared_vertex =
+      flat::test::make_mesh({0, 0, 0, 1, 0, 0, 1, 1, 0, -1, 0, 0, -1, -1, 0}, {0, 1, 2, 0, 3, 4});
+  const auto b = mesh_statistics(shared_vertex);
+  CHECK(b.connected_components == 1);
+  CHECK(b.edge_connected_pieces == 2);
+  CHECK(flat::mesh::to_json(b)["edge_connected_pieces"].get<int64_t>() == 2);
+  // A closed cube and a strip are one piece; the strip's faces are chained by edges.
+  CHECK(mesh_statistics(flat::test::cube()).edge_connected_pieces == 1);
+  CHECK(mesh_statistics(flat::test::strip()).edge_connected_pieces == 1);
+  // A fan of three faces around vertex 0 with one gap: faces 0-1 share an
+  // edge, face 2 touches them at vertex 0 only.
+  const auto fan = flat::test::make_mesh({0, 0, 0, 1, 0, 0, 0, 1, 0, -1, 0, 0, 0, -1, 0}, {0, 1, 2, 0, 2, 3, 0, 4, 1 + 0});
+  CHECK(mesh_statistics(fan).edge_connected_pieces == 1);  // face 2 = (0,4,1) shares edge (0,1) with face 0
+  const auto open_fan = flat::test::make_mesh({0, 0, 0, 1, 0, 0, 0, 1, 0, -1, 0, 0, 0, -1, 0, 0.5f, -1, 0},
+                                              {0, 1, 2, 0, 2, 3, 0, 4, 5});
+  CHECK(mesh_statistics(open_fan).edge_connected_pieces == 2);
+  CHECK(mesh_statistics(open_fan).connected_components == 1);
+}

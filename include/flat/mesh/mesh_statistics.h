@@ -1,6 +1,7 @@
 // The mesh figures of the paper's appendix "Mesh Conversion Analysis":
 // degenerate faces, isolated triangles, mean triangle neighbours,
-// non-manifold edges, connected components.
+// non-manifold edges, connected components (through shared vertices, and
+// through shared edges: welded vertices alone do not make a surface).
 #pragma once
 #include <cstdint>
 #include <string>
@@ -20,6 +21,7 @@ struct MeshStatistics {
   double non_manifold_edges_pct = 0; // edges of more than two faces, over all edges
   double boundary_edges_pct = 0;     // edges of exactly one face, over all edges
   int64_t connected_components = 0;  // faces joined through shared vertices
+  int64_t edge_connected_pieces = 0; // faces joined through shared edges (edge_components.h): the stitched surface
 };
 
 // area_eps: relative to the squared bounding-box diagonal.
