@@ -29,7 +29,7 @@ report() {  # $1: what, $2 $3 $4: times
 case "$MODE" in
   synth)
     SCENES="${3:-8}"; SIZE="${4:-48x80}"
-    synth() { "$BUILD/flat_synth" --out "$T/$1" --scenes "$SCENES" --frames 17 --size "$SIZE" --seed 7 --log-level warn; }
+    synth() { "$BUILD/flat_synth" --out "$T/$1" --count "$SCENES" --frames 17 --size "$SIZE" --seed 7 --log-level warn; }
     t0=$(now); synth alone; t1=$(now)
     synth a & synth b & wait; t2=$(now)
     cmp -s "$T/alone/room_000000/images/000008.png" "$T/a/room_000000/images/000008.png" 2>/dev/null \
@@ -39,7 +39,7 @@ case "$MODE" in
     ;;
   latents)
     DIM="${3:-32}"
-    "$BUILD/flat_synth" --out "$T/src" --scenes 4 --frames 17 --size 96x160 --seed 3 --log-level warn
+    "$BUILD/flat_synth" --out "$T/src" --count 4 --frames 17 --size 96x160 --seed 3 --log-level warn
     latents() {
       rm -rf "$T/$1"; cp -r "$T/src" "$T/$1"
       "$BUILD/flat_latents" --scenes "$T/$1" --random-weights --seed 0 --dim "$DIM" --window 17 --device cpu \
@@ -51,7 +51,7 @@ case "$MODE" in
     ;;
   train)
     STEPS="${3:-30}"
-    "$BUILD/flat_synth" --out "$T/data" --scenes 4 --frames 17 --size 48x80 --seed 7 --log-level warn
+    "$BUILD/flat_synth" --out "$T/data" --count 4 --frames 17 --size 48x80 --seed 7 --log-level warn
     "$BUILD/flat_latents" --scenes "$T/data" --random-weights --seed 0 --dim 8 --window 9 --step 4 --log-level warn
     DEVICE="${DEVICE:-cpu}"
     val=(--set validation.datasets=[])

@@ -46,8 +46,8 @@ if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_trai
   # and held-out PSNR), then flat_bench train at the paper's stage sizes on
   # synthetic scenes with random-weight dim-96 latents (random LPIPS weights).
   S="$OUT/train"; rm -rf "$S"
-  { "$BUILD/flat_synth" --out "$S/tiny/train" --scenes 4 --seed 7 --family room --frames 17 --size 48x80 --motion mixed &&
-    "$BUILD/flat_synth" --out "$S/tiny/val" --scenes 1 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed &&
+  { "$BUILD/flat_synth" --out "$S/tiny/train" --count 4 --seed 7 --family room --frames 17 --size 48x80 --motion mixed &&
+    "$BUILD/flat_synth" --out "$S/tiny/val" --count 1 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed &&
     "$BUILD/flat_latents" --scenes "$S/tiny/train" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
     "$BUILD/flat_latents" --scenes "$S/tiny/val" --random-weights --seed 0 --dim 16 --window 9 --step 4 --device cuda &&
     "$BUILD/flat_train" --config configs/tiny/stage1.yaml --set run_dir="$S/tiny/run" --set device=cuda --set steps=60 --set init.from=scratch --set "init.path=''" \
@@ -58,7 +58,7 @@ if { [ "$MODE" = "bench" ] || [ "$MODE" = "train" ]; } && [ -x "$BUILD/flat_trai
     stage_sizes "$stage" || continue
     win=$frames
     D="$S/stage$stage"
-    { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames $frames --size $size --motion mixed &&
+    { "$BUILD/flat_synth" --out "$D" --count 1 --seed $stage --family room --frames $frames --size $size --motion mixed &&
       "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $win --device cuda --precision bf16 &&
       "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 3 --steps ${GPU_TRAIN_STEPS:-10} \
         --set "data.datasets=[{root: $D}]" --set validation.datasets=[] --set data.workers=4; } \
@@ -85,14 +85,14 @@ if [ "$MODE" = "infer" ] && [ -x "$BUILD/flat_infer" ]; then
   # window (13 and 51 latent frames, 176x320) decoded on CUDA in bf16, streaming
   # and full-sequence; summary.json holds the peak memory of decoding and rendering.
   I="$OUT/infer"; rm -rf "$I"
-  { "$BUILD/flat_synth" --out "$I/train" --scenes 1 --seed 3 --family room --frames 17 --size 176x320 --motion pan &&
+  { "$BUILD/flat_synth" --out "$I/train" --count 1 --seed 3 --family room --frames 17 --size 176x320 --motion pan &&
     "$BUILD/flat_latents" --scenes "$I/train" --random-weights --seed 0 --dim 96 --window 17 --device cuda --precision bf16 &&
     "$BUILD/flat_train" --config configs/stage1.yaml --set run_dir="$I/run" --set steps=2 --set init.from=scratch \
       --set "init.path=''" --set loss.lambda_perc=0 --set "data.datasets=[{root: $I/train}]" --set validation.datasets=[] \
       --set optim.warmup_steps=0; } >"$OUT/infer_model.log" 2>&1
   summary+=("infer: model rc=$?")
   for T in 49 201; do
-    { "$BUILD/flat_synth" --out "$I/long$T" --scenes 1 --seed 5 --family room --frames $T --size 176x320 --motion orbit &&
+    { "$BUILD/flat_synth" --out "$I/long$T" --count 1 --seed 5 --family room --frames $T --size 176x320 --motion orbit &&
       "$BUILD/flat_latents" --scenes "$I/long$T" --random-weights --seed 0 --dim 96 --window $T --device cuda --precision bf16; } \
       >"$OUT/infer_data_$T.log" 2>&1
     for mode in streaming full; do
@@ -115,7 +115,7 @@ if [ "$MODE" = "scale" ] && [ -x "$BUILD/flat_bench" ]; then
   for stage in ${GPU_SCALE_STAGES:-3 4}; do
     case $stage in 3) size=360x640 ;; 4) size=432x768 ;; esac
     D="$OUT/scale$stage"; rm -rf "$D"
-    { "$BUILD/flat_synth" --out "$D" --scenes 1 --seed $stage --family room --frames 49 --size $size --motion mixed &&
+    { "$BUILD/flat_synth" --out "$D" --count 1 --seed $stage --family room --frames 49 --size $size --motion mixed &&
       "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window 49 --device cuda --precision bf16; } \
       >"$OUT/scale_data_$stage.log" 2>&1
     for variant in "plain:--set optim.name=adamw --set pipeline.model.activation_checkpointing=false" \

@@ -76,7 +76,7 @@ LPIPS="$WORK/random_lpips.safetensors"
 for stage in ${DP_STAGES:-1}; do
   stage_sizes "$stage" || continue
   D="$WORK/data${stage}_${DP_SCENES:-8}"
-  [ -e "$D/.ready" ] || { rm -rf "$D" && "$BUILD/flat_synth" --out "$D" --scenes ${DP_SCENES:-8} --seed $stage --family room --frames $frames --size $size --motion mixed &&
+  [ -e "$D/.ready" ] || { rm -rf "$D" && "$BUILD/flat_synth" --out "$D" --count ${DP_SCENES:-8} --seed $stage --family room --frames $frames --size $size --motion mixed &&
     "$BUILD/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda --precision bf16 &&
     # The random LPIPS file (flat_bench train writes it; 1 timed step).
     "$BUILD/flat_bench" train --config configs/stage$stage.yaml --random-lpips --warmup 1 --steps 1 \

@@ -40,7 +40,7 @@ keep() {  # run folder, name[, PNG stride]: small outputs into $OUT
 
 if [ "$PHASE" = "chain" ] || [ "$PHASE" = "all" ]; then
   C="$D/chain"; rm -rf "$C"; mkdir -p "$C"
-  "$BUILD/flat_synth" --out "$C/data" --scenes 1 --seed 11 --family room --frames 17 --size 96x160 --motion mixed \
+  "$BUILD/flat_synth" --out "$C/data" --count 1 --seed 11 --family room --frames 17 --size 96x160 --motion mixed \
     --log-level warn >"$OUT/chain_synth.log" 2>&1
   "$BUILD/flat_latents" --scenes "$C/data" --random-weights --dim 8 --window 17 --device cuda >"$OUT/chain_latents.log" 2>&1
   "$BUILD/flat_train" --config configs/tiny/stage1.yaml --set run_dir="$C/model" --set steps=60 --set device=cuda \
@@ -65,7 +65,7 @@ fi
 if [ "$PHASE" = "paper" ] || [ "$PHASE" = "all" ]; then
   P="$D/paper"; rm -rf "$P"; mkdir -p "$P"
   [ -d "$D/chain/model" ] || { echo "paper: needs the chain model (run chain first on this machine)"; exit 1; }
-  "$BUILD/flat_synth" --out "$P/data" --scenes 1 --seed 12 --family room --frames 49 --size 432x768 --motion mixed \
+  "$BUILD/flat_synth" --out "$P/data" --count 1 --seed 12 --family room --frames 49 --size 432x768 --motion mixed \
     --log-level warn >"$OUT/paper_synth.log" 2>&1
   note "paper data rc=$?"
   "$BUILD/flat_latents" --scenes "$P/data" --random-weights --dim 8 --window 49 --device cuda >"$OUT/paper_latents.log" 2>&1

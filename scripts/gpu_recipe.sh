@@ -59,10 +59,10 @@ if [ "$PHASE" = "data" ]; then
   P=8; per=$(( (ROOMS + P - 1) / P ))
   for k in $(seq 0 $((P - 1))); do
     n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
-    "$BUILD/flat_synth" --threads 2 --out "$R/data/train" --scenes $n --first-index $((k * per)) --seed 7 \
+    "$BUILD/flat_synth" --threads 2 --out "$R/data/train" --count $n --first-index $((k * per)) --seed 7 \
       --family room --frames "$FRAMES" --size $SIZE --motion mixed --log-level warn >"$OUT/synth_$k.log" 2>&1 &
   done
-  "$BUILD/flat_synth" --threads 2 --out "$R/data/val" --scenes "$VAL" --seed 1001 --family room \
+  "$BUILD/flat_synth" --threads 2 --out "$R/data/val" --count "$VAL" --seed 1001 --family room \
     --frames "$FRAMES" --size $SIZE --motion mixed --log-level warn >"$OUT/synth_val.log" 2>&1 &
   wait
   note "rooms: $(ls "$R/data/train" | wc -l) training, $(ls "$R/data/val" | wc -l) held-out, $FRAMES frames of $SIZE"

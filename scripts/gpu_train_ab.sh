@@ -56,7 +56,7 @@ for stage in $STAGES; do
   D="$DATA/stage$stage"
   if [ ! -f "$D/.done" ]; then
     rm -rf "$D"
-    { OMP_NUM_THREADS=16 "$BIN/flat_synth" --out "$D" --scenes 1 --seed "$stage" --family room --frames $frames \
+    { OMP_NUM_THREADS=16 "$BIN/flat_synth" --out "$D" --count 1 --seed "$stage" --family room --frames $frames \
         --size $size --motion mixed &&
       "$BIN/flat_latents" --scenes "$D" --random-weights --seed 0 --dim 96 --window $frames --device cuda \
         --precision bf16 && touch "$D/.done"; } >"$OUT/data_stage$stage.log" 2>&1 ||

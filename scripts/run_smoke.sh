@@ -24,8 +24,8 @@ stamp() { echo "   ($(( $(date +%s) - T0 )) s since the demo started)"; }
 
 echo "== 1/6 synthetic rooms (ray-cast, exact depth and normals): 48 to train on, 8 held out"
 rm -rf "$RUN/data"
-"$B/flat_synth" --out "$RUN/data/train" --scenes 48 --seed 7 --family room --frames 17 --size 48x80 --motion mixed
-"$B/flat_synth" --out "$RUN/data/val" --scenes 8 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed
+"$B/flat_synth" --out "$RUN/data/train" --count 48 --seed 7 --family room --frames 17 --size 48x80 --motion mixed
+"$B/flat_synth" --out "$RUN/data/val" --count 8 --seed 1001 --family room --frames 17 --size 48x80 --motion mixed
 stamp
 echo "== 2/6 VAE stage: a dim-8 Wan 2.1 VAE trained on the training rooms' frames, single frames first"
 echo "   (configs/tiny/vae_image.yaml), then windows of 5 frames (configs/tiny/vae.yaml)"

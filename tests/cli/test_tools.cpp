@@ -46,7 +46,7 @@ const Fixtures& fixtures() {
     Fixtures x;
     x.root = fresh_dir("cli").string();
     x.synth = x.root + "/synth";
-    REQUIRE(tool("flat_synth", {"--out", x.synth, "--scenes", "1", "--frames", "5", "--size", "16x24"}, x.root,
+    REQUIRE(tool("flat_synth", {"--out", x.synth, "--count", "1", "--frames", "5", "--size", "16x24"}, x.root,
                  "fixture_synth")
                 .rc == 0);
     x.capture = x.root + "/capture";
@@ -192,7 +192,7 @@ TEST_CASE("tools restart once with sleeping OpenMP threads, unless the user chos
     }
   const std::string synth_out = f.root + "/omp_synth";
   const std::vector<std::vector<std::string>> runs = {
-      {binary("flat_synth"), "--out", synth_out, "--scenes", "1", "--frames", "1", "--size", "16x16", "--overwrite"},
+      {binary("flat_synth"), "--out", synth_out, "--count", "1", "--frames", "1", "--size", "16x16", "--overwrite"},
       {binary("flat_train"), "--help-config"},
       {binary("flat_bench"), "--version"}};
   const std::string spin = "GOMP_SPINCOUNT = '";
@@ -236,7 +236,7 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
       {"vae_encode_png", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", "{R}/video.safetensors",
                                       "--out", "{R}/latent.png"}, 2, {"--out must be a .safetensors"}},
       {"vae_two_weights", "flat_vae", {"encode", "--in", "{R}/video.safetensors", "--out", "{R}/z.safetensors"}, 2,
-       {"--weights FILE or --random-weights"}},
+       {"--vae FILE or --random-weights"}},
       {"import_no_frames_dir", "flat_import", {"re10k", "--in", "{R}/cams.txt", "--out", "{R}/re"}, 2,
        {"--frames-dir"}},
       {"bench_raster_size", "flat_bench", {"raster", "--size", "paper"}, 2, {"--size"}},
@@ -246,10 +246,10 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
        1, {"no scene has --window 21", "longest has 5"}},
       {"latents_no_scenes", "flat_latents", {"--scenes", "{R}/capture", "--random-weights"}, 1,
        {"no scene folders"}},
-      {"vae_nan_weights", "flat_vae", {"encode", "--weights", "{R}/weights_nan.safetensors", "--in",
+      {"vae_nan_weights", "flat_vae", {"encode", "--vae", "{R}/weights_nan.safetensors", "--in",
                                        "{R}/video.safetensors", "--out", "{R}/z_nan.safetensors"}, 1,
        {"weights_nan.safetensors", "encoder.conv1.weight", "non-finite"}},
-      {"vae_u8_weights", "flat_vae", {"encode", "--weights", "{R}/weights_u8.safetensors", "--in",
+      {"vae_u8_weights", "flat_vae", {"encode", "--vae", "{R}/weights_u8.safetensors", "--in",
                                       "{R}/video.safetensors", "--out", "{R}/z_u8.safetensors"}, 1,
        {"weights_u8.safetensors", "floating point"}},
       {"vae_int64_video", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in",
@@ -257,7 +257,7 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
        {"video_int64.safetensors", "Long", "floating point"}},
       {"vae_255_video", "flat_vae", {"encode", "--random-weights", "--dim", "4", "--in", "{R}/video_255.safetensors",
                                      "--out", "{R}/z_255.safetensors"}, 1, {"video_255.safetensors", "[-1,1]"}},
-      {"vae_weights_dir_empty", "flat_vae", {"encode", "--weights", "{R}/capture/images", "--in",
+      {"vae_weights_dir_empty", "flat_vae", {"encode", "--vae", "{R}/capture/images", "--in",
                                              "{R}/video.safetensors", "--out", "{R}/z_dir.safetensors"}, 1,
        {"without a .safetensors file"}},
       {"synth_huge", "flat_synth", {"--out", "{R}/huge", "--size", "100000x100000", "--frames", "9"}, 1,
@@ -268,7 +268,7 @@ TEST_CASE("bad inputs: exit code and the words of the message, before any work",
       {"render_huge_camera", "flat_render", {"--triangles", "{R}/huge.ply", "--cameras", "{R}/huge_cams.json",
                                              "--out", "{R}/render_huge_cam", "--device", "cpu"}, 1,
        {"huge.ply"}},
-      {"vae_weights_folder", "flat_vae", {"encode", "--weights", "{R}/diffusers", "--in", "{R}/video.safetensors",
+      {"vae_weights_folder", "flat_vae", {"encode", "--vae", "{R}/diffusers", "--in", "{R}/video.safetensors",
                                           "--out", "{R}/z_folder.safetensors"}, 1,
        {"diffusion_pytorch_model.safetensors", "non-finite"}},
       {"pack_not_scenes", "flat_pack", {"--scenes", "{R}/capture"}, 1, {"capture", "no scene folders"}},
@@ -333,7 +333,7 @@ TEST_CASE("flat_import: a failed import into an existing scene leaves it byte-id
 
 TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[cli]") {
   const std::string d = fresh_dir("cli_synth").string(), out = d + "/data";
-  const std::vector<std::string> batch = {"--out", out, "--scenes", "1", "--frames", "5", "--size", "16x24"};
+  const std::vector<std::string> batch = {"--out", out, "--count", "1", "--frames", "5", "--size", "16x24"};
   REQUIRE(tool("flat_synth", batch, d, "first").rc == 0);
   // Latents of the first batch, which a replaced scene would orphan.
   REQUIRE(tool("flat_latents", {"--scenes", out, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents")
@@ -554,7 +554,7 @@ TEST_CASE("flat_latents: latent sets by size and window; a new set leaves the ot
   const std::string d = fresh_dir("cli_latent_sets").string(), data = d + "/data";
   fs::create_directories(data);
   // Three 9-frame scenes.
-  REQUIRE(tool("flat_synth", {"--out", data, "--scenes", "3", "--frames", "9", "--size", "16x24"}, d, "synth").rc == 0);
+  REQUIRE(tool("flat_synth", {"--out", data, "--count", "3", "--frames", "9", "--size", "16x24"}, d, "synth").rc == 0);
   (void)f;
   const std::vector<std::string> rnd = {"--random-weights", "--dim", "4", "--seed", "1"};
   auto args = [&](std::vector<std::string> a) {
@@ -603,7 +603,7 @@ TEST_CASE("flat_latents: latent sets by size and window; a new set leaves the ot
   // Shards: 0/2 and 1/2 take disjoint scenes that together are all of them.
   const std::string sharded = d + "/sharded";
   fs::create_directories(sharded);
-  REQUIRE(tool("flat_synth", {"--out", sharded, "--scenes", "3", "--frames", "5", "--size", "16x24"}, d, "synth2").rc ==
+  REQUIRE(tool("flat_synth", {"--out", sharded, "--count", "3", "--frames", "5", "--size", "16x24"}, d, "synth2").rc ==
           0);
   auto s0 = tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--window", "5", "--shard",
                                   "0/2"},
@@ -767,7 +767,7 @@ TEST_CASE("an output path under a file names the path and what is wrong, never a
   const Fixtures& f = fixtures();
   const std::string d = fresh_dir("cli_out_file").string();
   write_text(d + "/afile", "x");
-  auto synth = tool("flat_synth", {"--out", d + "/afile/synth", "--scenes", "1", "--frames", "5", "--size", "16x24"},
+  auto synth = tool("flat_synth", {"--out", d + "/afile/synth", "--count", "1", "--frames", "5", "--size", "16x24"},
                     d, "synth");
   INFO(synth.output);
   CHECK(synth.rc == 1);
@@ -796,7 +796,7 @@ TEST_CASE("an output path under a file names the path and what is wrong, never a
   } else {
     for (const auto& [name, args] :
          std::vector<std::pair<std::string, std::vector<std::string>>>{
-             {"synth", {"--out", denied + "/flat_synth_out", "--scenes", "1", "--frames", "5", "--size", "16x24"}},
+             {"synth", {"--out", denied + "/flat_synth_out", "--count", "1", "--frames", "5", "--size", "16x24"}},
              {"render", {"--triangles", f.root + "/one.ply", "--cameras", f.root + "/cams_small.json", "--out",
                          denied + "/flat_render_out", "--device", "cpu"}}}) {
       auto r = tool("flat_" + name, args, d, name + "_denied");
@@ -878,7 +878,7 @@ TEST_CASE("never destroy: every tool against an existing folder of user files, r
   // flat_synth writes scene folders into --out: the user's files beside them stay as they were.
   const std::string synth = d + "/synth";
   const auto synth_before = user_folder(synth);
-  REQUIRE(tool("flat_synth", {"--out", synth, "--scenes", "1", "--frames", "5", "--size", "16x24"}, d, "synth").rc == 0);
+  REQUIRE(tool("flat_synth", {"--out", synth, "--count", "1", "--frames", "5", "--size", "16x24"}, d, "synth").rc == 0);
   auto synth_after = snapshot(synth);
   for (const auto& [file, bytes] : synth_before) CHECK(synth_after[file] == bytes);
   // flat_vae encode into an existing file: refused, and a failing --overwrite keeps it.
@@ -902,7 +902,7 @@ TEST_CASE("flat_bench: a size that cannot fit is one line, not a stack trace; lo
   // The loader bench fails after synthesising its scenes (a window longer than they are): its temporary folder goes.
   const std::string d = fresh_dir("cli_bench_loader").string(), tmp = d + "/tmp";
   fs::create_directories(tmp);
-  const int rc = run({binary("flat_bench"), "loader", "--scenes", "1", "--scene-frames", "5", "--source-size", "16x24",
+  const int rc = run({binary("flat_bench"), "loader", "--count", "1", "--scene-frames", "5", "--source-size", "16x24",
                       "--size", "16x24", "--window", "9", "--targets", "1", "--batch", "1", "--workers", "0",
                       "--batches", "1", "--warmup", "0", "--mode", "files"},
                      d + "/loader.txt", {"TMPDIR=" + tmp, "OMP_NUM_THREADS=1"});
@@ -912,9 +912,9 @@ TEST_CASE("flat_bench: a size that cannot fit is one line, not a stack trace; lo
   CHECK(fs::is_empty(tmp));
 }
 
-TEST_CASE("flat_synth: a huge --scenes says what it does at once", "[cli]") {
+TEST_CASE("flat_synth: a huge --count says what it does at once", "[cli]") {
   const std::string d = fresh_dir("cli_synth_many").string();
-  auto child = spawn({binary("flat_synth"), "--out", d + "/data", "--scenes", "100000000", "--frames", "5", "--size",
+  auto child = spawn({binary("flat_synth"), "--out", d + "/data", "--count", "100000000", "--frames", "5", "--size",
                       "16x24", "--first-index", "3"},
                      d + "/log.txt", {"OMP_NUM_THREADS=1"});
   REQUIRE(child.pid > 0);

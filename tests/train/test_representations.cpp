@@ -77,7 +77,7 @@ TEST_CASE("every ablation row trains in one command, changing only its keys", "[
   // The Plucker row reads the Plucker latents: data without them is named.
   const std::string d = fresh_dir("ablation_plucker_missing").string();
   const std::string data = d + "/data";
-  REQUIRE(run({binary("flat_synth"), "--out", data, "--scenes", "1", "--seed", "5", "--family", "room", "--frames",
+  REQUIRE(run({binary("flat_synth"), "--out", data, "--count", "1", "--seed", "5", "--family", "room", "--frames",
                "9", "--size", "32x48"},
               d + "/make.txt") == 0);
   REQUIRE(run({binary("flat_latents"), "--scenes", data, "--random-weights", "--dim", "4", "--window", "5"},

@@ -44,7 +44,7 @@ TEST_CASE("the four tiny stages chain on one set of dataset folders, each on its
   for (int n = 1; n <= 4; ++n) configs.push_back(stage_config(n, d, root));
   const std::string log = d + "/make.log";
   for (auto [name, scenes, seed] : {std::tuple{"train", "3", "5"}, std::tuple{"val", "2", "77"}})
-    REQUIRE(run({binary("flat_synth"), "--out", root + "/data/" + name, "--scenes", scenes, "--seed", seed,
+    REQUIRE(run({binary("flat_synth"), "--out", root + "/data/" + name, "--count", scenes, "--seed", seed,
                  "--family", "room", "--frames", "17", "--size", "80x144"},
                 log) == 0);
   // One call makes what the four stages need: the shipped configs as they are,

@@ -24,7 +24,7 @@ inline const std::string& tiny_data() {
     const std::string log = d + "/make.log";
     for (auto [name, scenes, seed] : {std::tuple{"train", "2", "3"}, std::tuple{"val", "1", "99"}}) {
       const std::string out = d + "/" + name;
-      REQUIRE(run({binary("flat_synth"), "--out", out, "--scenes", scenes, "--seed", seed, "--family", "room",
+      REQUIRE(run({binary("flat_synth"), "--out", out, "--count", scenes, "--seed", seed, "--family", "room",
                    "--frames", "9", "--size", "32x48", "--motion", "mixed"},
                   log) == 0);
       REQUIRE(run({binary("flat_latents"), "--scenes", out, "--random-weights", "--seed", "0", "--dim", "4",
