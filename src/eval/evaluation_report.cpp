@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "flat/core/error.h"
+#include "flat/eval/depth_metrics.h"
 
 namespace flat::eval {
 
@@ -23,7 +24,7 @@ double mean_of(const std::vector<double>& x) {
 }
 
 void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
-  std::vector<double> psnr, ssim, lpips, l1, cosine, oracle, dataset_mean, swap;
+  std::vector<double> psnr, ssim, lpips, l1, cosine, si_log, roughness, oracle, dataset_mean, swap;
   for (const auto* s : scores) {
     if (!s->ok) {
       ++m.failed;
@@ -41,6 +42,8 @@ void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
       l1.push_back(s->normal_l1);
       cosine.push_back(s->normal_cosine);
     }
+    if (std::isfinite(s->depth_si_log)) si_log.push_back(s->depth_si_log);
+    if (std::isfinite(s->planar_roughness)) roughness.push_back(s->planar_roughness);
   }
   m.psnr = mean_of(psnr);
   m.ssim = mean_of(ssim);
@@ -48,6 +51,9 @@ void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
   m.normal_l1 = mean_of(l1);
   m.normal_cosine = mean_of(cosine);
   m.normal_scenes = int64_t(l1.size());
+  m.depth_si_log = mean_of(si_log);
+  m.planar_roughness = mean_of(roughness);
+  m.depth_scenes = int64_t(si_log.size());
   m.mean_colour_psnr = mean_of(oracle);
   m.dataset_mean_psnr = mean_of(dataset_mean);
   m.swap_psnr = mean_of(swap);
@@ -92,12 +98,13 @@ std::vector<Means> dataset_means(const std::vector<SceneScore>& scores) {
 std::string results_csv(const EvalResults& r) {
   std::ostringstream os;
   os << "dataset,scene,status,views,unseen_views,triangles,psnr,ssim,lpips,normal_l1,normal_cosine,normal_pixels,"
-        "mean_colour_psnr,dataset_mean_psnr,swap_psnr,swap_scene,latent_encoder,seconds,error\n";
+        "depth_si_log,planar_roughness,planar_pixels,mean_colour_psnr,dataset_mean_psnr,swap_psnr,swap_scene,latent_encoder,seconds,error\n";
   for (const auto& s : r.scores) {
     auto num = [](double x) { return std::isfinite(x) ? fmt::format("{:.6g}", x) : std::string(); };
     os << csv_field(s.dataset) << ',' << csv_field(s.scene) << ',' << (s.ok ? "ok" : "failed") << ',' << s.views
        << ',' << s.unseen_views << ',' << s.triangles << ',' << num(s.psnr) << ',' << num(s.ssim) << ','
        << num(s.lpips) << ',' << num(s.normal_l1) << ',' << num(s.normal_cosine) << ',' << s.normal_pixels << ','
+       << num(s.depth_si_log) << ',' << num(s.planar_roughness) << ',' << s.planar_pixels << ','
        << num(s.mean_colour_psnr) << ',' << num(s.dataset_mean_psnr) << ',' << num(s.swap_psnr) << ','
        << csv_field(s.swap_scene) << ',' << csv_field(s.latent_encoder) << ',' << fmt::format("{:.3f}", s.seconds) << ',' << csv_field(s.error) << '\n';
   }
@@ -109,7 +116,9 @@ nlohmann::json score_to_json(const SceneScore& s) {
           {"views", s.views}, {"unseen_views", s.unseen_views}, {"triangles", s.triangles},
           {"psnr", number(s.psnr)}, {"ssim", number(s.ssim)}, {"lpips", number(s.lpips)},
           {"normal_l1", number(s.normal_l1)}, {"normal_cosine", number(s.normal_cosine)},
-          {"normal_pixels", s.normal_pixels}, {"mean_colour_psnr", number(s.mean_colour_psnr)},
+          {"normal_pixels", s.normal_pixels}, {"depth_si_log", number(s.depth_si_log)},
+          {"planar_roughness", number(s.planar_roughness)}, {"planar_pixels", s.planar_pixels},
+          {"mean_colour_psnr", number(s.mean_colour_psnr)},
           {"dataset_mean_psnr", number(s.dataset_mean_psnr)}, {"swap_psnr", number(s.swap_psnr)},
           {"swap_scene", s.swap_scene}, {"latent_encoder", s.latent_encoder}, {"seconds", s.seconds}};
 }
@@ -130,6 +139,10 @@ SceneScore score_from_json(const nlohmann::json& s) {
   x.normal_l1 = number(s.at("normal_l1"));
   x.normal_cosine = number(s.at("normal_cosine"));
   x.normal_pixels = s.value("normal_pixels", int64_t(0));
+  // Results written before the depth measures have none (NaN).
+  x.depth_si_log = s.contains("depth_si_log") ? number(s.at("depth_si_log")) : NAN;
+  x.planar_roughness = s.contains("planar_roughness") ? number(s.at("planar_roughness")) : NAN;
+  x.planar_pixels = s.value("planar_pixels", int64_t(0));
   x.mean_colour_psnr = s.contains("mean_colour_psnr") ? number(s.at("mean_colour_psnr")) : NAN;
   x.dataset_mean_psnr = s.contains("dataset_mean_psnr") ? number(s.at("dataset_mean_psnr")) : NAN;
   x.swap_psnr = s.contains("swap_psnr") ? number(s.at("swap_psnr")) : NAN;
@@ -148,6 +161,8 @@ nlohmann::json results_json(const EvalResults& r) {
                      {"scenes", m.scenes}, {"failed", m.failed}, {"normal_scenes", m.normal_scenes},
                      {"psnr", number(m.psnr)}, {"ssim", number(m.ssim)}, {"lpips", number(m.lpips)},
                      {"normal_l1", number(m.normal_l1)}, {"normal_cosine", number(m.normal_cosine)},
+                     {"depth_scenes", m.depth_scenes}, {"depth_si_log", number(m.depth_si_log)},
+                     {"planar_roughness", number(m.planar_roughness)},
                      {"mean_colour_psnr", number(m.mean_colour_psnr)},
                      {"dataset_mean_psnr", number(m.dataset_mean_psnr)}, {"swap_psnr", number(m.swap_psnr)},
                      {"random_latent_scenes", m.random_latent_scenes}});
@@ -190,7 +205,17 @@ std::string metric_definitions(const std::string& ssim_convention) {
          "\nLPIPS: VGG, v0.1 (Zhang et al. 2018), per view; '–' without LPIPS weights.\n"
          "Normals: rendered (alpha-normalised) vs reference camera-space normals where alpha > 0.5 and a "
          "reference exists; L1 = mean |n - n_ref| over the 3 components, cosine = mean n . n_ref (unit vectors); "
-         "per scene over its pixels, then the mean over the scenes of all datasets that have normals.\n";
+         "per scene over its pixels, then the mean over the scenes of all datasets that have normals.\n"
+         "Depth SI-log: scale-invariant log depth error (Eigen et al. 2014), sqrt(mean(d^2) - mean(d)^2) with "
+         "d = log(rendered depth) - log(reference depth) where alpha > 0.5 and both exist, per view, then the mean "
+         "over a scene's views and over the scenes that have reference depth; a global scale of the depth gives 0.\n"
+         "Planar roughness (texture leaking into depth): rho(z) = z * (mean of 1/z over the 8 neighbours - 1/z), 0 on "
+         "any plane; the mean of |rho(rendered) - rho(reference)| over the pixels whose 3x3 neighbourhood is rendered "
+         "(alpha > 0.5) and planar in the reference (|rho| < " + fmt::format("{:g}", kPlanarDepthTolerance) +
+         ", and reference normals within " + fmt::format("{:.1f}", std::acos(kPlanarNormalCosine) * 180.0 / std::acos(-1.0)) +
+         " degrees of the centre's where they exist), per scene over its pixels, then over the scenes; a render "
+         "equal to the reference (or a multiple of it) scores 0, a depth carrying a 1-pixel checkerboard of relative "
+         "amplitude e about e.\n";
 }
 
 std::string seed_group(const std::string& name) {
@@ -228,13 +253,14 @@ std::string seeds_markdown(const std::vector<EvalResults>& runs) {
     return cell(sum / n, decimals) + (n > 1 ? " ± " + cell(hi - lo, decimals) : std::string());
   };
   std::ostringstream os;
-  os << "| Row | Seeds | PSNR ↑ | SSIM ↑ | LPIPS ↓ | Normal L1 ↓ | Normal cosine ↑ | mean-colour oracle | dataset mean "
-        "| swap |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+  os << "| Row | Seeds | PSNR ↑ | SSIM ↑ | LPIPS ↓ | Normal L1 ↓ | Normal cosine ↑ | Depth SI-log ↓ | Planar roughness ↓ "
+        "| mean-colour oracle | dataset mean | swap |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
   for (const auto& g : rows) {
     const auto& ms = by_row[g];
     os << "| " << g << " | " << ms.size() << " | " << stat(ms, &Means::psnr, 2) << " | " << stat(ms, &Means::ssim, 3)
        << " | " << stat(ms, &Means::lpips, 3) << " | " << stat(ms, &Means::normal_l1, 3) << " | "
-       << stat(ms, &Means::normal_cosine, 3) << " | " << stat(ms, &Means::mean_colour_psnr, 2) << " | "
+       << stat(ms, &Means::normal_cosine, 3) << " | " << stat(ms, &Means::depth_si_log, 3) << " | "
+       << stat(ms, &Means::planar_roughness, 4) << " | " << stat(ms, &Means::mean_colour_psnr, 2) << " | "
        << stat(ms, &Means::dataset_mean_psnr, 2) << " | " << stat(ms, &Means::swap_psnr, 2) << " |\n";
   }
   os << "\nOver seeds: each cell is the mean over the row's seeds of the per-run mean over all scenes, ± the spread "
@@ -252,9 +278,9 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
   std::ostringstream os;
   os << "| Method |";
   for (const auto& d : datasets) os << ' ' << d << " PSNR ↑ | " << d << " SSIM ↑ | " << d << " LPIPS ↓ |";
-  os << " Geometry L1 ↓ | Geometry Cosine ↑ | Scenes |\n|---|";
+  os << " Geometry L1 ↓ | Geometry Cosine ↑ | Depth SI-log ↓ | Planar roughness ↓ | Scenes |\n|---|";
   for (size_t i = 0; i < datasets.size(); ++i) os << "---:|---:|---:|";
-  os << "---:|---:|---:|\n";
+  os << "---:|---:|---:|---:|---:|\n";
   std::vector<std::string> conventions, random_runs;
   for (const auto& r : runs) {
     auto means = dataset_means(r.scores);
@@ -271,7 +297,8 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
          << " |";
     }
     const auto& all = means.back();
-    os << ' ' << cell(all.normal_l1, 3) << " | " << cell(all.normal_cosine, 3) << " | " << all.scenes
+    os << ' ' << cell(all.normal_l1, 3) << " | " << cell(all.normal_cosine, 3) << " | " << cell(all.depth_si_log, 3)
+       << " | " << cell(all.planar_roughness, 4) << " | " << all.scenes
        << '/' << (all.scenes + all.failed) << " |\n";
     // The baselines on the same views, PSNR only: what ignoring the input reaches.
     const std::pair<const char*, double Means::*> rows[] = {{"mean-colour oracle", &Means::mean_colour_psnr},
@@ -288,7 +315,7 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
           if (x.dataset == d && !(&x == &means.back())) m = &x;
         os << ' ' << (m ? cell(m->*field, 2) : std::string()) << " | | |";
       }
-      os << " | | |\n";
+      os << " | | | | |\n";
     }
     if (all.random_latent_scenes > 0) random_runs.push_back(r.name + " (" + std::to_string(all.random_latent_scenes) +
                                                             " of " + std::to_string(all.scenes) + " scenes)");

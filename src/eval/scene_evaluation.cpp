@@ -9,6 +9,7 @@
 #include "flat/data/frame_resize.h"
 #include "flat/data/scene_frames.h"
 #include "flat/data/scene_latents.h"
+#include "flat/eval/depth_metrics.h"
 #include "flat/eval/normal_metrics.h"
 
 namespace flat::eval {
@@ -110,11 +111,12 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   // Render and score the views, a chunk at a time.
   std::vector<double> psnr, ssim, lp, mean_colour, dataset_mean, swap;
   if (baselines.swap_with) r.swap_scene = baselines.swap_with->name;
-  double l1_sum = 0, cos_sum = 0;
+  double l1_sum = 0, cos_sum = 0, roughness_sum = 0;
+  std::vector<double> si_log;
   for (size_t c0 = 0; c0 < frames.size(); c0 += size_t(s.render_chunk)) {
     const std::vector<int64_t> part(frames.begin() + long(c0),
                                     frames.begin() + long(std::min(frames.size(), c0 + size_t(s.render_chunk))));
-    auto gt = data::load_frames(scene, part, false, scene.has_normals);
+    auto gt = data::load_frames(scene, part, scene.has_depth, scene.has_normals);
     auto intr = data::fit_frames(gt, scene.cameras(part).intrinsics, H, W);
     camera::Cameras cams{intr.to(device), scene.cameras(part).c2w.to(device)};
     pipeline::RenderedViews v;
@@ -154,14 +156,21 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
       auto d = eval::lpips(lpips, v.rgb.to(at::kFloat).clamp(0, 1), target.to(device));
       for (int64_t k = 0; k < d.size(0); ++k) lp.push_back(d[k].item<double>());
     }
+    const auto mask = v.alpha.to(at::kCPU, at::kFloat) > s.normal_alpha;
     if (gt.normals.defined()) {
-      auto mask = v.alpha.to(at::kCPU, at::kFloat) > s.normal_alpha;
       auto acc = normal_accuracy(v.normal.to(at::kCPU, at::kFloat), gt.normals, mask);
       if (acc.valid_pixels > 0) {
         l1_sum += acc.mean_l1 * double(acc.valid_pixels);
         cos_sum += acc.mean_cosine * double(acc.valid_pixels);
         r.normal_pixels += acc.valid_pixels;
       }
+    }
+    if (gt.depth.defined() && v.depth.defined()) {
+      auto acc = depth_accuracy(v.depth.to(at::kCPU, at::kFloat), gt.depth, mask, gt.normals);
+      for (double e : acc.si_log)
+        if (std::isfinite(e)) si_log.push_back(e);
+      roughness_sum += acc.planar_roughness_sum;
+      r.planar_pixels += acc.planar_pixels;
     }
   }
   auto mean = [](const std::vector<double>& x) {
@@ -181,6 +190,8 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
     r.normal_l1 = l1_sum / double(r.normal_pixels);
     r.normal_cosine = cos_sum / double(r.normal_pixels);
   }
+  r.depth_si_log = mean(si_log);
+  if (r.planar_pixels > 0) r.planar_roughness = roughness_sum / double(r.planar_pixels);
   r.ok = true;
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;

@@ -98,6 +98,9 @@ TEST_CASE("means per dataset skip failures and scenes without normals; the table
   r.name = "ours";
   r.scores = {score("RE10K", "a", 20, 0.8), score("RE10K", "b", 22, NAN), score("RE10K", "c", 0, 0, false),
               score("DL3DV", "d", 18, 0.6)};
+  // Depth figures where a scene has reference depth (a and d; b has none).
+  r.scores[0].depth_si_log = 0.1, r.scores[0].planar_roughness = 0.02, r.scores[0].planar_pixels = 50;
+  r.scores[3].depth_si_log = 0.3, r.scores[3].planar_roughness = 0.04, r.scores[3].planar_pixels = 70;
   auto m = eval::dataset_means(r.scores);
   REQUIRE(m.size() == 3);
   CHECK(m[0].dataset == "RE10K");
@@ -109,17 +112,42 @@ TEST_CASE("means per dataset skip failures and scenes without normals; the table
   CHECK(m[2].dataset.empty());
   CHECK(m[2].normal_cosine == Approx(0.7));  // a and d
   CHECK(std::isnan(m[2].lpips));
+  CHECK(m[0].depth_si_log == Approx(0.1));  // b has no depth: not a 0 in the mean
+  CHECK(m[2].depth_si_log == Approx(0.2));
+  CHECK(m[2].planar_roughness == Approx(0.03));
+  CHECK(m[2].depth_scenes == 2);
   auto table = eval::table1_markdown({r});
   CHECK(table.find("RE10K PSNR") < table.find("DL3DV PSNR"));
-  CHECK(table.find("| ours | 21.00 | 0.500 | – | 18.00 | 0.500 | – | 0.300 | 0.700 | 3/4 |") != std::string::npos);
+  CHECK(table.find("| Geometry L1 ↓ | Geometry Cosine ↑ | Depth SI-log ↓ | Planar roughness ↓ | Scenes |") !=
+        std::string::npos);
+  CHECK(table.find("| ours | 21.00 | 0.500 | – | 18.00 | 0.500 | – | 0.300 | 0.700 | 0.200 | 0.0300 | 3/4 |") !=
+        std::string::npos);
   CHECK(table.find("scikit-image") != std::string::npos);
+  CHECK(table.find("Planar roughness (texture leaking into depth)") != std::string::npos);
   auto csv = eval::results_csv(r);
   CHECK(std::count(csv.begin(), csv.end(), '\n') == 5);
   CHECK(csv.find("RE10K,c,failed") != std::string::npos);
+  CHECK(csv.find(",normal_pixels,depth_si_log,planar_roughness,planar_pixels,") != std::string::npos);
+  CHECK(csv.find(",10,0.1,0.02,50,") != std::string::npos);  // scene a's normal pixels, then its depth figures
   // JSON round trip keeps NaN as null -> NaN.
   auto back = eval::score_from_json(eval::score_to_json(r.scores[1]));
   CHECK(std::isnan(back.normal_cosine));
+  CHECK(std::isnan(back.depth_si_log));
+  CHECK(std::isnan(back.planar_roughness));
+  CHECK(eval::score_to_json(r.scores[1]).at("depth_si_log").is_null());
   CHECK(back.psnr == 22);
+  auto a = eval::score_from_json(eval::score_to_json(r.scores[0]));
+  CHECK(a.depth_si_log == 0.1);
+  CHECK(a.planar_roughness == 0.02);
+  CHECK(a.planar_pixels == 50);
+  // Results written before the depth measures read back without them.
+  auto old = eval::score_to_json(r.scores[0]);
+  old.erase("depth_si_log");
+  old.erase("planar_roughness");
+  CHECK(std::isnan(eval::score_from_json(old).depth_si_log));
+  CHECK(std::isnan(eval::score_from_json(old).planar_roughness));
+  auto j = eval::results_json(r);
+  CHECK(j.at("means").back().at("planar_roughness").get<double>() == Approx(0.03));
 }
 
 TEST_CASE("runs over seeds: one row per ablation, mean and spread beside the baselines", "[eval]") {
@@ -174,6 +202,10 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
       CHECK(sc.views == 4);
       CHECK(std::isfinite(sc.psnr));
       CHECK(sc.normal_pixels >= 0);
+      // The synthetic rooms have exact depth: both depth figures are measured.
+      CHECK(std::isfinite(sc.depth_si_log));
+      CHECK(sc.planar_pixels > 0);
+      CHECK(std::isfinite(sc.planar_roughness));
     }
   }
   CHECK(s.table.find("3/4") != std::string::npos);

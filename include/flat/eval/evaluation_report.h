@@ -1,6 +1,7 @@
 // Tables of flat_eval's results: per-scene rows and per-dataset means as CSV,
 // JSON and a Markdown table laid out like the paper's Table 1 (Method | per
-// dataset PSNR, SSIM, LPIPS | geometry L1, cosine over all datasets). Every
+// dataset PSNR, SSIM, LPIPS | geometry L1, cosine, depth SI-log, planar
+// roughness over all datasets). Every
 // table says how many scenes its means cover and how its metrics are defined.
 #pragma once
 #include <cmath>
@@ -27,8 +28,10 @@ struct EvalResults {
 
 struct Means {
   std::string dataset;  // "" = all datasets
-  int64_t scenes = 0, failed = 0, normal_scenes = 0;
+  int64_t scenes = 0, failed = 0, normal_scenes = 0, depth_scenes = 0;
   double psnr = NAN, ssim = NAN, lpips = NAN, normal_l1 = NAN, normal_cosine = NAN;
+  // Depth (depth_metrics.h): means over the scored scenes that have each figure.
+  double depth_si_log = NAN, planar_roughness = NAN;
   // Baselines (baselines.h), means over the scored scenes that have them.
   double mean_colour_psnr = NAN, dataset_mean_psnr = NAN, swap_psnr = NAN;
   int64_t random_latent_scenes = 0;  // scored scenes whose latents came from a random encoder

@@ -4,7 +4,10 @@
 //   PSNR, SSIM, LPIPS per view (averaged over the scene's views);
 //   normal L1 and cosine against the scene's reference normals, only where
 //   the render's alpha > 0.5 and a reference normal exists, averaged over
-//   those pixels of all views.
+//   those pixels of all views;
+//   depth (depth_metrics.h), where the scene has reference depth, with the
+//   same alpha mask: the SI-log error per view, averaged over the views, and
+//   the planar roughness over the planar pixels of all views.
 // Views: "scene" = every frame of the scene (seen and unseen by the window),
 // "window" = the window's own frames, "unseen" = the frames outside it; more
 // than max_views are subsampled evenly (the same frames every time).
@@ -46,6 +49,9 @@ struct SceneScore {
   double psnr = NAN, ssim = NAN, lpips = NAN;
   double normal_l1 = NAN, normal_cosine = NAN;
   int64_t normal_pixels = 0;
+  // Depth (depth_metrics.h); NaN without reference depth.
+  double depth_si_log = NAN, planar_roughness = NAN;
+  int64_t planar_pixels = 0;
   // Baselines on the same views (baselines.h): PSNR of the mean-colour
   // oracle, of the other scenes' mean image, and of these renders against
   // the ground truth of `swap_scene` (NaN where not measured).
