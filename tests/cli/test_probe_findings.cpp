@@ -29,7 +29,7 @@ const Trained& trained() {
     Trained x;
     x.dir = fresh_dir("cli_probe").string();
     x.synth = x.dir + "/synth";
-    REQUIRE(tool("flat_synth", {"--out", x.synth, "--scenes", "1", "--frames", "9", "--size", "16x24"}, x.dir, "synth")
+    REQUIRE(tool("flat_synth", {"--out", x.synth, "--count", "1", "--frames", "9", "--size", "16x24"}, x.dir, "synth")
                 .rc == 0);
     REQUIRE(tool("flat_latents", {"--scenes", x.synth, "--random-weights", "--dim", "4", "--window", "5"}, x.dir,
                  "latents")
@@ -95,7 +95,7 @@ TEST_CASE("probe: flat_bench loader and decoder at sizes that cannot fit name th
   fs::create_directories(tmp);
   const int rc = run({binary("flat_bench"), "loader", "--scene-frames", "5", "--source-size", "16x24", "--size",
                       "100000x100000", "--window", "1", "--targets", "1", "--batch", "1", "--workers", "0", "--batches",
-                      "1", "--warmup", "0", "--mode", "files"},
+                      "1", "--warmup", "0", "--storage", "files"},
                      d + "/loader_huge.txt", {"TMPDIR=" + tmp, "OMP_NUM_THREADS=1", "OMP_WAIT_POLICY=PASSIVE"});
   const std::string out = read_file(d + "/loader_huge.txt");
   INFO(out);
@@ -129,10 +129,10 @@ TEST_CASE("probe: flat_infer on a model of another width names both widths", "[c
   CHECK_FALSE(fs::exists(t.dir + "/infer_dim8"));
 }
 
-TEST_CASE("probe: flat_bench loader --mode packed --data on a missing folder names the folder", "[cli][probe]") {
+TEST_CASE("probe: flat_bench loader --storage packed --data on a missing folder names the folder", "[cli][probe]") {
   const std::string d = fresh_dir("cli_probe_loader_data").string();
   for (const std::string mode : {"packed", "both", "files"}) {
-    const auto r = tool("flat_bench", {"loader", "--mode", mode, "--data", d + "/no_such_dataset", "--batches", "1",
+    const auto r = tool("flat_bench", {"loader", "--storage", mode, "--data", d + "/no_such_dataset", "--batches", "1",
                                        "--warmup", "0", "--workers", "0"},
                         d, "loader_missing_" + mode);
     INFO(mode << "\n" << r.output);
