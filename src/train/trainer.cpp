@@ -458,10 +458,10 @@ void Run::run_validation(int64_t step) {
                  grid.empty() ? "" : "; grid " + grid);
   else
     spdlog::info("validation @ step {}: PSNR {:.2f} dB | baselines: mean colour {:.2f}, dataset mean {:.2f}, swap "
-                 "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f} over {} views of {} held-out scenes "
-                 "({:.1f} s){}{}",
+                 "{:.2f} | SSIM {:.3f}, LPIPS {}, normal cosine {:.3f}, depth SI-log {:.3f}, planar roughness "
+                 "{:.4f} over {} views of {} held-out scenes ({:.1f} s){}{}",
                  step, r.psnr, r.mean_colour_psnr, r.dataset_mean_psnr, r.swap_psnr, r.ssim, lp, r.normal_cosine,
-                 r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,
+                 r.depth_si_log, r.planar_roughness, r.views, r.samples, secs, grid.empty() ? "" : "; grid " + grid,
                  random_latents_.empty() ? "" : " [RANDOM-ENCODER LATENTS: not a result]");
   summary_.swap_psnr = r.swap_psnr;
   summary_.dataset_mean_psnr = r.dataset_mean_psnr;

@@ -44,7 +44,9 @@ Scalars ValidationResult::scalars() const {
                  {"val_normal_l1", normal_l1},
                  {"val_mean_colour_psnr", mean_colour_psnr}};
   // The baselines that apply to the stage (NaN: not measured here).
-  for (const auto& [name, value] : Scalars{{"val_dataset_mean_psnr", dataset_mean_psnr},
+  for (const auto& [name, value] : Scalars{{"val_depth_si_log", depth_si_log},
+                                           {"val_planar_roughness", planar_roughness},
+                                           {"val_dataset_mean_psnr", dataset_mean_psnr},
                                            {"val_swap_psnr", swap_psnr},
                                            {"val_latent_correlation", latent_correlation}})
     if (!std::isnan(value)) out.push_back({name, value});
@@ -173,7 +175,8 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, const HeldOut& held
   ValidationResult r;
   // Per-scene means summed over the scenes (flat_eval's table is their mean),
   // each with its count: a baseline counts where it could be measured.
-  enum { kPsnr, kSsim, kLpips, kLpipsN, kCos, kL1, kCosN, kOracle, kMean, kMeanN, kSwap, kSwapN, kViews, kScenes, kN };
+  enum { kPsnr, kSsim, kLpips, kLpipsN, kCos, kL1, kCosN, kSiLog, kSiLogN, kRough, kRoughN, kOracle, kMean, kMeanN,
+         kSwap, kSwapN, kViews, kScenes, kN };
   std::vector<double> sums(kN, 0.0);
   const auto device = pipeline.decoder()->conv2->weight.device();
   const int64_t first = group ? group->rank() : 0, stride = group ? group->world_size() : 1;
@@ -189,6 +192,8 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, const HeldOut& held
     sums[kSsim] += sc.ssim;
     if (std::isfinite(sc.lpips)) sums[kLpips] += sc.lpips, sums[kLpipsN] += 1;
     if (std::isfinite(sc.normal_cosine)) sums[kCos] += sc.normal_cosine, sums[kL1] += sc.normal_l1, sums[kCosN] += 1;
+    if (std::isfinite(sc.depth_si_log)) sums[kSiLog] += sc.depth_si_log, sums[kSiLogN] += 1;
+    if (std::isfinite(sc.planar_roughness)) sums[kRough] += sc.planar_roughness, sums[kRoughN] += 1;
     sums[kOracle] += sc.mean_colour_psnr;
     if (std::isfinite(sc.dataset_mean_psnr)) sums[kMean] += sc.dataset_mean_psnr, sums[kMeanN] += 1;
     if (std::isfinite(sc.swap_psnr)) sums[kSwap] += sc.swap_psnr, sums[kSwapN] += 1;
@@ -210,6 +215,8 @@ ValidationResult validate(pipeline::ScenePipeline& pipeline, const HeldOut& held
   r.lpips = mean(kLpips, kLpipsN);
   r.normal_cosine = mean(kCos, kCosN);
   r.normal_l1 = mean(kL1, kCosN);
+  r.depth_si_log = mean(kSiLog, kSiLogN);
+  r.planar_roughness = mean(kRough, kRoughN);
   r.mean_colour_psnr = mean(kOracle, kScenes);
   r.dataset_mean_psnr = mean(kMean, kMeanN);
   r.swap_psnr = mean(kSwap, kSwapN);

@@ -53,6 +53,20 @@ TEST_CASE("validation scores the held-out scenes exactly as flat_eval does, per 
   CHECK(std::abs(r.dataset_mean_psnr - means.dataset_mean_psnr) < 1e-4);
   CHECK(std::abs(r.swap_psnr - means.swap_psnr) < 1e-4);
   CHECK(std::abs(r.normal_cosine - means.normal_cosine) < 1e-5);
+  // The depth measures (the synthetic rooms have exact depth): the same figures, and in val.jsonl's scalars.
+  REQUIRE(std::isfinite(means.depth_si_log));
+  REQUIRE(std::isfinite(means.planar_roughness));
+  CHECK(means.depth_scenes == 4);
+  CHECK(std::abs(r.depth_si_log - means.depth_si_log) < 1e-6);
+  CHECK(std::abs(r.planar_roughness - means.planar_roughness) < 1e-6);
+  const auto scalars = r.scalars();
+  auto scalar = [&](const std::string& name) {
+    for (const auto& [k, v] : scalars)
+      if (k == name) return v;
+    return double(NAN);
+  };
+  CHECK(scalar("val_depth_si_log") == r.depth_si_log);
+  CHECK(scalar("val_planar_roughness") == r.planar_roughness);
   CHECK(r.grid.defined());
   CHECK(r.grid.size(1) > 2 * 48);  // two rows (grid_views 2)
   // At most `count` scenes, in name order, dataset by dataset.

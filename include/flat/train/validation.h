@@ -38,6 +38,8 @@ struct ValidationResult {
   double lpips = NAN;          // NaN without LPIPS weights
   double normal_cosine = NAN;  // NaN where no scene has reference normals
   double normal_l1 = NAN;
+  double depth_si_log = NAN;      // eval/depth_metrics.h; NaN where no scene has reference depth
+  double planar_roughness = NAN;  // texture leaking into depth (eval/depth_metrics.h)
   double mean_colour_psnr = 0; // the mean-colour baseline on the same views
   double dataset_mean_psnr = NAN;  // the other held-out scenes' mean frame on the same views
   double swap_psnr = NAN;          // renders against the next held-out scene's frames
