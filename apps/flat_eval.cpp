@@ -41,9 +41,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--latent-set", o.settings.latent_set,
                  "which latent set of each scene, HxW_fF (e.g. 176x320_f17; default: each scene's only set)");
-  app.add_option("--window", o.settings.window, "which latent window (of frames) of each scene decodes it")
+  app.add_option("--window-index", o.settings.window, "which stored latent window of each scene decodes it (0: the first)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  flat::cli::add_old_name(app, "--window", "--window-index");
   app.add_option("--size", size, "render and compare at HxW (default: the latents' frame size)");
   app.add_option("--ssim", ssim, "skimage (Wang et al., as scikit-image) | 3dgs (the 3DGS repositories')")
       ->check(CLI::IsMember({"skimage", "3dgs"}))

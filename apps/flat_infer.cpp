@@ -28,7 +28,9 @@ int main(int argc, char** argv) {
   bool full_sequence = false, no_ply = false, no_glb = false, no_renders = false, no_video = false, no_viewer = false;
   app.add_option("--model", o.model, "run folder, checkpoint folder or model .safetensors")->required();
   app.add_option("--scene", o.input.scene_dir, "scene folder with precomputed latents (flat_latents)");
-  app.add_option("--window", o.input.window, "which latent window (of frames) of --scene")->capture_default_str();
+  app.add_option("--window-index", o.input.window, "which stored latent window of --scene (0: the first)")
+      ->capture_default_str();
+  flat::cli::add_old_name(app, "--window", "--window-index");
   app.add_option("--latent-set", o.input.latent_set,
                  "which latent set of --scene, HxW_fF (e.g. 176x320_f17; default: the scene's only set)");
   app.add_option("--latents", o.input.latents_file, "latent file: 'video' (16,T',h,w) [+ 'camera' (32,T',h,w)]");

@@ -27,7 +27,8 @@ int main(int argc, char** argv) {
   bool no_mesh = false, no_viewer = false;
   app.add_option("--from", o.from, "flat_infer output folder (scene.ply + summary.json), or a soup .ply")->required();
   app.add_option("--scene", o.scene_dir, "scene folder whose frames are fitted (default: the one flat_infer used)");
-  app.add_option("--window", o.window, "latent window (of frames) of --scene (default: flat_infer's)");
+  app.add_option("--window-index", o.window, "which stored latent window of --scene (default: flat_infer's)");
+  flat::cli::add_old_name(app, "--window", "--window-index");
   app.add_option("--latent-set", o.latent_set, "latent set of --scene, HxW_fF (default: flat_infer's, else the scene's only one)");
   app.add_option("--out", o.out_dir,
                  "output folder (must not exist unless --overwrite); built in <out>.incomplete-<pid>, which a killed "

@@ -24,7 +24,7 @@ InferInput from_scene(const InputSpec& spec) {
   data::choose_latent_set(scene, spec.latent_set);
   FLAT_CHECK(scene.latents.present(), scene.json_path() + ": the scene has no precomputed latents (run flat_latents)");
   const int64_t n = int64_t(scene.latents.windows.size());
-  FLAT_CHECK(spec.window >= 0 && spec.window < n, scene.json_path() + ": --window " + std::to_string(spec.window) +
+  FLAT_CHECK(spec.window >= 0 && spec.window < n, scene.json_path() + ": --window-index " + std::to_string(spec.window) +
                                                       " out of range: the scene has " + std::to_string(n) +
                                                       " latent window(s)");
   auto w = data::read_window_latents(scene, size_t(spec.window), spec.camera_rays);

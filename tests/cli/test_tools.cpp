@@ -632,7 +632,7 @@ TEST_CASE("flat_eval: --out-table never replaces a file without --overwrite; bad
   CHECK_THAT(r.output, FLAT_CONTAINS(d + "/table.md: already exists"));
   CHECK(read_file(d + "/table.md") == "my own table\n");
   for (const auto& bad : std::vector<std::vector<std::string>>{
-           {"--views", "foo"}, {"--ssim", "ms"}, {"--max-views", "-1"}, {"--window", "-2"},
+           {"--views", "foo"}, {"--ssim", "ms"}, {"--max-views", "-1"}, {"--window-index", "-2"},
            {"--size", "100000x100000"}}) {
     std::vector<std::string> args = {"--model", d + "/m", "--scenes", d + "/s", "--out", d + "/out"};
     args.insert(args.end(), bad.begin(), bad.end());

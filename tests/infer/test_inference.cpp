@@ -209,7 +209,7 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
     auto o = good;
     o.overwrite = true;
     o.input.window = 5;  // the scene has one window
-    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--window 5") && FLAT_CONTAINS("scene.json"));
+    REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--window-index 5") && FLAT_CONTAINS("scene.json"));
     CHECK(read_text(fs::path(good.out_dir) / "scene.ply") == before);
     CHECK(no_staging_left(s.dir));
   }
