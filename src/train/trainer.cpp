@@ -1,13 +1,9 @@
 #include "flat/train/trainer.h"
 
-#include <unistd.h>
-
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstdlib>
-#include <ctime>
 #include <filesystem>
 #include <optional>
 
@@ -34,58 +30,13 @@
 #include "flat/train/train_step.h"
 #include "flat/train/training_session.h"
 #include "flat/train/validation.h"
+#include "train/run_folder.h"
+#include "train/stop_signals.h"
 
 namespace flat::train {
 namespace fs = std::filesystem;
 
 namespace {
-
-// ---- stop signals ------------------------------------------------------------
-// The first SIGINT/SIGTERM asks the loop to stop after the current step and
-// write a checkpoint; a second one ends the process at once (default action).
-// One request often arrives twice: coreutils `timeout` signals the command
-// and then its process group, a scheduler signals every process of a job
-// step and a terminal its process group, a launcher (flat_train --nproc,
-// torchrun) forwards what its rank also got directly. A repeat within a
-// second is therefore the same request; a later one still ends the process.
-// (Before this, a single-process run under `timeout` lost its checkpoint
-// whenever the two copies arrived apart: GPU recipe, 2026-11-26.)
-std::atomic<int> g_stop_signal{0};
-std::atomic<int64_t> g_first_signal_ms{0};
-
-int64_t monotonic_ms() {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);  // async-signal-safe
-  return int64_t(ts.tv_sec) * 1000 + ts.tv_nsec / 1000000;
-}
-
-extern "C" void on_stop_signal(int sig) {
-  if (g_stop_signal.load() == 0) {
-    g_first_signal_ms.store(monotonic_ms());
-    g_stop_signal.store(sig);
-    return;
-  }
-  if (monotonic_ms() - g_first_signal_ms.load() < 1000) return;
-  std::signal(sig, SIG_DFL);
-  std::raise(sig);
-}
-
-// SIGHUP (a closed terminal or SSH session) is a stop request too.
-struct StopSignals {
-  using Handler = void (*)(int);
-  Handler old_int, old_term, old_hup;
-  StopSignals() {
-    g_stop_signal.store(0);
-    old_int = std::signal(SIGINT, on_stop_signal);
-    old_term = std::signal(SIGTERM, on_stop_signal);
-    old_hup = std::signal(SIGHUP, on_stop_signal);
-  }
-  ~StopSignals() {
-    std::signal(SIGINT, old_int);
-    std::signal(SIGTERM, old_term);
-    std::signal(SIGHUP, old_hup);
-  }
-};
 
 // ---- helpers -------------------------------------------------------------------
 
@@ -101,77 +52,10 @@ void setup_rank_logging(const std::string& level, const distributed::Distributed
   spdlog::set_default_logger(logger);
 }
 
-// The test hook of kSignalInValidationEnv: "<step>" or "<step>:<signal>".
-void signal_for_test(int64_t step) {
-  const char* v = std::getenv(kSignalInValidationEnv);
-  if (!v) return;
-  const std::string text = v;
-  const auto colon = text.find(':');
-  if (text.substr(0, colon) != std::to_string(step)) return;
-  std::raise(colon == std::string::npos ? SIGKILL : std::atoi(text.c_str() + colon + 1));
-}
-
 // checkpoints/step_00000040 -> 40.
 int64_t ckpt_step(const std::string& dir) {
   const std::string name = fs::path(dir).filename().string();
   return std::stoll(name.substr(name.find('_') + 1));
-}
-
-
-bool holds_a_run(const std::string& dir) {
-  std::error_code ec;
-  for (const char* entry : {"config.yaml", "checkpoints", "metrics", "model.safetensors"})
-    if (fs::exists(fs::path(dir) / entry, ec)) return true;
-  return false;
-}
-
-// What --overwrite may replace: a folder that is recognisably a run of
-// flat_train (its config.yaml beside at least one of the folders a run
-// makes), or an empty one. Anything else may be the user's own files.
-bool is_run_folder(const std::string& dir) {
-  std::error_code ec;
-  if (fs::is_empty(dir, ec) && !ec) return true;
-  if (!fs::is_regular_file(fs::path(dir) / "config.yaml", ec)) return false;
-  for (const char* sub : {"checkpoints", "logs", "metrics"})
-    if (fs::is_directory(fs::path(dir) / sub, ec)) return true;
-  return false;
-}
-
-// Checks made before anything is loaded; nothing is changed here. An
-// --overwrite'd run folder is only replaced by replace_run_folder, once the
-// new run has loaded everything.
-void check_run_folder(const std::string& dir, StartMode mode) {
-  std::error_code ec;
-  if (mode == StartMode::fresh && holds_a_run(dir)) {
-    const auto n = list_checkpoints(dir + "/checkpoints").size();
-    fail("run folder '" + dir + "' already holds a run (" + std::to_string(n) +
-         " checkpoint(s)): continue it with --resume " + dir + ", start it over with --overwrite, or choose another "
-         "run_dir");
-  }
-  if (mode == StartMode::overwrite && fs::exists(dir, ec)) {
-    FLAT_CHECK(fs::is_directory(dir, ec), "run folder '" + dir + "' exists and is not a folder");
-    if (!is_run_folder(dir))
-      fail("run folder '" + dir + "' is not a flat_train run folder (no config.yaml beside checkpoints/, logs/ or "
-           "metrics/); --overwrite replaces only a run folder, so nothing in it was touched: choose another "
-           "run_dir, or move its files away yourself");
-  }
-}
-
-// --overwrite: the old run folder goes only now, when the new run has loaded
-// its config, data and model and is about to write: it is renamed aside
-// (one rename, so a failure before it left the old run whole), then deleted.
-void replace_run_folder(const std::string& dir) {
-  std::error_code ec;
-  if (!fs::exists(dir, ec)) return;
-  if (!is_run_folder(dir))  // checked at the start; it may have changed since
-    fail("run folder '" + dir + "' is no longer a flat_train run folder; --overwrite left it as it is");
-  std::string root = dir;
-  while (root.size() > 1 && root.back() == '/') root.pop_back();
-  const std::string old = root + ".old-" + std::to_string(::getpid());
-  fs::rename(root, old, ec);
-  if (ec) fail("run folder '" + dir + "': cannot move the old run aside for --overwrite (" + ec.message() + ")");
-  fs::remove_all(old, ec);
-  if (ec) spdlog::warn("--overwrite: the old run was moved to {} but cannot be deleted ({})", old, ec.message());
 }
 
 // ---- the run -------------------------------------------------------------------
@@ -208,6 +92,14 @@ class Run {
   TrainSummary finish(LoopEnd end);
 
  private:
+  StepOutcome take_step(int64_t step);
+  void count_step(int64_t step, const StepOutcome& out);
+  void write_step_metrics(int64_t step, const StepOutcome& out, double seconds);
+  LoopEnd stop_by_signal(int stop);
+  void check_something_learned();
+  void note_random_latents();
+  void pick_held_out_scenes();
+  void log_run_start();
   void run_validation(int64_t step);
   void write_checkpoint();
   void write_model_file(const std::string& path);
@@ -242,6 +134,7 @@ class Run {
   std::unique_ptr<MetricsLog> metrics_;  // rank 0
   std::optional<BestValidation> best_;   // rank 0: the best held-out validation, kept in best/
   std::optional<Progress> progress_;     // rank 0, while steps remain
+  int64_t applied_steps_ = 0;            // steps of this session whose update was applied
 };
 
 void Run::start_ranks() {
@@ -346,36 +239,41 @@ void Run::open_loaders() {
   } else {
     spdlog::warn("validation: no held-out datasets (validation.datasets); no validation metrics");
   }
-  // Provenance: latents of a random-weight encoder carry almost nothing of the
-  // scene; every figure made from them says so.
-  if (!session_->vae_task()) {
-    for (const auto* l : {&*train_loader_, val_loader_.get()}) {
-      if (!l) continue;
-      const auto enc = l->latent_encoders();
-      if (enc.count("random"))
-        random_latents_ += (random_latents_.empty() ? "" : "; ") + std::to_string(enc.at("random")) + " of " +
-                           std::to_string(l->scene_count()) + (l == &*train_loader_ ? " training" : " held-out") +
-                           " scenes";
-    }
-  }
-  // The "same output for every scene" baseline: the training set's mean image.
-  if (val_loader_ && !session_->vae_task()) {
-    val_settings_ = validation_settings(cfg_.validation.max_views, bf16());
-    val_scenes_ = held_out_scenes(cfg_.validation.datasets, cfg_.validation.scenes, cfg_.data.height, cfg_.data.width,
-                                  cfg_.data.input_frames);
-    val_scenes_.measure_frames(val_settings_);
-    std::string names;
-    for (const auto& s : val_scenes_.scenes) names += (names.empty() ? "" : ", ") + s.name;
-    spdlog::info("validation: {} held-out scenes ({}), window 0 of latent set {}, {} views each, scored as flat_eval "
-                 "scores them (flat_eval --max-views {} --latent-set {})",
-                 val_scenes_.scenes.size(), names, data::latent_set_key(cfg_.data.height, cfg_.data.width,
-                                                                 cfg_.data.input_frames),
-                 cfg_.validation.max_views ? "at most " + std::to_string(cfg_.validation.max_views) : "all",
-                 cfg_.validation.max_views,
-                 data::latent_set_key(cfg_.data.height, cfg_.data.width, cfg_.data.input_frames));
-  }
+  note_random_latents();
+  if (val_loader_ && !session_->vae_task()) pick_held_out_scenes();
   data_report_ = data_report_json(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
   data_summary_ = data_summary(*train_loader_, val_loader_.get(), env_.world_size, cfg_.data.batch_size);
+}
+
+// Provenance: latents of a random-weight encoder carry almost nothing of the
+// scene; every figure made from them says so.
+void Run::note_random_latents() {
+  if (session_->vae_task()) return;
+  for (const auto* l : {&*train_loader_, val_loader_.get()}) {
+    if (!l) continue;
+    const auto enc = l->latent_encoders();
+    if (enc.count("random"))
+      random_latents_ += (random_latents_.empty() ? "" : "; ") + std::to_string(enc.at("random")) + " of " +
+                         std::to_string(l->scene_count()) + (l == &*train_loader_ ? " training" : " held-out") +
+                         " scenes";
+  }
+}
+
+// The scene task's held-out scenes, scored as flat_eval scores them; the
+// "same output for every scene" baseline is the training set's mean image.
+void Run::pick_held_out_scenes() {
+  val_settings_ = validation_settings(cfg_.validation.max_views, bf16());
+  val_scenes_ = held_out_scenes(cfg_.validation.datasets, cfg_.validation.scenes, cfg_.data.height, cfg_.data.width,
+                                cfg_.data.input_frames);
+  val_scenes_.measure_frames(val_settings_);
+  std::string names;
+  for (const auto& s : val_scenes_.scenes) names += (names.empty() ? "" : ", ") + s.name;
+  const std::string latent_set = data::latent_set_key(cfg_.data.height, cfg_.data.width, cfg_.data.input_frames);
+  spdlog::info("validation: {} held-out scenes ({}), window 0 of latent set {}, {} views each, scored as flat_eval "
+               "scores them (flat_eval --max-views {} --latent-set {})",
+               val_scenes_.scenes.size(), names, latent_set,
+               cfg_.validation.max_views ? "at most " + std::to_string(cfg_.validation.max_views) : "all",
+               cfg_.validation.max_views, latent_set);
 }
 
 void Run::open_run_folder() {
@@ -392,6 +290,12 @@ void Run::open_run_folder() {
     best_.emplace(run_dir_.root, cfg_.validation.fall_warning_db, cfg_.optim.warmup_steps);
     if (mode_ == StartMode::resume) best_->resume();
   }
+  log_run_start();
+}
+
+// What this run is: stage, steps, model, data and, with several ranks, the
+// effective batch; loudly, when its latents come from a random encoder.
+void Run::log_run_start() {
   const int64_t params = model::count_parameters(net());
   spdlog::info("flat_train: stage '{}' (task {}), steps {} to {}, run folder {}{}", cfg_.stage, cfg_.task, state_.step,
                cfg_.steps, run_dir_.root,
@@ -433,7 +337,7 @@ void Run::run_validation(int64_t step) {
                               cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr)
                : validate(*session_->pipeline, val_scenes_, val_settings_, session_->objective->lpips_network(),
                           cfg_.validation.grid_views, dp_ ? &dp_->group() : nullptr);
-  signal_for_test(step);
+  raise_test_signal_in_validation(step);
   if (std::isnan(summary_.first_val_psnr)) summary_.first_val_psnr = r.psnr;
   summary_.last_val_psnr = r.psnr;
   summary_.mean_colour_psnr = r.mean_colour_psnr;
@@ -490,76 +394,96 @@ Run::LoopEnd Run::train() {
     run_validation(state_.step);
 
   // ---- the loop ------------------------------------------------------------------
-  int64_t applied_steps = 0;  // of this session
   if (rank0_ && !finished) progress_.emplace(cfg_.stage, cfg_.steps - state_.step, cfg_.log.progress_seconds);
   while (state_.step < cfg_.steps) {
     const int64_t step = state_.step;
     const auto t0 = std::chrono::steady_clock::now();
-    data::Batch batch = train_loader_->next();
-    const auto& nan_steps = cfg_.debug.nan_steps;
-    if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
-      batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
-
-    // With data parallelism every rank learns here whether any rank was asked to stop.
-    StepOutcome out = session_->step(batch, step, nullptr, g_stop_signal.load());
-    const StepResult& res = out.result;
-    const double lr = out.lr, grad_norm = out.grad_norm;
-    const bool ok = out.applied;
-    if (dp_ && step == summary_.first_step)
-      spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
-                   dp_->started_in_backward(), dp_->buckets());
-    if (ok) {
-      ++applied_steps;
-      state_.consecutive_skips = 0;
-    } else {
-      ++state_.skipped_steps;
-      ++state_.consecutive_skips;
-      spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
-                   res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(grad_norm) : res.nonfinite,
-                   state_.consecutive_skips, state_.skipped_steps);
-      if (state_.consecutive_skips >= cfg_.nan_guard.max_consecutive) {
-        if (progress_) progress_->abandon();
-        fail("stopping: " + std::to_string(state_.consecutive_skips) +
-             " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
-             "). Check the data and the learning rate; the last good checkpoint is " +
-             (summary_.last_checkpoint.empty() ? std::string("none yet") : summary_.last_checkpoint) +
-             " (resume with --resume " + run_dir_.root + ")");
-      }
-    }
+    const StepOutcome out = take_step(step);
+    count_step(step, out);
     state_.step = step + 1;
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-
-    if (rank0_) {
-      Scalars row = {{"loss", res.loss}};
-      for (const auto& [name, value] : res.terms)
-        if (name != "total") row.push_back({name, value});
-      row.push_back({"lr", lr});
-      row.push_back({"grad_norm", grad_norm});
-      row.push_back({"skipped", ok ? 0.0 : 1.0});
-      row.push_back({"triangles", double(res.triangles)});
-      row.push_back({"step_seconds", seconds});
-      if (device_.is_cuda()) row.push_back({"peak_memory_gib", peak_memory_gib(device_)});
-      metrics_->write("train", step, row);
-      progress_->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", lr}});
-    }
+    if (rank0_) write_step_metrics(step, out, seconds);
 
     const bool last = state_.step == cfg_.steps;
     const int stop = out.stop_signal;
     if (state_.step % cfg_.checkpoint.every == 0 || last || stop) write_checkpoint();
-    if (stop) {
-      if (progress_) progress_->abandon();
-      spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
-                   state_.step, run_dir_.root);
-      summary_.exit_code = 128 + stop;
-      summary_.steps_done = state_.step;
-      summary_.skipped_steps = state_.skipped_steps;
-      return LoopEnd::stopped_by_signal;
-    }
+    if (stop) return stop_by_signal(stop);
     if (state_.step % cfg_.validation.every == 0 || last) run_validation(state_.step);
   }
-  // A session whose every step was skipped learned nothing: not a success,
-  // and no final model file (its checkpoints hold the unchanged weights).
-  if (state_.step > summary_.first_step && applied_steps == 0) {
+  check_something_learned();
+  if (progress_) progress_->finish();
+  return LoopEnd::completed;
+}
+
+// One step on the next batch (debug.nan_steps poison it). With data
+// parallelism every rank learns here whether any rank was asked to stop.
+StepOutcome Run::take_step(int64_t step) {
+  data::Batch batch = train_loader_->next();
+  const auto& nan_steps = cfg_.debug.nan_steps;
+  if (std::find(nan_steps.begin(), nan_steps.end(), step) != nan_steps.end())
+    batch.video_latents.fill_(std::numeric_limits<float>::quiet_NaN());
+  StepOutcome out = session_->step(batch, step, nullptr, stop_signal_requested());
+  if (dp_ && step == summary_.first_step)
+    spdlog::info("data parallel: {} of {} gradient buckets went out while backward ran (the rest after it)",
+                 dp_->started_in_backward(), dp_->buckets());
+  return out;
+}
+
+// The NaN guard: a skipped step is counted; nan_guard.max_consecutive in a
+// row stop the run, its last good checkpoint intact.
+void Run::count_step(int64_t step, const StepOutcome& out) {
+  if (out.applied) {
+    ++applied_steps_;
+    state_.consecutive_skips = 0;
+    return;
+  }
+  const StepResult& res = out.result;
+  ++state_.skipped_steps;
+  ++state_.consecutive_skips;
+  spdlog::warn("step {}: non-finite {} ({}); step skipped ({} in a row, {} in all)", step,
+               res.finite ? "gradient norm" : "loss", res.finite ? std::to_string(out.grad_norm) : res.nonfinite,
+               state_.consecutive_skips, state_.skipped_steps);
+  if (state_.consecutive_skips >= cfg_.nan_guard.max_consecutive) {
+    if (progress_) progress_->abandon();
+    fail("stopping: " + std::to_string(state_.consecutive_skips) +
+         " consecutive steps had a non-finite loss or gradient (last: step " + std::to_string(step) +
+         "). Check the data and the learning rate; the last good checkpoint is " +
+         (summary_.last_checkpoint.empty() ? std::string("none yet") : summary_.last_checkpoint) +
+         " (resume with --resume " + run_dir_.root + ")");
+  }
+}
+
+// metrics/train.jsonl's row of the step, and the progress line (rank 0).
+void Run::write_step_metrics(int64_t step, const StepOutcome& out, double seconds) {
+  const StepResult& res = out.result;
+  Scalars row = {{"loss", res.loss}};
+  for (const auto& [name, value] : res.terms)
+    if (name != "total") row.push_back({name, value});
+  row.push_back({"lr", out.lr});
+  row.push_back({"grad_norm", out.grad_norm});
+  row.push_back({"skipped", out.applied ? 0.0 : 1.0});
+  row.push_back({"triangles", double(res.triangles)});
+  row.push_back({"step_seconds", seconds});
+  if (device_.is_cuda()) row.push_back({"peak_memory_gib", peak_memory_gib(device_)});
+  metrics_->write("train", step, row);
+  progress_->step(1, {{"loss", res.loss}, {"rgb", res.terms.count("rgb") ? res.terms.at("rgb") : NAN}, {"lr", out.lr}});
+}
+
+// After the stop request's checkpoint: the summary says how to continue.
+Run::LoopEnd Run::stop_by_signal(int stop) {
+  if (progress_) progress_->abandon();
+  spdlog::warn("flat_train: stopped by signal {} after step {}; continue with: flat_train --resume {}", stop,
+               state_.step, run_dir_.root);
+  summary_.exit_code = 128 + stop;
+  summary_.steps_done = state_.step;
+  summary_.skipped_steps = state_.skipped_steps;
+  return LoopEnd::stopped_by_signal;
+}
+
+// A session whose every step was skipped learned nothing: not a success,
+// and no final model file (its checkpoints hold the unchanged weights).
+void Run::check_something_learned() {
+  if (state_.step > summary_.first_step && applied_steps_ == 0) {
     if (progress_) progress_->abandon();
     fail("every one of the " + std::to_string(state_.step - summary_.first_step) + " steps of this session (" +
          std::to_string(summary_.first_step) + " to " + std::to_string(state_.step - 1) +
@@ -567,8 +491,6 @@ Run::LoopEnd Run::train() {
          "the data and the learning rate; the last good checkpoint is " +
          (summary_.last_checkpoint.empty() ? std::string("none") : summary_.last_checkpoint));
   }
-  if (progress_) progress_->finish();
-  return LoopEnd::completed;
 }
 
 // The weights as flat_infer / flat_latents read them: model.safetensors (Wan
@@ -649,19 +571,6 @@ TrainSummary Run::end_ranks() {
 }
 
 }  // namespace
-
-TrainConfig load_run_config(const std::string& run_dir, const std::vector<std::string>& overrides,
-                            std::string* effective_yaml) {
-  const std::string file = run_dir + "/config.yaml";
-  std::error_code ec;
-  if (!fs::exists(file, ec))
-    fail(run_dir + ": no config.yaml; is this a run folder of flat_train? (--resume takes the run folder)");
-  std::vector<std::string> all = {"run_dir=" + run_dir};  // the folder may have moved since
-  all.insert(all.end(), overrides.begin(), overrides.end());
-  auto cfg = config::load<TrainConfig>(file, all);
-  if (effective_yaml) *effective_yaml = config::to_yaml(cfg);
-  return cfg;
-}
 
 TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml, StartMode mode,
                           const distributed::DistributedEnv& env) {
