@@ -1,6 +1,6 @@
 #include "flat/camera/cameras.h"
 
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 

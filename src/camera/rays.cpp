@@ -1,6 +1,6 @@
 #include "flat/camera/rays.h"
 
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 #include "flat/core/error.h"
 
 namespace flat::camera {

@@ -1,5 +1,5 @@
 // Tiny batched matrix products as broadcast multiply and sum (small_matmul.h).
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"

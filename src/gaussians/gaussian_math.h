@@ -1,7 +1,7 @@
 // Per-Gaussian and per-pixel maths of the 3D Gaussian splatting rasterizer,
 // shared by the CPU reference (templated on float/double) and the CUDA
 // kernels (float). Plain C++ with __host__ __device__ under nvcc (FLAT_HD of
-// render/triangle_math.h): no torch, no std containers. docs/rasterizer_3dgs.md
+// flat/render/shared/triangle_math.h): no torch, no std containers. docs/rasterizer_3dgs.md
 // has the equations.
 //
 // Per (view, Gaussian): camera-space mean t = W m + tw; Sigma = M M^T with
@@ -15,7 +15,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "render/triangle_math.h"  // FLAT_HD, CameraView, make_camera_view, tmin/tmax, depth_sort_key
+#include "flat/render/shared/triangle_math.h"  // FLAT_HD, CameraView, make_camera_view, tmin/tmax, depth_sort_key
 
 namespace flat::gaussians {
 

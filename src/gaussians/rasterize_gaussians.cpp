@@ -7,7 +7,7 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "gaussians/cpu/raster_gaussians_cpu.h"
-#include "render/raster_dispatch.h"
+#include "flat/render/shared/raster_dispatch.h"
 #if FLAT_WITH_CUDA
 #include "gaussians/cuda/raster_gaussians_cuda.h"
 #endif

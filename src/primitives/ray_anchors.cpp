@@ -4,7 +4,7 @@
 #include <cmath>
 #include <vector>
 
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 #include "flat/camera/rays.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"

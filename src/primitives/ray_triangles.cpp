@@ -1,7 +1,7 @@
 // Ray-centred triangle parameterisation (paper, Method, "Decoding Triangles")
 // and its two ablations (paper, Table "Ablation studies": "3 Offsets" and
 // "Global" rotation). Pure ATen: autograd differentiates every step. The
-// per-triangle products are small_matmul (core/small_matmul.h): fp32 under the
+// per-triangle products are small_matmul (flat/core/small_matmul.h): fp32 under the
 // training step's bf16 autocast, and no batched GEMM launches.
 //
 // Per token (b, t, i, j) with anchor ray o + s d through the centre of the 2x2
@@ -35,7 +35,7 @@
 //                    x-y plane, whatever the ray).
 #include <cmath>
 
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 #include "flat/camera/rays.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"

@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "core/small_matmul.h"
+#include "flat/core/small_matmul.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "primitives/ray_anchors.h"

@@ -3,7 +3,7 @@
 #pragma once
 #include <ATen/ATen.h>
 
-#include "render/triangle_math.h"
+#include "flat/render/shared/triangle_math.h"
 
 namespace flat::render {
 

@@ -1,5 +1,5 @@
 // Host-side glue shared by the three rasterizers' dispatch (raster_dispatch.h).
-#include "render/raster_dispatch.h"
+#include "flat/render/shared/raster_dispatch.h"
 
 #include <cmath>
 

@@ -8,7 +8,7 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "render/cpu/raster_cpu.h"
-#include "render/raster_dispatch.h"
+#include "flat/render/shared/raster_dispatch.h"
 #if FLAT_WITH_CUDA
 #include "render/cuda/raster_cuda.h"
 #endif

@@ -6,7 +6,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
-#include "render/raster_dispatch.h"
+#include "flat/render/shared/raster_dispatch.h"
 #include "surfels/cpu/raster_surfels_cpu.h"
 #if FLAT_WITH_CUDA
 #include "surfels/cuda/raster_surfels_cuda.h"

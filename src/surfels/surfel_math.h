@@ -1,7 +1,7 @@
 // Per-surfel and per-pixel maths of the 2D Gaussian surfel rasterizer, shared
 // by the CPU reference (templated on float/double) and the CUDA kernels
 // (float). Plain C++ with __host__ __device__ under nvcc (FLAT_HD, from
-// render/triangle_math.h): no torch, no std containers.
+// flat/render/shared/triangle_math.h): no torch, no std containers.
 //
 // A surfel in camera space: centre c, tangent axes t_u, t_v (the first two
 // columns of R(q) turned into the camera), scales s_u, s_v. Its points are
@@ -17,7 +17,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "render/triangle_math.h"
+#include "flat/render/shared/triangle_math.h"
 
 namespace flat::surfels {
 

@@ -1,7 +1,7 @@
 // Window functions (paper, Method, "Window Function") through the shared maths.
 #include <cmath>
 
-#include "render/triangle_math.h"
+#include "flat/render/shared/triangle_math.h"
 #include "test_support.h"
 
 using namespace flat::render;

@@ -2,7 +2,7 @@
 // Splatting" and "Window Function"). Front-to-back alpha compositing of a
 // world-space triangle soup into V cameras; see docs/rasterizer.md for every
 // constant, the culling rule and the tolerances held between CPU and CUDA.
-// The paper's equations live in src/render/triangle_math.h, shared by the CPU
+// The paper's equations live in flat/render/shared/triangle_math.h, shared by the CPU
 // and CUDA passes: the product window (eq. "Window Function", window_forward /
 // window_backward), the edge functions and the inradius-normalised distances.
 #pragma once

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "flat/core/error.h"
-#include "render/cpu/per_view.h"
+#include "flat/render/shared/per_view.h"
 
 namespace flat::render::cpu {
 namespace {

@@ -1,5 +1,5 @@
 // Per-(view, triangle) preprocessing, in two passes (the maths is
-// render/triangle_math.h, shared with the CPU reference; its chain rule is
+// flat/render/shared/triangle_math.h, shared with the CPU reference; its chain rule is
 // render/cuda/preprocess_backward.cu):
 //   cull    all N triangles: support rectangle, tiles touched (0 = culled) and
 //           depth sort key; cheap outputs, coalesced; and their sum, the

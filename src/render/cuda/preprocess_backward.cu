@@ -9,7 +9,7 @@
 // read-modify-write), so two views a launch cut its traffic by ~40%.
 // It zeroes the TriGrad rows it read and resets the row maps it read to -1,
 // so that the buffers, set once per backward, serve every group.
-// The maths is preprocess_backward() of render/triangle_math.h, shared with
+// The maths is preprocess_backward() of flat/render/shared/triangle_math.h, shared with
 // the CPU reference. It runs ~50 divisions and 4 square roots per visible
 // triangle and view: this file is compiled with -prec-div=false
 // -prec-sqrt=false (2-ulp results, see CMakeLists.txt); the CUDA-vs-CPU

@@ -10,7 +10,7 @@
 
 #include <cuda_runtime.h>
 
-#include "render/triangle_math.h"
+#include "flat/render/shared/triangle_math.h"
 
 namespace flat::render::cuda {
 

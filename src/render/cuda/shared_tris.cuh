@@ -9,7 +9,7 @@
 #pragma once
 #include <cstddef>
 
-#include "render/triangle_math.h"
+#include "flat/render/shared/triangle_math.h"
 
 namespace flat::render::cuda {
 

@@ -3,6 +3,8 @@
 // compositing order, the images written from the per-pixel sums, the
 // upstream gradients laid out per pixel, and the backward's back-to-front
 // replay (3DGS' recurrence), which is the same whatever the primitive.
+// Public, under flat/render/shared/, because the gaussians and surfels
+// modules include it; not part of the rasterizer's API.
 #pragma once
 #include <algorithm>
 #include <cstdint>

@@ -1,5 +1,6 @@
 // Products of batches of tiny matrices (the 2x2, 2x3 and 3x3 per triangle,
-// per ray or per pixel of the geometry), for the modules' internal use.
+// per ray or per pixel of the geometry), shared by core, camera and
+// primitives (public so that they may include it); not a general matmul.
 //
 // Why not at::matmul: on CUDA it sends them to cuBLAS batched GEMM, which
 // splits millions of 3x3 products into hundreds of launches of tensor-core

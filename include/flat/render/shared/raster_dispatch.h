@@ -3,7 +3,10 @@
 // surfels/rasterize_surfels.cpp): the compositing constants from the settings
 // and through the autograd context, the input checks every primitive has, the
 // back ends' dtype, the cameras on the host and the value checks' statistics.
-// Internal to src/; the primitive-specific parts stay in each module.
+// Public, under flat/render/shared/, because the gaussians and surfels
+// modules include it (a module includes only another's public headers);
+// not part of the rasterizer's API. The primitive-specific parts stay in
+// each module; the definitions are in src/render/raster_dispatch.cpp.
 #pragma once
 #include <cstdint>
 #include <cstring>

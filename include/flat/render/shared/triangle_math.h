@@ -1,6 +1,10 @@
 // Per-triangle and per-pixel maths of the triangle rasterizer, shared by the
 // CPU reference (templated on float/double) and the CUDA kernels (float).
 // Plain C++ with __host__ __device__ under nvcc: no torch, no std containers.
+// Shared with the gaussians and surfels modules (gaussian_math.h,
+// surfel_math.h take FLAT_HD, CameraView, make_camera_view, the near/far
+// bounds and depth_sort_key from here), so it is public, under
+// flat/render/shared/: an edit here changes all three rasterizers.
 //
 // Notation (paper, Method, "Window Function"): projected vertices q_k, edge
 // i runs q_i -> q_{i+1}, L_i(p) its signed distance (negative inside), rho the
