@@ -2,6 +2,7 @@
 
 #include <vector>
 
+#include "flat/mesh/edge_components.h"
 #include "union_find.h"
 
 namespace flat::mesh {
@@ -29,8 +30,8 @@ at::Tensor face_components(const primitives::IndexedMesh& mesh) {
 }
 
 primitives::IndexedMesh remove_small_components(const primitives::IndexedMesh& mesh, int64_t min_faces,
-                                                int64_t* removed_faces) {
-  const auto label = face_components(mesh);
+                                                int64_t* removed_faces, bool through_edges) {
+  const auto label = through_edges ? edge_connected_labels(mesh) : face_components(mesh);
   const int64_t components = label.numel() ? label.max().item<int64_t>() + 1 : 0;
   const auto sizes = at::bincount(label, {}, components);
   const auto keep = (sizes.index_select(0, label) >= min_faces).nonzero().reshape({-1});

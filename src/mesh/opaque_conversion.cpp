@@ -9,8 +9,11 @@
 #include "flat/core/progress.h"
 #include "flat/mesh/boundary_densify.h"
 #include "flat/mesh/floaters.h"
+#include "flat/mesh/mesh_smoothness.h"
 #include "flat/mesh/prunable_adam.h"
+#include "flat/mesh/soup_normal_targets.h"
 #include "flat/mesh/vertex_stitch.h"
+#include "flat/mesh/view_fusion.h"
 #include "flat/mesh/view_fitting.h"
 
 namespace flat::mesh {
@@ -103,16 +106,22 @@ primitives::IndexedMesh repair(const primitives::IndexedMesh& mesh, const ViewTa
   const auto current = [&] {
     return primitives::IndexedMesh{base + unit * adam.param(0), at::sigmoid(adam.param(1)), faces};
   };
-  loss::Objective objective(o.loss, device);
+  auto loss_config = o.loss;
+  if (targets.normals.defined() && o.repair_soup_normals > 0) loss_config.lambda_normal = o.repair_soup_normals;
+  loss::Objective objective(loss_config, device);
   const auto raster = opaque_raster(o.raster);
   ViewCycle cycle(targets.size(), o.views_per_step, o.seed + 1);
+  const auto pairs = o.repair_smoothness > 0 ? edge_adjacent_face_pairs(mesh.faces) : at::zeros({0, 2}, at::kLong);
   Progress progress("mesh repair", o.repair_steps);
   for (int64_t step = 1; step <= o.repair_steps; ++step) {
-    auto fit = fit_loss(opaque_render_soup(current(), o), targets, cycle.next(), objective, raster);
-    fit.loss.total.backward();
+    const auto m = current();
+    auto fit = fit_loss(opaque_render_soup(m, o), targets, cycle.next(), objective, raster);
+    auto total = fit.loss.total;
+    if (o.repair_smoothness > 0) total = total + o.repair_smoothness * normal_consistency(m.vertices, faces, pairs);
+    total.backward();
     adam.step();
     adam.zero_grad();
-    const double loss = fit.loss.total.item<double>();
+    const double loss = total.item<double>();
     FLAT_CHECK(std::isfinite(loss), fmt::format("opaque conversion: the loss became {} at repair step {}", loss, step));
     r.repair_losses.push_back(loss);
     progress.step(1, {{"loss", loss}});
@@ -128,7 +137,11 @@ primitives::IndexedMesh repair(const primitives::IndexedMesh& mesh, const ViewTa
 render::RasterSettings opaque_raster(const render::RasterSettings& base) {
   auto s = base;
   s.window = "flat";
-  s.eps = 0.0;
+  // Almost no support beyond the edges, but not none: with eps 0 a pixel
+  // centre exactly on an edge that two faces share is covered by neither
+  // (the window is 0 on the edge), and a grid mesh's diagonals pass through
+  // pixel centres of its own views (issue #44), a dotted crack in every quad.
+  s.eps = 0.01;
   return s;
 }
 
@@ -142,63 +155,94 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
   targets.check("mesh conversion targets");
   FLAT_CHECK(soup.colors.dim() == 2, "opaque conversion: expects RGB colours (N,3), got SH coefficients");
   FLAT_CHECK(o.sigma_end <= o.sigma_start, "opaque conversion: sigma_end must not exceed sigma_start");
+  FLAT_CHECK(o.conversion == "grid" || o.conversion == "stitch",
+             "opaque conversion: conversion must be grid or stitch, got " + o.conversion);
   o.raster.check();
   ConversionReport r;
   r.soup_triangles = soup.vertices.size(0);
   require_some(r.soup_triangles, "the input");
   r.median_edge = triangle_sizes(soup.vertices.detach()).median().item<double>();
 
-  // 1-2. Opacity selection, then the support cleanup and the snap.
-  auto selected = select_opaque(soup, targets, o, r);
-  r.after_selection = selected.vertices.size(0);
-  r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
-  {
-    auto snapped = selected;
-    snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
-    const auto support = support_over_views(snapped, targets, opaque_raster(o.raster));
-    const auto keep = (support > o.support_min).nonzero().reshape({-1});
-    require_some(keep.numel(), fmt::format("removing triangles with support <= {}", o.support_min));
-    selected = {selected.vertices.index_select(0, keep), selected.colors.index_select(0, keep),
-                snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
-  }
-  r.after_support = selected.vertices.size(0);
   const auto on_device = [&](const primitives::IndexedMesh& m) {
     const auto soup = opaque_render_soup(m, o);
     return primitives::TriangleSoup{soup.vertices.to(targets.rgb.device()), soup.colors.to(targets.rgb.device()),
                                     soup.opacities.to(targets.rgb.device()), soup.sigmas.to(targets.rgb.device())};
   };
-  r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
+  primitives::IndexedMesh mesh;
+  if (o.conversion == "grid") {
+    // The soup's surface per view on the token grid, fused; edge pieces too small to be surface removed.
+    ViewFusionOptions fo;
+    fo.grid_step = o.grid_step;
+    fo.depth_tolerance = o.fusion_depth_tolerance;
+    fo.grid.max_stretch = o.grid_max_stretch;
+    fo.mesh_raster = opaque_raster(o.raster);
+    fo.mesh_opacity = o.snap_opacity;
+    fo.mesh_sigma = o.sigma_end;
+    ViewFusionReport fr;
+    mesh = fuse_view_grids(soup, targets, o.raster, fo, &fr);
+    r.grid_faces = fr.grid_faces;
+    r.fused_faces = fr.fused_faces;
+    require_some(mesh.num_faces(), "the view-grid fusion");
+    r.stage_psnr.emplace_back("fused grids", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+    mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces, /*through_edges=*/true);
+    require_some(mesh.num_faces(), "floater pruning");
+    r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+  } else {
+    // 1-2. Opacity selection, then the support cleanup and the snap.
+    auto selected = select_opaque(soup, targets, o, r);
+    r.after_selection = selected.vertices.size(0);
+    r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
+    {
+      auto snapped = selected;
+      snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
+      const auto support = support_over_views(snapped, targets, opaque_raster(o.raster));
+      const auto keep = (support > o.support_min).nonzero().reshape({-1});
+      require_some(keep.numel(), fmt::format("removing triangles with support <= {}", o.support_min));
+      selected = {selected.vertices.index_select(0, keep), selected.colors.index_select(0, keep),
+                  snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
+    }
+    r.after_support = selected.vertices.size(0);
+    r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
 
-  // 3. Stitch, densify the open border, stitch again, drop floaters.
-  auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
-                                          selected.sigmas.cpu()});
-  const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
-  StitchReport sr;
-  r.stage_psnr.emplace_back("as mesh", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
-  r.stitched_pairs += sr.merged_pairs;
-  r.collapsed_faces += sr.collapsed_faces;
-  r.stage_psnr.emplace_back("stitch 1", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-  mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
-  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
-  r.stitched_pairs += sr.merged_pairs;
-  r.collapsed_faces += sr.collapsed_faces;
-  r.stage_psnr.emplace_back("stitch 2", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-  mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
-  require_some(mesh.num_faces(), "floater pruning");
-  r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+    // 3. Stitch, densify the open border, stitch again, drop floaters.
+    mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
+                                            selected.sigmas.cpu()});
+    const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
+    StitchReport sr;
+    r.stage_psnr.emplace_back("as mesh", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+    mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+    r.stitched_pairs += sr.merged_pairs;
+    r.collapsed_faces += sr.collapsed_faces;
+    r.stage_psnr.emplace_back("stitch 1", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+    mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
+    mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+    r.stitched_pairs += sr.merged_pairs;
+    r.collapsed_faces += sr.collapsed_faces;
+    r.stage_psnr.emplace_back("stitch 2", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+    mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
+    require_some(mesh.num_faces(), "floater pruning");
+    r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+  }
 
-  // 4. Repair.
-  mesh = repair(mesh, targets, o, r);
+  // 4. Repair (grid: towards the soup's own normals as well as the frames).
+  mesh = o.conversion == "grid" && o.repair_soup_normals > 0
+             ? repair(mesh, with_soup_normals(soup, targets, o.raster), o, r)
+             : repair(mesh, targets, o, r);
   r.stage_psnr.emplace_back("repaired", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
   r.mesh_vertices = mesh.num_vertices();
   r.mesh_faces = mesh.num_faces();
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
-               "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "
-               "{:.1f} s",
-               r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
-               r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
+  if (o.conversion == "grid")
+    spdlog::info("opaque conversion (view grids): {} soup triangles -> {} grid faces over {} views -> {} fused -> "
+                 "mesh of {} vertices, {} faces ({} floater faces removed), {:.1f} s",
+                 r.soup_triangles, r.grid_faces, targets.size(), r.fused_faces, r.mesh_vertices, r.mesh_faces,
+                 r.floater_faces, r.seconds);
+  else
+    spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
+                 "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "
+                 "{:.1f} s",
+                 r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
+                 r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
   std::string trail;
   for (const auto& [stage, psnr] : r.stage_psnr) trail += fmt::format("{}{} {:.2f} dB", trail.empty() ? "" : ", ", stage, psnr);
   spdlog::info("opaque conversion, PSNR over the fitted views after each stage: {}", trail);

@@ -1,7 +1,21 @@
 // Opaque mesh conversion (paper, Method "Opaque Mesh Conversion", following
 // MeshSplatting): a (refined) semi-transparent soup becomes an opaque,
-// connected, indexed mesh that any engine draws.
+// connected, indexed mesh that any engine draws. Two ways (conversion):
 //
+// "grid" (default, issue #44): the soup's rendered surface per fitted view
+// becomes a grid mesh at the token grid (grid_step 2: one sample per 2x2
+// pixel block corner), fused over the views (view_fusion.h); edge-connected
+// pieces with fewer than min_component_faces faces are removed as floaters
+// (floaters.h); then the repair (4. below) with two more terms: the mesh's
+// rendered normals towards the soup's own rendered normals
+// (soup_normal_targets.h; the soup's depth is too noisy at the pixel scale
+// to give normals by itself) and normal consistency between faces sharing
+// an edge (mesh_smoothness.h). Welding the paper's separate triangles
+// (below) left them hanging on single vertices (issue #44: 1,025
+// edge-connected pieces for 1,971 faces, held-out normal cosine 0.795 ->
+// 0.653); the grid's faces share edges by construction.
+//
+// "stitch" (the paper's steps):
 //   1. opacity selection (selection_steps, paper: 50): positions, colours and
 //      opacities are fitted while one global sigma anneals linearly from
 //      sigma_start (paper: 0.5) to sigma_end and an opacity floor rises from
@@ -18,8 +32,8 @@
 // Distances are relative: to the local triangle size (stitching) or to the
 // soup's median edge length (densification, repair), so the defaults hold at
 // any scene scale. The mesh is drawn (here, in repair and in the
-// evaluation) with opaque_raster(): FLAT window with no support beyond the
-// edges, sharpness sigma_end, opacity snap_opacity.
+// evaluation) with opaque_raster(): FLAT window with almost no support beyond
+// the edges, sharpness sigma_end, opacity snap_opacity.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -32,6 +46,12 @@
 namespace flat::mesh {
 
 struct OpaqueOptions {
+  std::string conversion = "grid";  // "grid" (view_fusion.h) | "stitch" (the paper's selection and stitching)
+  int64_t grid_step = 2;            // grid: pixels per grid sample (2: the decoder's token grid of 2x2 blocks)
+  double grid_max_stretch = 6.0;    // grid: open a face whose edge exceeds this many pixel footprints
+  double fusion_depth_tolerance = 0.05;  // grid: relative depth within which a view's surface is already held
+  double repair_smoothness = 0.05;  // weight of the normal-consistency term in the repair (0 = photometric only)
+  double repair_soup_normals = 0.1; // grid: weight of the repair's normal term towards the soup's rendered normals
   int64_t selection_steps = 50;   // paper: 50
   double sigma_start = 0.5;       // paper: 0.5
   double sigma_end = 0.01;        // sharp: the window is ~1 inside, 0 outside
@@ -57,6 +77,14 @@ struct OpaqueOptions {
 
   template <class V>
   void visit(V& v) {
+    v.field("conversion", conversion, config::one_of({"grid", "stitch"}), "grid (view fusion) | stitch (paper)");
+    v.field("grid_step", grid_step, config::positive(), "grid: pixels per grid sample");
+    v.field("grid_max_stretch", grid_max_stretch, config::positive(), "grid: longest edge in pixel footprints");
+    v.field("fusion_depth_tolerance", fusion_depth_tolerance, config::non_negative(),
+            "grid: relative depth tolerance of the coverage test");
+    v.field("repair_smoothness", repair_smoothness, config::non_negative(), "repair: normal-consistency weight");
+    v.field("repair_soup_normals", repair_soup_normals, config::non_negative(),
+            "grid repair: weight of the term towards the soup's rendered normals");
     v.field("selection_steps", selection_steps, config::non_negative(), "opacity selection steps (paper: 50)");
     v.field("sigma_start", sigma_start, config::positive(), "global sigma at the start (paper: 0.5)");
     v.field("sigma_end", sigma_end, config::positive(), "global sigma at the end");
@@ -76,6 +104,7 @@ struct OpaqueOptions {
 struct ConversionReport {
   int64_t soup_triangles = 0, after_selection = 0, after_support = 0;
   int64_t stitched_pairs = 0, collapsed_faces = 0, densified_faces = 0, floater_faces = 0;
+  int64_t grid_faces = 0, fused_faces = 0;  // grid conversion: every view's grid, and what the fusion kept
   int64_t mesh_vertices = 0, mesh_faces = 0;
   double median_edge = 0;
   std::vector<double> selection_losses, repair_losses;
@@ -89,8 +118,8 @@ struct ConversionReport {
 primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& soup, const ViewTargets& targets,
                                                const OpaqueOptions& options, ConversionReport* report = nullptr);
 
-// How the mesh is drawn: the given settings with no window support beyond
-// the edges (eps 0).
+// How the mesh is drawn: the given settings with the FLAT window and almost
+// no support beyond the edges (eps 0.01: shared edges stay closed).
 render::RasterSettings opaque_raster(const render::RasterSettings& base);
 // The mesh as the soup that opaque_raster draws.
 primitives::TriangleSoup opaque_render_soup(const primitives::IndexedMesh& mesh, const OpaqueOptions& options);
