@@ -65,7 +65,12 @@ int main(int argc, char** argv) {
                  "other scene folders (same window): score the dataset-mean and swap baselines beside the results")
       ->take_all();
   app.add_flag("--no-mesh", no_mesh, "stop after the post-optimisation (no opaque conversion)");
-  app.add_option("--selection-steps", o.opaque.selection_steps, "mesh: opacity selection steps (paper: 50)")
+  app.add_option("--conversion", o.opaque.conversion,
+                 "mesh: grid (each view's depth grid, fused: faces share edges) | stitch (the paper's opacity "
+                 "selection and boundary stitching)")
+      ->check(CLI::IsMember({"grid", "stitch"}))
+      ->capture_default_str();
+  app.add_option("--selection-steps", o.opaque.selection_steps, "mesh, stitch: opacity selection steps (paper: 50)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   app.add_option("--repair-steps", o.opaque.repair_steps, "mesh: repair steps after stitching")
@@ -74,7 +79,7 @@ int main(int argc, char** argv) {
   app.add_option("--support-min", o.opaque.support_min,
                  "mesh: remove triangles whose largest blending weight over every view is at or below this")
       ->capture_default_str();
-  app.add_option("--stitch-distance", o.opaque.stitch_distance, "mesh: merge distance, in local edge lengths")
+  app.add_option("--stitch-distance", o.opaque.stitch_distance, "mesh, stitch: merge distance, in local edge lengths")
       ->capture_default_str();
   app.add_option("--min-component", o.opaque.min_component_faces, "mesh: remove pieces with fewer faces")
       ->check(CLI::PositiveNumber)

@@ -740,6 +740,13 @@ TEST_CASE("flat_mesh: a missing source is a usage error; a soup without a scene 
   CHECK_THAT(no_latents.output, FLAT_CONTAINS("no latents"));
   CHECK_FALSE(fs::exists(d + "/out"));
   CHECK_THAT(tool("flat_mesh", {"--help"}, d, "help").output, FLAT_CONTAINS("paper: 250"));
+  // The conversion is chosen by name; another name is a usage error naming the flag.
+  const auto help = tool("flat_mesh", {"--help"}, d, "help_conversion").output;
+  CHECK_THAT(help, FLAT_CONTAINS("--conversion") && FLAT_CONTAINS("stitch"));
+  auto bad = tool("flat_mesh", {"--from", f.root + "/one.ply", "--out", d + "/out", "--conversion", "poisson"}, d,
+                  "bad_conversion");
+  CHECK(bad.rc == 2);
+  CHECK_THAT(bad.output, FLAT_CONTAINS("--conversion"));
 }
 
 TEST_CASE("flat_import transforms: a frame whose rotation is all zero is refused, naming the frame", "[cli]") {
