@@ -27,15 +27,7 @@ at::Tensor edge_connected_labels(const primitives::IndexedMesh& mesh) {
     const auto& [a1, b1, f1] = edges[i];
     if (a0 == a1 && b0 == b1) uf.unite(f0, f1);
   }
-  auto out = at::empty({nf}, at::kLong);
-  std::vector<int64_t> label(size_t(nf), -1);
-  int64_t next = 0;
-  for (int64_t i = 0; i < nf; ++i) {
-    auto& l = label[size_t(uf.find(i))];
-    if (l < 0) l = next++;
-    out.data_ptr<int64_t>()[i] = l;
-  }
-  return out;
+  return at::tensor(uf.labels(), at::kLong);
 }
 
 int64_t edge_connected_pieces(const primitives::IndexedMesh& mesh) {

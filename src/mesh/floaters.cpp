@@ -18,15 +18,7 @@ at::Tensor face_components(const primitives::IndexedMesh& mesh) {
     if (slot < 0) slot = i / 3;
     else uf.unite(slot, i / 3);
   }
-  auto out = at::empty({nf}, at::kLong);
-  std::vector<int64_t> label(size_t(nf), -1);
-  int64_t next = 0;
-  for (int64_t i = 0; i < nf; ++i) {
-    auto& l = label[size_t(uf.find(i))];
-    if (l < 0) l = next++;
-    out.data_ptr<int64_t>()[i] = l;
-  }
-  return out;
+  return at::tensor(uf.labels(), at::kLong);
 }
 
 primitives::IndexedMesh remove_small_components(const primitives::IndexedMesh& mesh, int64_t min_faces,

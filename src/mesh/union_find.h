@@ -30,6 +30,17 @@ class UnionFind {
   }
   int64_t count() const { return count_; }                          // number of sets
   int64_t size_of(int64_t x) { return size_[size_t(find(x))]; }     // members of x's set
+  // Each element's set as 0..count()-1, numbered in order of first appearance.
+  std::vector<int64_t> labels() {
+    std::vector<int64_t> root_label(parent_.size(), -1), out(parent_.size());
+    int64_t next = 0;
+    for (size_t i = 0; i < parent_.size(); ++i) {
+      auto& l = root_label[size_t(find(int64_t(i)))];
+      if (l < 0) l = next++;
+      out[i] = l;
+    }
+    return out;
+  }
 
  private:
   std::vector<int64_t> parent_, size_;
