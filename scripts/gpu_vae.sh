@@ -33,14 +33,14 @@ declare -A TRAIN_SEED=([A]=7 [B]=41 [C]=53) VAL_SEED=([A]=1001 [B]=1041 [C]=1053
 cd "$ROOT"
 
 if [ "$PHASE" = "prep" ]; then
-  nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
-  t0=$(date +%s)
+  nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
+  t0=$(date +%s); mkdir -p "$R"
   cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF \
-    -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
-    || { tail -30 "$OUT/configure.log"; exit 1; }
-  ninja -C "$BUILD" flat_synth flat_train >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+    -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$R/configure.log" 2>&1 \
+    || { tail -30 "$R/configure.log"; exit 1; }
+  ninja -C "$BUILD" flat_synth flat_train flat_latents flat_eval >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
   echo "built in $(( $(date +%s) - t0 )) s"
-  rm -rf "$R"; mkdir -p "$R"
+  rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
   P=8; per=$(( (ROOMS + P - 1) / P ))
   for s in A B C; do
     for k in $(seq 0 $((P - 1))); do
@@ -51,6 +51,8 @@ if [ "$PHASE" = "prep" ]; then
     "$BUILD/flat_synth" --threads 2 --out "$R/set$s/val" --count 16 --seed "${VAL_SEED[$s]}" --family room \
       --frames $FRAMES --size $SIZE --motion mixed --log-level warn >"$R/synth_${s}_val.log" 2>&1 &
   done
+  # The four stages' rooms (scripts/gpu_four_stages.sh) at the same time.
+  [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" rooms >"$R/stage_rooms.log" 2>&1 &
   wait
   for s in A B C; do echo "set $s: $(ls "$R/set$s/train" | wc -l) training, $(ls "$R/set$s/val" | wc -l) held-out rooms"; done
   echo "prep done in $(( $(date +%s) - t0 )) s"
@@ -88,6 +90,10 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
     g=$((g + 1))
   done
   wait
+  # Then the recipe's four stages from set A's VAE, two seeds on two GPUs each.
+  [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" VAE_FILE="$R/fixed_A/vae.safetensors" \
+    bash "$ROOT/scripts/gpu_four_stages.sh" latents && OUT="$R/out" VAE_FILE="$R/fixed_A/vae.safetensors" \
+    bash "$ROOT/scripts/gpu_four_stages.sh" train
   touch "$R/ALL_DONE"
 fi
 
@@ -109,9 +115,11 @@ if [ "$PHASE" = "wait" ]; then
   while [ ! -f "$R/ALL_DONE" ] && [ $(( $(date +%s) - t0 )) -lt "$limit" ]; do sleep 10; done
   nvidia-smi --query-gpu=index,utilization.gpu,memory.used --format=csv,noheader
   curves | tee "$OUT/vae_curves.txt"
+  tail -12 "$R/out/four_stages.txt" 2>/dev/null
   for s in A B C; do [ -f "$R/fixed_$s.seconds" ] && echo "fixed recipe on set $s: $(cat "$R/fixed_$s.seconds") s from launch to the VAE file"; done | tee -a "$OUT/vae_curves.txt"
   if [ -f "$R/ALL_DONE" ]; then
     echo "all runs done"
+    cp "$R"/out/* "$OUT"/ 2>/dev/null
     tar czf "$OUT/vae_metrics.tgz" -C "$R" $(cd "$R" && ls -d */metrics */logs *.log 2>/dev/null) 2>/dev/null
     tar czf "$OUT/vae_grids.tgz" -C "$R" $(cd "$R" && ls */renders/*.png 2>/dev/null) 2>/dev/null
   else

@@ -1,0 +1,123 @@
+#!/usr/bin/env bash
+# The recipe's four stages (issue #44, docs/training.md "The four stages of the
+# recipe"): 176x320 with 17 views -> 176x320 with 49 -> 360x640 -> 432x768
+# with 8-bit AdamW, pruning and checkpointing (configs/recipe/stage1-4.yaml),
+# each stage initialised from the one before, for two training seeds side by
+# side; every stage scored by flat_eval on the held-out rooms at its own
+# resolution, with the baselines.
+#   rooms    ROOMS training + 16 held-out rooms, 49 frames at the largest size
+#            (seeds 7 / 1001: the rooms of the VAE's set A, rendered larger)
+#   latents  every latent set the four configs need, from VAE_FILE (one
+#            flat_latents per GPU, --shard k/N)
+#   train    SEEDS (default "0 1") side by side, each on GPUS_PER_SEED GPUs
+#            (flat_train --nproc), stage after stage, each bounded by its
+#            seconds (it checkpoints and stops on SIGTERM); flat_eval of each
+#            stage runs beside the next one
+#   all      rooms, latents, train
+# Tables, results and grids go to $OUT. Usage on the GPU machine (repo root,
+# .deps carried, tools built in $GPU_BUILD_DIR):
+#   VAE_FILE=/tmp/flat_vae/fixed_A/vae.safetensors bash scripts/gpu_four_stages.sh all
+# A small CPU rehearsal of the script itself: DEVICE=cpu SETS="48x80 48x80 64x112 80x144" ROOMS=4 VAL=2
+#   STEPS="2 2 2 2" EXTRA_SET="--set optim.warmup_steps=0" GPUS_PER_SEED=1 bash scripts/gpu_four_stages.sh all (VAE_FILE from README command 1).
+set -uo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+PHASE="${1:-all}"
+BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+S="${STAGES_RUNS:-/tmp/flat_stages}"
+D="$S/data"
+DEVICE="${DEVICE:-cuda}"
+ROOMS="${ROOMS:-128}"; VAL="${VAL:-16}"; FRAMES=49
+read -r -a SET <<< "${SETS:-176x320 176x320 360x640 432x768}"     # each stage's HxW
+read -r -a STEP <<< "${STEPS:-1100 300 300 200}"                    # each stage's steps
+read -r -a LIMIT <<< "${STAGE_SECONDS:-150 90 150 150}"             # each stage's time bound
+read -r -a SEED_LIST <<< "${SEEDS:-0 1}"
+GPUS_PER_SEED="${GPUS_PER_SEED:-2}"
+WINDOW=(17 49 49 49)
+VAE_DIM="${VAE_DIM:-32}"
+read -r -a EXTRA <<< "${EXTRA_SET:-}"                              # more --set for every stage
+T0=$(date +%s)
+note() { echo "[four stages $(( $(date +%s) - T0 )) s] $1" | tee -a "$OUT/four_stages.txt"; }
+cd "$ROOT"
+gpus=0; [ "$DEVICE" = cuda ] && gpus=$(nvidia-smi -L | wc -l)
+
+# The stage's config with this script's data, size and steps, into ARGS: stage (1-4), seed, run dir, init path.
+stage_args() {
+  local st=$1 seed=$2 run=$3 init=$4 i=$(( $1 - 1 ))
+  ARGS=(--config "configs/recipe/stage$st.yaml" --set run_dir="$run" --set seed="$seed" --set device="$DEVICE" \
+    --set "data.datasets=[{root: $D/train}]" --set "validation.datasets=[{root: $D/val}]" \
+    --set data.height="${SET[$i]%x*}" --set data.width="${SET[$i]#*x}" --set steps="${STEP[$i]}" \
+    --set init.path="$init" --set pipeline.model.vae.dim="$VAE_DIM" "${EXTRA[@]}")
+}
+
+if [ "$PHASE" = rooms ] || [ "$PHASE" = all ]; then
+  rm -rf "$D"; mkdir -p "$D"
+  big="${SET[3]}"; P=$(( gpus > 0 ? 16 : 2 )); per=$(( (ROOMS + P - 1) / P ))
+  for k in $(seq 0 $((P - 1))); do
+    n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
+    "$BUILD/flat_synth" --threads 2 --out "$D/train" --count $n --first-index $((k * per)) --seed 7 --family room \
+      --frames $FRAMES --size "$big" --motion mixed --log-level warn >"$S/synth_$k.log" 2>&1 &
+  done
+  "$BUILD/flat_synth" --threads 2 --out "$D/val" --count "$VAL" --seed 1001 --family room --frames $FRAMES \
+    --size "$big" --motion mixed --log-level warn >"$S/synth_val.log" 2>&1 &
+  wait
+  note "rooms: $(ls "$D/train" | wc -l) training, $(ls "$D/val" | wc -l) held-out, $FRAMES frames of $big"
+fi
+
+if [ "$PHASE" = latents ] || [ "$PHASE" = all ]; then
+  [ -f "${VAE_FILE:-}" ] || { echo "VAE_FILE=${VAE_FILE:-} is not a file (the trained VAE stage's vae.safetensors)"; exit 1; }
+  shards=$(( gpus > 0 ? gpus : 1 ))
+  for k in $(seq 0 $((shards - 1))); do
+    for st in 1 2 3 4; do
+      i=$((st - 1))
+      # One flat_latents per stage config: each sets its own size and window.
+      CUDA_VISIBLE_DEVICES=$k OMP_NUM_THREADS=4 "$BUILD/flat_latents" --configs "configs/recipe/stage$st.yaml" \
+        --set "data.datasets=[{root: $D/train}]" --set "validation.datasets=[{root: $D/val}]" \
+        --set data.height="${SET[$i]%x*}" --set data.width="${SET[$i]#*x}" \
+        --vae "$VAE_FILE" --device "$DEVICE" --threads 4 --shard "$k/$shards" >"$S/latents_s${st}_$k.log" 2>&1 \
+        || { echo "flat_latents stage $st shard $k failed:"; tail -5 "$S/latents_s${st}_$k.log"; }
+    done &
+  done
+  wait
+  note "latents: $(cd "$D/val/$(ls "$D/val" | grep -v log | head -1)" && ls latents_* | tr "\n" " ")"
+fi
+
+# One seed's four stages on the GPUs given (comma list), flat_eval of each beside the next.
+chain() {
+  local seed=$1 devs=$2 prev="$VAE_FILE" n ARGS=()
+  n=$(echo "$devs" | tr ',' '\n' | wc -l)
+  for st in 1 2 3 4; do
+    local i=$((st - 1)) run="$S/seed$seed/stage$st" t0
+    t0=$(date +%s)
+    stage_args $st "$seed" "$run" "$prev"
+    CUDA_VISIBLE_DEVICES=$devs timeout -s TERM "${LIMIT[$i]}" "$BUILD/flat_train" --nproc "$n" \
+      "${ARGS[@]}" --set threads=4 --set data.workers=3 >"$S/seed${seed}_stage$st.log" 2>&1
+    echo "seed $seed stage $st: rc $? in $(( $(date +%s) - t0 )) s, $(grep -oE 'validation @ step [0-9]+: PSNR [0-9.]+ dB' "$S/seed${seed}_stage$st.log" | tail -1)" \
+      | tee -a "$OUT/four_stages.txt"
+    CUDA_VISIBLE_DEVICES=${devs%%,*} OMP_NUM_THREADS=4 "$BUILD/flat_eval" --model "$run" --scenes "heldout=$D/val" \
+      --out "$S/eval_seed${seed}_stage$st" --name "seed$seed stage$st ${SET[$i]}" --latent-set "${SET[$i]}_f${WINDOW[$i]}" \
+      --max-views 9 --device "$DEVICE" --threads 4 >"$S/eval_seed${seed}_stage$st.log" 2>&1 &
+    prev="$run"
+  done
+  wait
+}
+
+if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
+  VAE_FILE="${VAE_FILE:-}"
+  [ -f "$VAE_FILE" ] || { echo "VAE_FILE=$VAE_FILE is not a file"; exit 1; }
+  g=0
+  for seed in "${SEED_LIST[@]}"; do
+    devs=""
+    for _ in $(seq 1 "$GPUS_PER_SEED"); do devs="$devs${devs:+,}$(( gpus > 0 ? g % gpus : 0 ))"; g=$((g + 1)); done
+    chain "$seed" "$devs" &
+  done
+  wait
+  evals=$(ls -d "$S"/eval_seed*/ 2>/dev/null)
+  # shellcheck disable=SC2086
+  "$BUILD/flat_eval" --compare $evals --out-table "$OUT/four_stages_table.md" --overwrite >/dev/null 2>&1
+  cat "$OUT/four_stages_table.md" 2>/dev/null | head -30
+  tar czf "$OUT/four_stages_results.tgz" -C "$S" $(cd "$S" && ls -d eval_seed*/results.json eval_seed*/*.md eval_seed*/*.csv 2>/dev/null) 2>/dev/null
+  tar czf "$OUT/four_stages_logs.tgz" -C "$S" $(cd "$S" && ls *.log seed*/stage*/metrics/*.jsonl 2>/dev/null) 2>/dev/null
+  tar czf "$OUT/four_stages_grids.tgz" -C "$S" $(cd "$S" && ls seed0/stage*/renders/*.png 2>/dev/null | sort | awk -F/ '{k=$1"/"$2; last[k]=$0} END {for (k in last) print last[k]}') 2>/dev/null
+  note "four stages done"
+fi
