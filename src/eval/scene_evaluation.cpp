@@ -9,8 +9,7 @@
 #include "flat/data/frame_resize.h"
 #include "flat/data/scene_frames.h"
 #include "flat/data/scene_latents.h"
-#include "flat/eval/depth_metrics.h"
-#include "flat/eval/normal_metrics.h"
+#include "eval/scene_score_sums.h"
 
 namespace flat::eval {
 
@@ -83,6 +82,42 @@ pipeline::SceneInput window_input(const data::Scene& scene, int64_t window, cons
   return in;
 }
 
+namespace {
+
+// The window decoded to float32 primitives; NaN or infinite ones are an
+// error naming the scene and the tensor.
+primitives::ScenePrimitives decode_window(pipeline::ScenePipeline& pipeline, const data::Scene& scene,
+                                          const EvalSettings& s, const at::Device& device) {
+  const auto in = window_input(scene, s.window, pipeline.config().model.camera_rays);
+  primitives::ScenePrimitives prims;
+  {
+    AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
+    prims = pipeline.decode(in, s.streaming).scene(0).map([](const at::Tensor& t) { return t.to(at::kFloat); });
+  }
+  for (const auto& [name, t] : prims.named_tensors())
+    FLAT_CHECK(at::isfinite(t).all().item<bool>(),
+               scene.json_path() + ": the decoded " + prims.representation + " hold NaN or infinite " + name);
+  return prims;
+}
+
+// The views `frames` rendered at H x W beside their ground truth.
+ViewChunk render_views(pipeline::ScenePipeline& pipeline, const primitives::ScenePrimitives& prims,
+                       const data::Scene& scene, std::vector<int64_t> frames, const EvalSettings& s, int64_t H,
+                       int64_t W, const at::Device& device) {
+  ViewChunk c;
+  c.truth = data::load_frames(scene, frames, scene.has_depth, scene.has_normals);
+  auto intr = data::fit_frames(c.truth, scene.cameras(frames).intrinsics, H, W);
+  camera::Cameras cams{intr.to(device), scene.cameras(frames).c2w.to(device)};
+  {
+    AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
+    c.rendered = pipeline.render(prims, cams, H, W);
+  }
+  c.frames = std::move(frames);
+  return c;
+}
+
+}  // namespace
+
 SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& scene, const EvalSettings& s,
                           loss::Lpips lpips, const BaselineInputs& baselines) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -96,102 +131,20 @@ SceneScore evaluate_scene(pipeline::ScenePipeline& pipeline, const data::Scene& 
   const auto [H, W] = evaluation_size(scene, s);
   const auto device = pipeline.decoder()->conv2->weight.device();
 
-  // Decode the window.
-  const auto in = window_input(scene, s.window, pipeline.config().model.camera_rays);
-  primitives::ScenePrimitives prims;
-  {
-    AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
-    prims = pipeline.decode(in, s.streaming).scene(0).map([](const at::Tensor& t) { return t.to(at::kFloat); });
-  }
-  for (const auto& [name, t] : prims.named_tensors())
-    FLAT_CHECK(at::isfinite(t).all().item<bool>(),
-               scene.json_path() + ": the decoded " + prims.representation + " hold NaN or infinite " + name);
+  const auto prims = decode_window(pipeline, scene, s, device);
   r.triangles = pipeline::prune(prims, pipeline.config().prune_opacity).size();
 
   // Render and score the views, a chunk at a time.
-  std::vector<double> psnr, ssim, lp, mean_colour, dataset_mean, swap;
   if (baselines.swap_with) r.swap_scene = baselines.swap_with->name;
-  double l1_sum = 0, cos_sum = 0, roughness_sum = 0;
-  std::vector<double> si_log;
+  SceneScoreSums sums(s, lpips, baselines, H, W, device);
   for (size_t c0 = 0; c0 < frames.size(); c0 += size_t(s.render_chunk)) {
-    const std::vector<int64_t> part(frames.begin() + long(c0),
-                                    frames.begin() + long(std::min(frames.size(), c0 + size_t(s.render_chunk))));
-    auto gt = data::load_frames(scene, part, scene.has_depth, scene.has_normals);
-    auto intr = data::fit_frames(gt, scene.cameras(part).intrinsics, H, W);
-    camera::Cameras cams{intr.to(device), scene.cameras(part).c2w.to(device)};
-    pipeline::RenderedViews v;
-    {
-      AutocastScope autocast(s.bf16 && device.is_cuda(), device.type());
-      v = pipeline.render(prims, cams, H, W);
-    }
-    auto rgb = v.rgb.to(at::kCPU, at::kFloat).clamp(0, 1);
-    auto target = gt.images.to(at::kFloat);
-    auto p = eval::psnr(rgb, target), q = eval::ssim(rgb, target, s.ssim);
-    const auto oracle = mean_colour_psnr(target);
-    for (int64_t k = 0; k < rgb.size(0); ++k) {
-      psnr.push_back(p[k].item<double>());
-      ssim.push_back(q[k].item<double>());
-      mean_colour.push_back(oracle[k].item<double>());
-      if (baselines.frame_sums)
-        if (auto m = baselines.frame_sums->leave_one_out(part[size_t(k)], target[k]))
-          dataset_mean.push_back(eval::psnr(m->unsqueeze(0), target[k].unsqueeze(0))[0].item<double>());
-    }
-    // Swap: the same renders against the other scene's frames of the same index.
-    if (baselines.swap_with) {
-      std::vector<int64_t> shared;
-      std::vector<int64_t> rows;
-      for (size_t k = 0; k < part.size(); ++k)
-        if (part[k] < baselines.swap_with->size()) {
-          shared.push_back(part[k]);
-          rows.push_back(int64_t(k));
-        }
-      if (!shared.empty()) {
-        auto other = data::load_frames(*baselines.swap_with, shared, false, false);
-        data::fit_frames(other, baselines.swap_with->cameras(shared).intrinsics, H, W);
-        auto sp = eval::psnr(rgb.index_select(0, at::tensor(rows)), other.images.to(at::kFloat));
-        for (int64_t k = 0; k < sp.size(0); ++k) swap.push_back(sp[k].item<double>());
-      }
-    }
-    if (!lpips.is_empty()) {
-      auto d = eval::lpips(lpips, v.rgb.to(at::kFloat).clamp(0, 1), target.to(device));
-      for (int64_t k = 0; k < d.size(0); ++k) lp.push_back(d[k].item<double>());
-    }
-    const auto mask = v.alpha.to(at::kCPU, at::kFloat) > s.normal_alpha;
-    if (gt.normals.defined()) {
-      auto acc = normal_accuracy(v.normal.to(at::kCPU, at::kFloat), gt.normals, mask);
-      if (acc.valid_pixels > 0) {
-        l1_sum += acc.mean_l1 * double(acc.valid_pixels);
-        cos_sum += acc.mean_cosine * double(acc.valid_pixels);
-        r.normal_pixels += acc.valid_pixels;
-      }
-    }
-    if (gt.depth.defined() && v.depth.defined()) {
-      auto acc = depth_accuracy(v.depth.to(at::kCPU, at::kFloat), gt.depth, mask, gt.normals);
-      for (double e : acc.si_log)
-        if (std::isfinite(e)) si_log.push_back(e);
-      roughness_sum += acc.planar_roughness_sum;
-      r.planar_pixels += acc.planar_pixels;
-    }
+    std::vector<int64_t> part(frames.begin() + long(c0),
+                              frames.begin() + long(std::min(frames.size(), c0 + size_t(s.render_chunk))));
+    sums.add(render_views(pipeline, prims, scene, std::move(part), s, H, W, device));
   }
-  auto mean = [](const std::vector<double>& x) {
-    double m = 0;
-    for (double v : x) m += v;
-    return x.empty() ? NAN : m / double(x.size());
-  };
   r.views = int64_t(frames.size());
   for (auto f : frames) r.unseen_views += (f < win.start || f >= win.start + win.count) ? 1 : 0;
-  r.psnr = mean(psnr);
-  r.ssim = mean(ssim);
-  r.lpips = mean(lp);
-  r.mean_colour_psnr = mean(mean_colour);
-  r.dataset_mean_psnr = mean(dataset_mean);
-  r.swap_psnr = mean(swap);
-  if (r.normal_pixels > 0) {
-    r.normal_l1 = l1_sum / double(r.normal_pixels);
-    r.normal_cosine = cos_sum / double(r.normal_pixels);
-  }
-  r.depth_si_log = mean(si_log);
-  if (r.planar_pixels > 0) r.planar_roughness = roughness_sum / double(r.planar_pixels);
+  sums.write(r);
   r.ok = true;
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
