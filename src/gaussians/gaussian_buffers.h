@@ -15,7 +15,7 @@ struct GaussianInputs {
   at::Tensor means, scales, rotations, colors, opacities;
   at::Tensor w2c, K, background;
   int64_t height = 0, width = 0;
-  GaussianConstants k;
+  CompositingConstants k;
   // The value checks' statistics (rasterize_gaussians.cpp), on the host; for
   // CUDA inputs filled by an asynchronous copy: read only once the stream
   // that computed them has been waited for. Empty when there are no Gaussians.

@@ -1,7 +1,7 @@
 // Per-Gaussian and per-pixel maths of the 3D Gaussian splatting rasterizer,
 // shared by the CPU reference (templated on float/double) and the CUDA
 // kernels (float). Plain C++ with __host__ __device__ under nvcc (FLAT_HD of
-// flat/render/shared/triangle_math.h): no torch, no std containers. docs/rasterizer_3dgs.md
+// flat/render/shared/compositing.h): no torch, no std containers. docs/rasterizer_3dgs.md
 // has the equations.
 //
 // Per (view, Gaussian): camera-space mean t = W m + tw; Sigma = M M^T with
@@ -15,22 +15,16 @@
 #include <cmath>
 #include <cstdint>
 
-#include "flat/render/shared/triangle_math.h"  // FLAT_HD, CameraView, make_camera_view, tmin/tmax, depth_sort_key
+#include "flat/render/shared/compositing.h"    // FLAT_HD, CompositingConstants and its rules, tmin/tmax
+#include "flat/render/shared/view_geometry.h"  // CameraView, make_camera_view, PixelRect
 
 namespace flat::gaussians {
 
 using render::CameraView;
+using render::CompositingConstants;
 using render::make_camera_view;
 using render::tmax;
 using render::tmin;
-
-// Constants of one rasterization (docs/rasterizer_3dgs.md).
-struct GaussianConstants {
-  float near_plane = 0.01f;       // cull a Gaussian whose mean has camera z < near_plane
-  float alpha_max = 0.99f;        // alpha cap (keeps 1 - alpha invertible in backward)
-  float alpha_min = 1.f / 255.f;  // a fragment with alpha below this is skipped
-  float t_min = 1e-4f;            // a pixel stops before its transmittance would drop below this
-};
 
 constexpr double kDilation = 0.3;     // pixels^2 added to the 2-D covariance's diagonal (3DGS)
 constexpr double kClampFactor = 1.3;  // J's screen position clamped to 1.3x the half-extent (3DGS)
@@ -50,9 +44,7 @@ struct alignas(16) ScreenGaussian {
 };
 
 // Pixels [x0,x1) x [y0,y1) whose centres may reach alpha_min (and q <= 9).
-struct PixelBox {
-  int x0, y0, x1, y1;
-};
+using PixelBox = render::PixelRect;
 
 // Gradient of the loss with respect to one Gaussian's ScreenGaussian in one
 // view. conic[1] is dL/db with b the matrix's off-diagonal entry taken once
@@ -177,9 +169,9 @@ FLAT_HD void project(const T* mean, const T* scale, const T* quat, const CameraV
 // geometry of `out` (mean, conic, z; not colour/opacity) and the pixel box.
 template <class T>
 FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T opacity, const CameraView<T>& cam,
-                                const GaussianConstants& k, int width, int height, ScreenGaussian<T>& out,
+                                const CompositingConstants& k, int width, int height, ScreenGaussian<T>& out,
                                 PixelBox& box) {
-  if (k.alpha_min > 0.f && !(opacity >= T(k.alpha_min))) return false;  // can never reach alpha_min
+  if (!render::opacity_can_blend(opacity, k)) return false;
   T tz = cam.R[6] * mean[0] + cam.R[7] * mean[1] + cam.R[8] * mean[2] + cam.t[2];
   if (!(tz >= T(k.near_plane))) return false;  // behind the near plane (also NaN)
   Projection<T> pr;
@@ -200,17 +192,8 @@ FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T 
   e2 *= T(1.001);
   out.extent2 = e2;
   const T hx = std::sqrt(e2 * pr.cov[0]), hy = std::sqrt(e2 * pr.cov[2]);
-  // Pixel x is covered when its centre x + 0.5 lies in [mx - hx, mx + hx]; clamp before int conversion.
-  const T big = T(1 << 24);
-  const T fx0 = std::ceil(tmax(tmin(out.mx - hx - T(0.5), big), -big));
-  const T fx1 = std::floor(tmax(tmin(out.mx + hx - T(0.5), big), -big)) + T(1);
-  const T fy0 = std::ceil(tmax(tmin(out.my - hy - T(0.5), big), -big));
-  const T fy1 = std::floor(tmax(tmin(out.my + hy - T(0.5), big), -big)) + T(1);
-  box.x0 = (int)tmax(fx0, T(0));
-  box.y0 = (int)tmax(fy0, T(0));
-  box.x1 = (int)tmin(fx1, T(width));
-  box.y1 = (int)tmin(fy1, T(height));
-  return box.x0 < box.x1 && box.y0 < box.y1;
+  const T lo[2] = {out.mx - hx, out.my - hy}, hi[2] = {out.mx + hx, out.my + hy};
+  return render::covered_pixels(lo, hi, width, height, box);
 }
 
 // Reverse of preprocess_forward's geometry for one view: g (mean2d, conic, z)
@@ -324,22 +307,22 @@ struct Fragment {
 // px, py: pixel centre. Returns false when the fragment is skipped (outside
 // the support or alpha < alpha_min); the CPU and CUDA passes call exactly this.
 template <class T>
-FLAT_HD bool shade(const ScreenGaussian<T>& g, T px, T py, const GaussianConstants& k, Fragment<T>& f) {
+FLAT_HD bool shade(const ScreenGaussian<T>& g, T px, T py, const CompositingConstants& k, Fragment<T>& f) {
   f.dx = px - g.mx;
   f.dy = py - g.my;
   const T q = quad_form(g, f.dx, f.dy);
   if (!(q <= T(kSupportSq))) return false;
   f.G = gauss_exp(T(-0.5) * q);
-  f.alpha = tmin(T(k.alpha_max), g.opacity * f.G);
-  return f.alpha >= T(k.alpha_min) && f.alpha > T(0);
+  f.alpha = render::fragment_alpha(g.opacity, f.G, k);
+  return render::fragment_blends(f.alpha, k);
 }
 
 // d alpha -> the Gaussian's opacity, conic and mean2d gradients (added into
 // gr), given a fragment f of g that shade() kept. At the cap alpha is flat.
 template <class T>
-FLAT_HD void shade_backward(const ScreenGaussian<T>& g, const Fragment<T>& f, const GaussianConstants& k, T g_alpha,
+FLAT_HD void shade_backward(const ScreenGaussian<T>& g, const Fragment<T>& f, const CompositingConstants& k, T g_alpha,
                             ScreenGrad<T>& gr) {
-  if (!(g.opacity * f.G < T(k.alpha_max))) return;
+  if (!render::below_alpha_cap(g.opacity, f.G, k)) return;
   gr.opacity += g_alpha * f.G;
   const T g_q = T(-0.5) * g_alpha * g.opacity * f.G;  // q = a dx^2 + 2 b dx dy + c dy^2
   gr.conic[0] += g_q * f.dx * f.dx;

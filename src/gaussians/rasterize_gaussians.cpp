@@ -22,7 +22,7 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
   static variable_list forward(AutogradContext* ctx, const at::Tensor& means, const at::Tensor& scales,
                                const at::Tensor& rotations, const at::Tensor& colors, const at::Tensor& opacities,
                                const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& background,
-                               const at::Tensor& value_stats, int64_t height, int64_t width, GaussianConstants k) {
+                               const at::Tensor& value_stats, int64_t height, int64_t width, CompositingConstants k) {
     GaussianInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, k, value_stats};
     GaussianOutputs out;
     if (means.is_cuda()) {
@@ -46,7 +46,7 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto c = render::load_constants<GaussianConstants>(ctx);
+    const auto c = render::load_constants<CompositingConstants>(ctx);
     GaussianInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
                       c.height, c.width, c.k, at::Tensor()};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
@@ -96,7 +96,7 @@ void check_input_values(const GaussianInputs& in) {
 render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
                                          const at::Tensor& colors, const at::Tensor& opacities,
                                          const camera::Cameras& cams, int64_t height, int64_t width,
-                                         const render::RasterSettings& settings) {
+                                         const render::CompositingSettings& settings) {
   settings.check();
   const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(means, scales, rotations, colors, opacities, host_cams, height, width);
@@ -115,7 +115,7 @@ render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tens
   in.background = views.background;
   in.height = height;
   in.width = width;
-  render::set_compositing_constants(settings, in.k);
+  in.k = settings.constants();
   // The value checks' statistics: on the GPU copied to the host without a
   // sync, checked at the CUDA back end's first wait for the device.
   in.value_stats = in.means.size(0) > 0 ? render::to_host_async(render::input_stats(

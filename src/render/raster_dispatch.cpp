@@ -33,7 +33,8 @@ at::TensorOptions compute_options(const at::Tensor& lead) {
   return at::TensorOptions().device(lead.device()).dtype(use_double ? at::kDouble : at::kFloat);
 }
 
-HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width, const RasterSettings& settings,
+HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width,
+                     const CompositingSettings& settings,
                      const at::TensorOptions& opts) {
   const auto host = opts.device(at::kCPU);
   HostViews h;

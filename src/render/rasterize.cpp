@@ -15,13 +15,31 @@
 
 namespace flat::render {
 
-void RasterSettings::check() const {
-  // The ranges live in visit(); here only what relates fields to each other.
-  config::validate_fields(*this, "raster settings");
+void CompositingSettings::check_relations() const {
   FLAT_CHECK(background.size() == 3, "raster settings: 'background' must have 3 values (r,g,b), got " +
                                          std::to_string(background.size()));
   FLAT_CHECK(alpha_min < alpha_max, "raster settings: 'alpha_min' (" + std::to_string(alpha_min) +
                                         ") must be below 'alpha_max' (" + std::to_string(alpha_max) + ")");
+}
+
+void CompositingSettings::check() const {
+  // The ranges live in visit(); here only what relates fields to each other.
+  config::validate_fields(*this, "raster settings");
+  check_relations();
+}
+
+void RasterSettings::check() const {
+  config::validate_fields(*this, "raster settings");
+  check_relations();
+}
+
+CompositingConstants CompositingSettings::constants() const {
+  CompositingConstants k;
+  k.near_plane = (float)near_plane;
+  k.alpha_max = (float)alpha_max;
+  k.alpha_min = (float)alpha_min;
+  k.t_min = (float)transmittance_min;
+  return k;
 }
 
 namespace {
@@ -31,7 +49,7 @@ using torch::autograd::variable_list;
 
 RasterConstants to_constants(const RasterSettings& s) {
   RasterConstants k;
-  set_compositing_constants(s, k);
+  static_cast<CompositingConstants&>(k) = s.constants();
   k.eps = (float)s.eps;
   k.min_inradius = (float)s.min_inradius;
   k.min_cos = (float)s.min_cos;

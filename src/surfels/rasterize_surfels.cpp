@@ -26,7 +26,7 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
   static variable_list forward(AutogradContext* ctx, const at::Tensor& means, const at::Tensor& scales,
                                const at::Tensor& rotations, const at::Tensor& colors, const at::Tensor& opacities,
                                const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& background,
-                               int64_t height, int64_t width, RasterConstants k) {
+                               int64_t height, int64_t width, CompositingConstants k) {
     SurfelInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, k};
     SurfelOutputs out;
     if (means.is_cuda()) {
@@ -50,7 +50,7 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto c = render::load_constants<RasterConstants>(ctx);
+    const auto c = render::load_constants<CompositingConstants>(ctx);
     SurfelInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
                     c.height, c.width, c.k};
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
@@ -115,7 +115,7 @@ void check_values(const SurfelInputs& in) {
 render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
                                        const at::Tensor& colors, const at::Tensor& opacities,
                                        const camera::Cameras& cams, int64_t height, int64_t width,
-                                       const render::RasterSettings& settings) {
+                                       const render::CompositingSettings& settings) {
   settings.check();
   const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(means, scales, rotations, colors, opacities, host_cams, height, width);
@@ -133,7 +133,7 @@ render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor
   in.background = views.background;
   in.height = height;
   in.width = width;
-  render::set_compositing_constants(settings, in.k);
+  in.k = settings.constants();
   check_values(in);
   auto outs = RasterizeSurfelsFunction::apply(in.means, in.scales, in.rotations, in.colors, in.opacities, in.w2c,
                                               in.K, in.background, height, width, in.k);

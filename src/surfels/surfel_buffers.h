@@ -15,7 +15,7 @@ struct SurfelInputs {
   at::Tensor means, scales, rotations, colors, opacities;
   at::Tensor w2c, K, background;
   int64_t height = 0, width = 0;
-  RasterConstants k;
+  CompositingConstants k;
 };
 
 struct SurfelOutputs {

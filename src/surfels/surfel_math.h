@@ -1,7 +1,7 @@
 // Per-surfel and per-pixel maths of the 2D Gaussian surfel rasterizer, shared
 // by the CPU reference (templated on float/double) and the CUDA kernels
 // (float). Plain C++ with __host__ __device__ under nvcc (FLAT_HD, from
-// flat/render/shared/triangle_math.h): no torch, no std containers.
+// flat/render/shared/compositing.h): no torch, no std containers.
 //
 // A surfel in camera space: centre c, tangent axes t_u, t_v (the first two
 // columns of R(q) turned into the camera), scales s_u, s_v. Its points are
@@ -17,15 +17,16 @@
 #include <cmath>
 #include <cstdint>
 
-#include "flat/render/shared/triangle_math.h"
+#include "flat/render/shared/compositing.h"    // FLAT_HD, CompositingConstants and its rules, tmin/tmax
+#include "flat/render/shared/view_geometry.h"  // CameraView, PixelRect
 
 namespace flat::surfels {
 
 using render::CameraView;
-using render::RasterConstants;
+using render::CompositingConstants;
 using render::tmax;
 using render::tmin;
-using SurfelRect = render::TriRect;  // pixels [x0,x1) x [y0,y1)
+using SurfelRect = render::PixelRect;  // pixels [x0,x1) x [y0,y1)
 
 // 2DGS' screen-space low-pass: rho2d = kLowPass |p - c_px|^2 (pixels).
 constexpr double kLowPass = 2.0;
@@ -143,7 +144,7 @@ FLAT_HD void splat_to_screen(const SurfelFrame<T>& f, const T* scale, const Came
 // of this opacity reaches alpha_min (rho > 2 ln(opacity / alpha_min) gives
 // alpha < alpha_min); <= 0: it never does.
 template <class T>
-FLAT_HD T cutoff_sq(T opacity, const RasterConstants& k) {
+FLAT_HD T cutoff_sq(T opacity, const CompositingConstants& k) {
   if (!(opacity > T(0))) return T(-1);
   if (!(k.alpha_min > 0.f)) return T(kMaxCutoffSq);
   return tmin(T(kMaxCutoffSq), T(2) * std::log(opacity / T(k.alpha_min)));
@@ -178,17 +179,7 @@ FLAT_HD bool surfel_rect(const T M[9], T cx, T cy, T r2, int width, int height, 
     lo[0] = lo[1] = T(-1e30);
     hi[0] = hi[1] = T(1e30);
   }
-  // Pixel x is covered when its centre x + 0.5 lies in [lo, hi]; clamp before int conversion.
-  const T big = T(1 << 24);
-  const T fx0 = std::ceil(tmax(tmin(lo[0] - T(0.5), big), -big));
-  const T fx1 = std::floor(tmax(tmin(hi[0] - T(0.5), big), -big)) + T(1);
-  const T fy0 = std::ceil(tmax(tmin(lo[1] - T(0.5), big), -big));
-  const T fy1 = std::floor(tmax(tmin(hi[1] - T(0.5), big), -big)) + T(1);
-  rect.x0 = (int)tmax(fx0, T(0));
-  rect.y0 = (int)tmax(fy0, T(0));
-  rect.x1 = (int)tmin(fx1, T(width));
-  rect.y1 = (int)tmin(fy1, T(height));
-  return rect.x0 < rect.x1 && rect.y0 < rect.y1;
+  return render::covered_pixels(lo, hi, width, height, rect);
 }
 
 // The centre's camera z for the depth sort key, every product and sum
@@ -225,7 +216,7 @@ FLAT_HD T centre_depth(const T* mean, const CameraView<T>& cam) {
 // support box and the depth sort key (camera z of the centre, centre_depth()).
 template <class T>
 FLAT_HD bool preprocess_forward(const T* mean, const T* scale, const T* quat, T opacity, const CameraView<T>& cam,
-                                const RasterConstants& k, int width, int height, PixelSurfel<T>& out,
+                                const CompositingConstants& k, int width, int height, PixelSurfel<T>& out,
                                 SurfelRect& rect, T& key) {
   const SurfelFrame<T> f = surfel_frame(mean, quat, cam);
   if (!(f.c[2] >= T(k.near_plane))) return false;  // behind or too near (also NaN)
@@ -309,7 +300,7 @@ struct SurfelFragment {
 // alpha >= alpha_min (and > 0), rho <= kMaxCutoffSq and z >= near_plane (a
 // ray meeting the plane behind or too near the camera sees nothing).
 template <class T>
-FLAT_HD bool shade(const PixelSurfel<T>& s, T px, T py, const RasterConstants& k, SurfelFragment<T>& f) {
+FLAT_HD bool shade(const PixelSurfel<T>& s, T px, T py, const CompositingConstants& k, SurfelFragment<T>& f) {
   const T* M = s.M;
   const T kx[3] = {M[0] - px * M[6], M[1] - px * M[7], M[2] - px * M[8]};
   const T ly[3] = {M[3] - py * M[6], M[4] - py * M[7], M[5] - py * M[8]};
@@ -326,17 +317,17 @@ FLAT_HD bool shade(const PixelSurfel<T>& s, T px, T py, const RasterConstants& k
   const T rho = f.lowpass ? rho2d : rho3d;
   f.z = f.lowpass ? M[8] : f.u * M[6] + f.v * M[7] + M[8];
   f.G = surfel_exp(T(-0.5) * rho);
-  f.alpha = tmin(T(k.alpha_max), s.opacity * f.G);
-  return f.alpha >= T(k.alpha_min) && f.alpha > T(0) && rho <= T(kMaxCutoffSq) && f.z >= T(k.near_plane);
+  f.alpha = render::fragment_alpha(s.opacity, f.G, k);
+  return render::fragment_blends(f.alpha, k) && rho <= T(kMaxCutoffSq) && f.z >= T(k.near_plane);
 }
 
 // dL/dalpha and dL/dz of fragment f (from shade() at (px, py)) -> gradients
 // of s's M, c_px and opacity, added into g.
 template <class T>
 FLAT_HD void fragment_backward(const PixelSurfel<T>& s, T px, T py, const SurfelFragment<T>& f, T g_alpha, T g_z,
-                               const RasterConstants& k, SurfelGrad<T>& g) {
+                               const CompositingConstants& k, SurfelGrad<T>& g) {
   T g_rho = T(0);
-  if (s.opacity * f.G < T(k.alpha_max)) {  // below the cap alpha = opacity G
+  if (render::below_alpha_cap(s.opacity, f.G, k)) {
     g.opacity += g_alpha * f.G;
     g_rho = T(-0.5) * g_alpha * s.opacity * f.G;
   }

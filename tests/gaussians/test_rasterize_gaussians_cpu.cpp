@@ -13,19 +13,19 @@
 #include "test_support.h"
 
 using flat::gaussians::rasterize_gaussians;
-using flat::render::RasterSettings;
+using flat::render::CompositingSettings;
 using flat::render::RenderOutput;
 
 namespace {
 
 constexpr int64_t kH = 18, kW = 24;
 
-RenderOutput render(const std::vector<torch::Tensor>& in, const flat::camera::Cameras& cams, const RasterSettings& s,
+RenderOutput render(const std::vector<torch::Tensor>& in, const flat::camera::Cameras& cams, const CompositingSettings& s,
                     int64_t H = kH, int64_t W = kW) {
   return rasterize_gaussians(in[0], in[1], in[2], in[3], in[4], cams, H, W, s);
 }
 
-void check_gradients_fd(const RasterSettings& settings, uint64_t seed, bool with_offscreen) {
+void check_gradients_fd(const CompositingSettings& settings, uint64_t seed, bool with_offscreen) {
   const int64_t N = 8, V = 2;
   auto g = flat::test::random_gaussians(N, torch::kDouble, seed);
   if (with_offscreen) {
@@ -65,19 +65,19 @@ std::vector<torch::Tensor> cat(const std::vector<torch::Tensor>& a, const std::v
 
 TEST_CASE("rasterize_gaussians cpu: gradients of every input match central finite differences (double)",
           "[gaussians][grad]") {
-  check_gradients_fd(RasterSettings{}, 11, false);
+  check_gradients_fd(CompositingSettings{}, 11, false);
 }
 
 TEST_CASE("rasterize_gaussians cpu: clamped Jacobian, background, larger Gaussians: gradients match FD",
           "[gaussians][grad]") {
-  RasterSettings s;
+  CompositingSettings s;
   s.background = {0.2, 0.5, 0.9};
   check_gradients_fd(s, 23, true);
 }
 
 TEST_CASE("rasterize_gaussians cpu: opacities at the alpha cap and no alpha_min: gradients match FD",
           "[gaussians][grad]") {
-  RasterSettings s;
+  CompositingSettings s;
   s.alpha_min = 0.0;
   s.alpha_max = 0.6;  // most centres hit the cap: no gradient through alpha there
   check_gradients_fd(s, 37, false);
@@ -92,7 +92,7 @@ TEST_CASE("rasterize_gaussians cpu: an isotropic Gaussian on the optical axis ha
   // (fx s / z)^2 + 0.3 = 4.
   const double fx = 0.9 * W, fy = 1.2 * H, z = 2.0, o = 0.8;
   const double s = z * std::sqrt(4.0 - 0.3) / fx;
-  auto out = render(one({0.0, 0.0, z}, s, o, {0.2, 0.4, 0.6}), cams, RasterSettings{}, H, W);
+  auto out = render(one({0.0, 0.0, z}, s, o, {0.2, 0.4, 0.6}), cams, CompositingSettings{}, H, W);
   // 2-D covariance diag(fx^2 s^2 / z^2 + 0.3, fy^2 s^2 / z^2 + 0.3) (J at u = v = 0).
   const double vx = fx * fx * s * s / (z * z) + 0.3, vy = fy * fy * s * s / (z * z) + 0.3;
   REQUIRE(vx == Approx(4.0));
@@ -115,7 +115,7 @@ TEST_CASE("rasterize_gaussians cpu: an isotropic Gaussian on the optical axis ha
   CHECK(!out.distortion.defined());
   // The support is the 3-sigma ellipse q <= 9, even where o exp(-q/2) would
   // still pass alpha_min (here 0): 3.5 sigmas out (7 px) is empty, 2.5 is not.
-  RasterSettings no_min;
+  CompositingSettings no_min;
   no_min.alpha_min = 0.0;
   auto cut = render(one({0.0, 0.0, z}, s, o, {0.2, 0.4, 0.6}), cams, no_min, H, W);
   CHECK(cut.alpha[0][0][yc][xc + 5].item<double>() == Approx(o * std::exp(-0.5 * 25.0 / vx)).epsilon(1e-5));
@@ -138,7 +138,7 @@ TEST_CASE(
     double X, Y, s;
   };
   for (const Case& cs : {Case{0.6, -0.3, 0.12}, Case{1.8, 0.2, 0.5}}) {  // inside; clamped (X/z = 0.9)
-    auto out = render(one({cs.X, cs.Y, z}, cs.s, 0.9, {1.0, 1.0, 1.0}), cams, RasterSettings{}, H, W);
+    auto out = render(one({cs.X, cs.Y, z}, cs.s, 0.9, {1.0, 1.0, 1.0}), cams, CompositingSettings{}, H, W);
     const double u = std::min(cs.X / z, lim_x), v = cs.Y / z, k = cs.s * cs.s / (z * z);
     const double a = k * fx * fx * (1 + u * u) + 0.3, b = k * fx * fy * u * v, c = k * fy * fy * (1 + v * v) + 0.3;
     const double det = a * c - b * b;
@@ -162,7 +162,7 @@ TEST_CASE(
 TEST_CASE("rasterize_gaussians cpu: two Gaussians composite front to back by depth, not by index", "[gaussians]") {
   const int64_t H = 19, W = 25, xc = 12, yc = 9;
   auto cams = flat::test::test_cameras(1);
-  RasterSettings s;
+  CompositingSettings s;
   s.background = {0.1, 0.2, 0.3};
   // Index 0 is the far one (green), index 1 the near one (red).
   auto far = one({0.0, 0.0, 4.0}, 0.3, 0.6, {0.0, 1.0, 0.0});
@@ -186,7 +186,7 @@ TEST_CASE("rasterize_gaussians cpu: Gaussians behind the camera or the near plan
   auto cams = flat::test::test_cameras(1);
   auto in = cat(one({0.0, 0.0, -2.0}, 0.5, 0.9, {1, 1, 1}), one({0.0, 0.0, 0.005}, 0.5, 0.9, {1, 1, 1}));
   for (auto& t : in) t.requires_grad_(true);
-  auto out = render(in, cams, RasterSettings{});
+  auto out = render(in, cams, CompositingSettings{});
   CHECK(out.alpha.abs().max().item<double>() == 0.0);
   CHECK(out.max_weight.abs().max().item<double>() == 0.0);
   (out.rgb.sum() + out.depth.sum() + out.alpha.sum()).backward();
@@ -201,9 +201,9 @@ TEST_CASE("rasterize_gaussians cpu: the quaternion's norm does not matter; its g
   auto g = flat::test::random_gaussians(12, torch::kDouble, 5);
   auto cams = flat::test::test_cameras(2);
   auto rot = g.rotations.clone().requires_grad_(true);
-  auto a = rasterize_gaussians(g.means, g.scales, rot, g.colors, g.opacities, cams, kH, kW, RasterSettings{});
+  auto a = rasterize_gaussians(g.means, g.scales, rot, g.colors, g.opacities, cams, kH, kW, CompositingSettings{});
   auto b =
-      rasterize_gaussians(g.means, g.scales, g.rotations * 3.0, g.colors, g.opacities, cams, kH, kW, RasterSettings{});
+      rasterize_gaussians(g.means, g.scales, g.rotations * 3.0, g.colors, g.opacities, cams, kH, kW, CompositingSettings{});
   CHECK((a.rgb - b.rgb).abs().max().item<double>() < 1e-12);
   a.rgb.sum().backward();
   CHECK((rot.grad() * g.rotations).sum(1).abs().max().item<double>() < 1e-10);
@@ -215,7 +215,7 @@ TEST_CASE("rasterize_gaussians cpu: empty scene renders the background and retur
   auto cams = flat::test::test_cameras(2);
   auto m = torch::zeros({0, 3}).requires_grad_(true);
   auto s = torch::zeros({0, 3}), q = torch::zeros({0, 4}), c = torch::zeros({0, 3}), o = torch::zeros({0});
-  RasterSettings settings;
+  CompositingSettings settings;
   settings.background = {0.1, 0.2, 0.3};
   auto out = rasterize_gaussians(m, s, q, c, o, cams, kH, kW, settings);
   CHECK(out.rgb.sizes() == torch::IntArrayRef({2, 3, kH, kW}));
@@ -232,7 +232,7 @@ TEST_CASE("rasterize_gaussians cpu: many Gaussians in one pixel stop at the tran
   auto z = torch::linspace(2.0, 5.0, n, torch::kFloat);
   auto means = torch::stack({torch::zeros({n}), torch::zeros({n}), z}, 1);
   auto out = rasterize_gaussians(means, torch::full({n, 3}, 0.2f), torch::tensor({1.f, 0.f, 0.f, 0.f}).repeat({n, 1}),
-                                 torch::rand({n, 3}), torch::full({n}, 0.5f), cams, kH, kW, RasterSettings{});
+                                 torch::rand({n, 3}), torch::full({n}, 0.5f), cams, kH, kW, CompositingSettings{});
   const float a = out.alpha[0][0][kH / 2][kW / 2].item<float>();
   CHECK(a > 0.999f);
   CHECK(1.0f - a >= 1e-4f * 0.49f);  // stopped before the transmittance fell below 1e-4 (within one step)
@@ -243,10 +243,10 @@ TEST_CASE("rasterize_gaussians cpu: many Gaussians in one pixel stop at the tran
 TEST_CASE("rasterize_gaussians cpu: V views at once equal one view at a time", "[gaussians]") {
   auto g = flat::test::random_gaussians(40, torch::kFloat, 6);
   auto cams = flat::test::test_cameras(3);
-  auto all = rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, kH, kW, RasterSettings{});
+  auto all = rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, kH, kW, CompositingSettings{});
   for (int64_t v = 0; v < 3; ++v) {
     auto one_view = rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities,
-                                        cams.index(torch::tensor({v}, torch::kLong)), kH, kW, RasterSettings{});
+                                        cams.index(torch::tensor({v}, torch::kLong)), kH, kW, CompositingSettings{});
     CHECK(torch::equal(one_view.rgb[0], all.rgb[v]));
     CHECK(torch::equal(one_view.depth[0], all.depth[v]));
   }
@@ -257,7 +257,7 @@ TEST_CASE("rasterize_gaussians cpu: other float dtypes are cast and gradients co
   auto g = flat::test::random_gaussians(6, torch::kFloat, 9);
   auto m = g.means.to(torch::kBFloat16).requires_grad_(true);
   auto out = rasterize_gaussians(m, g.scales, g.rotations, g.colors, g.opacities, flat::test::test_cameras(1), kH, kW,
-                                 RasterSettings{});
+                                 CompositingSettings{});
   CHECK(out.rgb.scalar_type() == torch::kFloat);
   out.rgb.sum().backward();
   CHECK(m.grad().scalar_type() == torch::kBFloat16);
@@ -269,7 +269,7 @@ TEST_CASE("rasterize_gaussians cpu: bad inputs are reported with their name and 
   auto cams = flat::test::test_cameras(1);
   auto call = [&](const torch::Tensor& m, const torch::Tensor& s, const torch::Tensor& q, const torch::Tensor& c,
                   const torch::Tensor& o) {
-    return rasterize_gaussians(m, s, q, c, o, cams, kH, kW, RasterSettings{});
+    return rasterize_gaussians(m, s, q, c, o, cams, kH, kW, CompositingSettings{});
   };
   REQUIRE_THROWS_WITH(call(g.means.view({-1}), g.scales, g.rotations, g.colors, g.opacities),
                       FLAT_CONTAINS("means") && FLAT_CONTAINS("(N,3)"));
@@ -287,7 +287,7 @@ TEST_CASE("rasterize_gaussians cpu: bad inputs are reported with their name and 
   REQUIRE_THROWS_WITH(call(g.means, g.scales, g.rotations, g.colors, g.opacities * 3), FLAT_CONTAINS("opacities"));
   REQUIRE_THROWS_WITH(call(g.means, -g.scales, g.rotations, g.colors, g.opacities), FLAT_CONTAINS("scales"));
   REQUIRE_THROWS_WITH(call(g.means, g.scales, g.rotations * 0, g.colors, g.opacities), FLAT_CONTAINS("rotations"));
-  RasterSettings bad;
+  CompositingSettings bad;
   bad.background = {1.0};
   REQUIRE_THROWS_WITH(rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams, kH, kW, bad),
                       FLAT_CONTAINS("background"));
@@ -334,7 +334,7 @@ TEST_CASE(
   const at::Tensor w2c = flat::camera::world_to_camera(cams.c2w.to(torch::kDouble)).contiguous();
   const at::Tensor K = flat::camera::pixel_intrinsics(cams.intrinsics, H, W).to(torch::kDouble).contiguous();
   const CameraView<double> cam = make_camera_view(w2c.data_ptr<double>(), K.data_ptr<double>());
-  GaussianConstants k;
+  CompositingConstants k;
   auto gen = at::make_generator<at::CPUGeneratorImpl>(3);
   int64_t checked = 0, kept = 0;
   for (int64_t n = 0; n < 60; ++n) {

@@ -11,7 +11,7 @@
 #include "test_support.h"
 
 using flat::gaussians::rasterize_gaussians;
-using flat::render::RasterSettings;
+using flat::render::CompositingSettings;
 
 namespace {
 
@@ -38,14 +38,14 @@ constexpr double kGeomGradTol = 2e-3;
 constexpr double kGeomOutliers = 0.01;
 
 flat::test::Rendered run(const flat::test::Gaussians& g, const flat::camera::Cameras& cams, int64_t H, int64_t W,
-                         const RasterSettings& s, const torch::Device& dev, const flat::test::Probe& probe) {
+                         const CompositingSettings& s, const torch::Device& dev, const flat::test::Probe& probe) {
   auto render = [&](const std::vector<torch::Tensor>& in) {
     return rasterize_gaussians(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, s);
   };
   return flat::test::render_with_grads({g.means, g.scales, g.rotations, g.colors, g.opacities}, dev, render, probe);
 }
 
-void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s, uint64_t seed, double lo = 0.08,
+void compare(int64_t n, int64_t V, int64_t H, int64_t W, const CompositingSettings& s, uint64_t seed, double lo = 0.08,
              double hi = 0.3) {
   auto g = flat::test::random_gaussians(n, torch::kFloat, seed, lo, hi);
   auto cams = flat::test::test_cameras(V);
@@ -93,13 +93,13 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
 
 TEST_CASE("rasterize_gaussians cuda: matches the CPU reference (V = 1)", "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(200, 1, 40, 56, RasterSettings{}, 101);
+  compare(200, 1, 40, 56, CompositingSettings{}, 101);
 }
 
 TEST_CASE("rasterize_gaussians cuda: matches the CPU reference (V = 3, partial tiles, background)",
           "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
-  RasterSettings s;
+  CompositingSettings s;
   s.background = {0.3, 0.6, 0.1};
   compare(500, 3, 45, 70, s, 202);
 }
@@ -107,19 +107,19 @@ TEST_CASE("rasterize_gaussians cuda: matches the CPU reference (V = 3, partial t
 TEST_CASE("rasterize_gaussians cuda: many Gaussians per tile (several shared-memory batches), large ones",
           "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(3000, 2, 32, 48, RasterSettings{}, 303, 0.1, 0.6);
+  compare(3000, 2, 32, 48, CompositingSettings{}, 303, 0.1, 0.6);
 }
 
 TEST_CASE("rasterize_gaussians cuda: Gaussians whose boxes span more than 32 tiles (binned to every tile)",
           "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(150, 1, 200, 300, RasterSettings{}, 606, 0.3, 1.0);
+  compare(150, 1, 200, 300, CompositingSettings{}, 606, 0.3, 1.0);
 }
 
 TEST_CASE("rasterize_gaussians cuda: small Gaussians over a larger image, cap and no alpha_min", "[gaussians][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(5000, 2, 96, 128, RasterSettings{}, 404, 0.005, 0.03);
-  RasterSettings s;
+  compare(5000, 2, 96, 128, CompositingSettings{}, 404, 0.005, 0.03);
+  CompositingSettings s;
   s.alpha_min = 0.0;
   s.alpha_max = 0.7;
   compare(800, 2, 40, 56, s, 405);
@@ -132,20 +132,20 @@ TEST_CASE("rasterize_gaussians cuda: empty scene, culled Gaussians, scene withou
   auto opts = torch::TensorOptions().device(dev);
   auto m = torch::zeros({0, 3}, opts).requires_grad_(true);
   auto out = rasterize_gaussians(m, torch::zeros({0, 3}, opts), torch::zeros({0, 4}, opts), torch::zeros({0, 3}, opts),
-                                 torch::zeros({0}, opts), cams, 20, 30, RasterSettings{});
+                                 torch::zeros({0}, opts), cams, 20, 30, CompositingSettings{});
   CHECK(out.alpha.abs().max().item<float>() == 0.0f);
   out.rgb.sum().backward();
   CHECK(m.grad().numel() == 0);
   auto behind = torch::tensor({{0.0f, 0.0f, -2.0f}}, opts);
   auto r = rasterize_gaussians(behind, torch::full({1, 3}, 0.5f, opts), torch::tensor({{1.f, 0.f, 0.f, 0.f}}, opts),
-                               torch::ones({1, 3}, opts), torch::full({1}, 0.9f, opts), cams, 20, 30, RasterSettings{});
+                               torch::ones({1, 3}, opts), torch::full({1}, 0.9f, opts), cams, 20, 30, CompositingSettings{});
   CHECK(r.alpha.abs().max().item<float>() == 0.0f);
   // No input requires grad: no backward state is kept, the images are the same.
   auto g = flat::test::random_gaussians(100, torch::kFloat, 7);
   auto frozen = rasterize_gaussians(g.means.to(dev), g.scales.to(dev), g.rotations.to(dev), g.colors.to(dev),
-                                    g.opacities.to(dev), cams, 40, 56, RasterSettings{});
+                                    g.opacities.to(dev), cams, 40, 56, CompositingSettings{});
   auto cpu = rasterize_gaussians(g.means, g.scales, g.rotations, g.colors, g.opacities, cams.to(torch::kCPU), 40, 56,
-                                 RasterSettings{});
+                                 CompositingSettings{});
   CHECK(flat::test::rel_error(frozen.rgb.cpu(), cpu.rgb) < kForwardTol);
 }
 
@@ -159,15 +159,15 @@ TEST_CASE("rasterize_gaussians cuda: bad input values are reported by name (chec
              o = g.opacities.to(dev);
   auto nan_means = m.clone();
   nan_means[7][1] = std::nanf("");
-  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, cams, 40, 56, RasterSettings{}),
+  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, cams, 40, 56, CompositingSettings{}),
                       FLAT_CONTAINS("means"));
-  REQUIRE_THROWS_WITH(rasterize_gaussians(m, s, q, c, o * 3, cams, 40, 56, RasterSettings{}),
+  REQUIRE_THROWS_WITH(rasterize_gaussians(m, s, q, c, o * 3, cams, 40, 56, CompositingSettings{}),
                       FLAT_CONTAINS("opacities"));
-  REQUIRE_THROWS_WITH(rasterize_gaussians(m, -s, q, c, o, cams, 40, 56, RasterSettings{}), FLAT_CONTAINS("scales"));
+  REQUIRE_THROWS_WITH(rasterize_gaussians(m, -s, q, c, o, cams, 40, 56, CompositingSettings{}), FLAT_CONTAINS("scales"));
   auto no_views = flat::test::test_cameras(1).to(dev);
   no_views.c2w = no_views.c2w.narrow(0, 0, 0);
   no_views.intrinsics = no_views.intrinsics.narrow(0, 0, 0);
-  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, no_views, 40, 56, RasterSettings{}),
+  REQUIRE_THROWS_WITH(rasterize_gaussians(nan_means, s, q, c, o, no_views, 40, 56, CompositingSettings{}),
                       FLAT_CONTAINS("means"));
-  REQUIRE(rasterize_gaussians(m, s, q, c, o, cams, 40, 56, RasterSettings{}).alpha.max().item<float>() > 0.0f);
+  REQUIRE(rasterize_gaussians(m, s, q, c, o, cams, 40, 56, CompositingSettings{}).alpha.max().item<float>() > 0.0f);
 }

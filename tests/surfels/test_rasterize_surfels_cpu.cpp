@@ -10,7 +10,7 @@
 #include "surfel_scenes.h"
 #include "test_support.h"
 
-using flat::render::RasterSettings;
+using flat::render::CompositingSettings;
 using flat::render::RenderOutput;
 using flat::surfels::rasterize_surfels;
 
@@ -19,11 +19,11 @@ namespace {
 constexpr int64_t kH = 18, kW = 24;
 
 RenderOutput render(const flat::test::Surfels& s, const flat::camera::Cameras& cams,
-                    const RasterSettings& settings = RasterSettings{}, int64_t H = kH, int64_t W = kW) {
+                    const CompositingSettings& settings = CompositingSettings{}, int64_t H = kH, int64_t W = kW) {
   return rasterize_surfels(s.means, s.scales, s.rotations, s.colors, s.opacities, cams, H, W, settings);
 }
 
-void check_gradients_fd(const RasterSettings& settings, uint64_t seed, bool only_distortion, double scale_lo = 0.03,
+void check_gradients_fd(const CompositingSettings& settings, uint64_t seed, bool only_distortion, double scale_lo = 0.03,
                         double scale_hi = 0.4) {
   const int64_t N = 8, V = 2;
   auto scene = flat::test::random_surfels(N, torch::kDouble, seed, scale_lo, scale_hi);
@@ -68,16 +68,16 @@ flat::test::Surfels concat(const flat::test::Surfels& a, const flat::test::Surfe
 
 TEST_CASE("rasterize_surfels cpu: gradients of every input match central finite differences (double)",
           "[surfels][grad]") {
-  check_gradients_fd(RasterSettings{}, 11, false);
+  check_gradients_fd(CompositingSettings{}, 11, false);
 }
 
 TEST_CASE("rasterize_surfels cpu: distortion gradients alone match finite differences", "[surfels][grad]") {
-  check_gradients_fd(RasterSettings{}, 17, true);
+  check_gradients_fd(CompositingSettings{}, 17, true);
 }
 
 TEST_CASE("rasterize_surfels cpu: background, low alpha cap and larger surfels: gradients match FD",
           "[surfels][grad]") {
-  RasterSettings s;
+  CompositingSettings s;
   s.background = {0.2, 0.5, 0.9};
   s.alpha_max = 0.8;  // some fragments capped
   check_gradients_fd(s, 23, false, 0.1, 0.6);
@@ -85,7 +85,7 @@ TEST_CASE("rasterize_surfels cpu: background, low alpha cap and larger surfels: 
 
 TEST_CASE("rasterize_surfels cpu: pixel-sized surfels (the low-pass filter wins near their centres): gradients match FD",
           "[surfels][grad]") {
-  check_gradients_fd(RasterSettings{}, 29, false, 0.02, 0.12);
+  check_gradients_fd(CompositingSettings{}, 29, false, 0.02, 0.12);
 }
 
 TEST_CASE("rasterize_surfels cpu: fronto-parallel surfel gives exact alpha, depth and normal", "[surfels]") {
@@ -181,7 +181,7 @@ TEST_CASE("rasterize_surfels cpu: surfels behind the near plane are culled; back
   auto s = concat(one_surfel({0.0, 0.0, 0.005}, {0.5, 0.5}, {1, 0, 0, 0}, 0.9),   // nearer than near_plane
                   one_surfel({0.0, 0.0, -2.0}, {0.5, 0.5}, {1, 0, 0, 0}, 0.9));   // behind
   for (auto* t : {&s.means, &s.scales, &s.rotations, &s.colors, &s.opacities}) t->requires_grad_(true);
-  RasterSettings settings;
+  CompositingSettings settings;
   settings.background = {0.1, 0.2, 0.3};
   auto out = render(s, cams, settings);
   CHECK(out.alpha.abs().max().item<double>() == 0.0);
@@ -199,7 +199,7 @@ TEST_CASE("rasterize_surfels cpu: empty scene renders the background and returns
   auto cams = flat::test::test_cameras(2);
   auto m = torch::zeros({0, 3}).requires_grad_(true);
   auto out = rasterize_surfels(m, torch::zeros({0, 2}), torch::zeros({0, 4}), torch::zeros({0, 3}), torch::zeros({0}),
-                               cams, kH, kW, RasterSettings{});
+                               cams, kH, kW, CompositingSettings{});
   CHECK(out.rgb.sizes() == torch::IntArrayRef({2, 3, kH, kW}));
   CHECK(out.distortion.sizes() == torch::IntArrayRef({2, 1, kH, kW}));
   CHECK(out.alpha.abs().max().item<float>() == 0.0f);

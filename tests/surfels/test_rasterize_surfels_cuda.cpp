@@ -11,7 +11,7 @@
 #include "surfel_scenes.h"
 #include "test_support.h"
 
-using flat::render::RasterSettings;
+using flat::render::CompositingSettings;
 using flat::render::RenderOutput;
 using flat::surfels::rasterize_surfels;
 
@@ -45,7 +45,7 @@ constexpr double kGeomOutliers = 0.01;
 constexpr double kGeomOutliersMin = 3;
 
 flat::test::Rendered run(const flat::test::Surfels& s, const flat::camera::Cameras& cams, int64_t H, int64_t W,
-                         const RasterSettings& settings, const torch::Device& dev, const flat::test::Probe& probe) {
+                         const CompositingSettings& settings, const torch::Device& dev, const flat::test::Probe& probe) {
   auto render = [&](const std::vector<torch::Tensor>& in) {
     return rasterize_surfels(in[0], in[1], in[2], in[3], in[4], cams.to(dev), H, W, settings);
   };
@@ -54,7 +54,7 @@ flat::test::Rendered run(const flat::test::Surfels& s, const flat::camera::Camer
 
 // only_distortion: the loss weighs the distortion map alone (its gradient
 // is otherwise a small part of the total, and colours get none).
-void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s, uint64_t seed, double scale_lo = 0.03,
+void compare(int64_t n, int64_t V, int64_t H, int64_t W, const CompositingSettings& s, uint64_t seed, double scale_lo = 0.03,
              double scale_hi = 0.4, bool only_distortion = false) {
   auto scene = flat::test::random_surfels(n, torch::kFloat, seed, scale_lo, scale_hi);
   auto cams = flat::test::test_cameras(V);
@@ -117,13 +117,13 @@ void compare(int64_t n, int64_t V, int64_t H, int64_t W, const RasterSettings& s
 
 TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 1)", "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(200, 1, 40, 56, RasterSettings{}, 101);
+  compare(200, 1, 40, 56, CompositingSettings{}, 101);
 }
 
 TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 3, partial tiles, background, alpha cap)",
           "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
-  RasterSettings s;
+  CompositingSettings s;
   s.background = {0.3, 0.6, 0.1};
   s.alpha_max = 0.9;
   compare(500, 3, 45, 70, s, 202);
@@ -132,17 +132,17 @@ TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 3, partial til
 TEST_CASE("rasterize_surfels cuda: many surfels per tile (several shared-memory rounds) and large surfels",
           "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(1500, 2, 32, 48, RasterSettings{}, 303, 0.1, 1.0);
+  compare(1500, 2, 32, 48, CompositingSettings{}, 303, 0.1, 1.0);
 }
 
 TEST_CASE("rasterize_surfels cuda: distortion gradients alone match the CPU reference", "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(500, 2, 40, 56, RasterSettings{}, 505, 0.03, 0.4, /*only_distortion=*/true);
+  compare(500, 2, 40, 56, CompositingSettings{}, 505, 0.03, 0.4, /*only_distortion=*/true);
 }
 
 TEST_CASE("rasterize_surfels cuda: pixel-sized surfels (low-pass filter) match the CPU reference", "[surfels][cuda]") {
   FLAT_REQUIRE_CUDA();
-  compare(3000, 2, 64, 96, RasterSettings{}, 404, 0.02, 0.12);
+  compare(3000, 2, 64, 96, CompositingSettings{}, 404, 0.02, 0.12);
 }
 
 TEST_CASE("rasterize_surfels cuda: empty scene, culled surfels and bad values", "[surfels][cuda]") {
@@ -150,7 +150,7 @@ TEST_CASE("rasterize_surfels cuda: empty scene, culled surfels and bad values", 
   const torch::Device dev(torch::kCUDA, 0);
   auto cams = flat::test::test_cameras(2).to(dev);
   auto opts = torch::TensorOptions().device(dev);
-  RasterSettings settings;
+  CompositingSettings settings;
   settings.background = {0.1, 0.2, 0.3};
   auto m = torch::zeros({0, 3}, opts).requires_grad_(true);
   auto out = rasterize_surfels(m, torch::zeros({0, 2}, opts), torch::zeros({0, 4}, opts), torch::zeros({0, 3}, opts),

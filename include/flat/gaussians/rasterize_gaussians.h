@@ -29,8 +29,8 @@ namespace flat::gaussians {
 // means (N,3) world; scales (N,3) > 0 (standard deviations, metres, along the
 // rotated axes); rotations (N,4) quaternions (w,x,y,z), not necessarily unit
 // (normalised inside; gradients flow to the raw values); colors (N,3);
-// opacities (N) in [0,1]. Settings: render::RasterSettings (window, eps,
-// min_inradius and min_cos are triangle-only and ignored).
+// opacities (N) in [0,1]. Settings: render::CompositingSettings (a triangle
+// RasterSettings passes as one; its window and culling fields are not read).
 // Returns rgb, alpha, depth (sum_k w_k z_k, z_k = camera depth of mean k),
 // median_depth, max_weight as render::rasterize; normal is undefined (3DGS has
 // no surface normal: the paper takes 3DGS normals from depth finite
@@ -41,6 +41,6 @@ namespace flat::gaussians {
 render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tensor& scales,
                                          const at::Tensor& rotations, const at::Tensor& colors,
                                          const at::Tensor& opacities, const camera::Cameras& cams, int64_t height,
-                                         int64_t width, const render::RasterSettings& settings);
+                                         int64_t width, const render::CompositingSettings& settings);
 
 }  // namespace flat::gaussians

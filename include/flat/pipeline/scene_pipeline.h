@@ -35,6 +35,9 @@ struct PipelineConfig {
   // The triangles' parameterisation; its depth_*, init_scale, shape_min,
   // colour_activation and opacity_shift also configure the Gaussian heads.
   primitives::TriangleParamConfig triangles;
+  // The rasterizer settings; 3dgs and 2dgs read their compositing part
+  // (render::CompositingSettings) alone, the window and culling keys are the
+  // triangles'.
   render::RasterSettings raster;
   // Triangles with opacity below this are removed before rendering (no
   // gradient reaches them in that step). 0 keeps every triangle.

@@ -14,17 +14,46 @@
 
 #include "flat/camera/cameras.h"
 #include "flat/core/config.h"
+#include "flat/render/shared/compositing.h"
 
 namespace flat::render {
 
-struct RasterSettings {
+// The settings every rasterizer composites with (triangles, and the 3DGS and
+// 2DGS ones of gaussians:: and surfels::, which take these alone): the
+// background, the near plane and the compositing rules. Defaults in
+// flat/render/shared/compositing.h.
+struct CompositingSettings {
+  std::vector<double> background = {0.0, 0.0, 0.0};
+  double near_plane = kDefaultNearPlane;    // metres; a primitive nearer is culled (triangles: any vertex)
+  double alpha_max = kDefaultAlphaMax;      // alpha cap
+  double alpha_min = kDefaultAlphaMin;      // fragments with smaller alpha are skipped
+  double transmittance_min = kDefaultTransmittanceMin;  // a pixel stops before its transmittance drops below this
+
+  template <class V>
+  void visit(V& v) {
+    v.field("background", background, config::range(0.0, 1.0), "background colour r,g,b in [0,1]");
+    v.field("near_plane", near_plane, config::positive(), "cull primitives nearer than this (triangles: any vertex)");
+    v.field("alpha_max", alpha_max, config::range(0.0, 0.999), "alpha cap");
+    v.field("alpha_min", alpha_min, config::range(0.0, 1.0), "skip fragments with alpha below this");
+    v.field("transmittance_min", transmittance_min, config::range(0.0, 0.999), "early-stop transmittance");
+  }
+  // Throws flat::Error on bad values (also when built in code, not from YAML):
+  // the ranges declared in visit() (config::validate_fields), then the
+  // cross-field rules.
+  void check() const;
+  // As the kernels read them (float).
+  CompositingConstants constants() const;
+
+ protected:
+  // The rules between fields (background size, alpha_min below alpha_max).
+  void check_relations() const;
+};
+
+// The triangle rasterizer's settings: the compositing ones and its window's
+// and culling's. Only render::rasterize reads these extra fields.
+struct RasterSettings : CompositingSettings {
   std::string window = "flat";  // "flat" (paper's product window) | "ts" (Triangle Splatting max-edge)
   double eps = 0.1;             // FLAT window: support extends eps * inradius beyond each edge
-  std::vector<double> background = {0.0, 0.0, 0.0};
-  double near_plane = 0.01;     // metres; a triangle with any vertex closer is culled
-  double alpha_max = 0.99;      // alpha cap
-  double alpha_min = 1.0 / 255.0;  // fragments with smaller alpha are skipped
-  double transmittance_min = 1e-4;  // a pixel stops before its transmittance drops below this
   double min_inradius = 1e-3;   // pixels; smaller (degenerate) triangles are culled
   double min_cos = 1e-3;        // edge-on cull: |cos(normal, ray to centroid)| below this
   // CUDA only, speed only (the images are the same): views binned by one
@@ -37,18 +66,11 @@ struct RasterSettings {
   void visit(V& v) {
     v.field("window", window, config::one_of({"flat", "ts"}), "window function: flat | ts");
     v.field("eps", eps, config::range(0.0, 1.0), "FLAT window support beyond each edge, in inradii");
-    v.field("background", background, config::range(0.0, 1.0), "background colour r,g,b in [0,1]");
-    v.field("near_plane", near_plane, config::positive(), "cull triangles with a vertex nearer than this");
-    v.field("alpha_max", alpha_max, config::range(0.0, 0.999), "alpha cap");
-    v.field("alpha_min", alpha_min, config::range(0.0, 1.0), "skip fragments with alpha below this");
-    v.field("transmittance_min", transmittance_min, config::range(0.0, 0.999), "early-stop transmittance");
+    CompositingSettings::visit(v);
     v.field("min_inradius", min_inradius, config::non_negative(), "cull triangles with smaller screen inradius (px)");
     v.field("min_cos", min_cos, config::range(0.0, 1.0), "cull edge-on triangles below this |cos|");
     v.field("views_per_bin", views_per_bin, config::range(1, 2), "CUDA: views binned by one sort, 1 | 2 (speed only)");
   }
-  // Throws flat::Error on bad values (also when built in code, not from YAML):
-  // the ranges declared in visit() (config::validate_fields), then the
-  // cross-field rules.
   void check() const;
 };
 

@@ -35,8 +35,9 @@ inline constexpr double kDistortionFar = 100.0;
 
 // means (N,3) world; scales (N,2) > 0 (standard deviations along t_u, t_v,
 // metres); rotations (N,4) quaternions (w,x,y,z), not necessarily unit;
-// colors (N,3); opacities (N) in [0,1]. Settings: render::RasterSettings
-// (window, eps, min_inradius and min_cos are triangle-only and ignored).
+// colors (N,3); opacities (N) in [0,1]. Settings: render::CompositingSettings
+// (a triangle RasterSettings passes as one; its window and culling fields
+// are not read).
 // Returns rgb, alpha, depth (alpha-weighted, not divided), normal
 // (alpha-weighted, camera space, facing the camera), median_depth, max_weight
 // as render::rasterize, and distortion (V,1,H,W): per pixel
@@ -48,6 +49,6 @@ inline constexpr double kDistortionFar = 100.0;
 render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
                                        const at::Tensor& colors, const at::Tensor& opacities,
                                        const camera::Cameras& cams, int64_t height, int64_t width,
-                                       const render::RasterSettings& settings);
+                                       const render::CompositingSettings& settings);
 
 }  // namespace flat::surfels

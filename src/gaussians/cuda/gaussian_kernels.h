@@ -18,7 +18,7 @@ constexpr int kBlockSize = kTileSize * kTileSize;
 
 struct ViewParams {
   CameraView<float> cam;
-  GaussianConstants k;
+  CompositingConstants k;
   int width = 0, height = 0;
   int tiles_x = 0, tiles_y = 0;
   float background[3] = {0.f, 0.f, 0.f};
@@ -33,35 +33,16 @@ FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 // the mask of the box's tiles the support reaches (bit (ty - ty0) * tw +
 // (tx - tx0); ~0u: every tile, for boxes of more than kMaskTiles tiles) and
 // their count (0 when culled or no tile is reached: screen data, box and mask
-// are then left unwritten), order[i] = i (the depth sort's values); the sum
-// of the tile counts (the view's pair count) into *total, zeroed first.
+// are then left unwritten); the sum of the tile counts (the view's pair
+// count) into *total, zeroed first. The binning is the shared one
+// (flat/render/shared/tile_lists.h: render::cuda::bin_rects) of these boxes
+// and masks.
 constexpr uint32_t kCulledKey = (1u << render::kDepthKeyBits) - 1u;  // sorts last
 constexpr int kMaskTiles = 32;
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
-                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, uint32_t* tile_masks,
-                       int32_t* tile_counts, unsigned long long* total, cudaStream_t stream);
-
-// Binning (gaussians/cuda/binning.cu), as the triangle rasterizer's: one
-// sort of the Gaussians by depth, then the pairs, written in that order, by
-// tile id alone (a short key), so each tile's list comes out front to back.
-// In this order (temporary storage sized with temp == nullptr):
-// stable radix sort of order (0..n-1) by depth key (cub);
-void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
-                   const int32_t* order_in, int32_t* order_out, int64_t n, cudaStream_t stream);
-// tiles touched by each Gaussian in depth order, and their inclusive prefix sum;
-void launch_ordered_counts(const int32_t* order, int64_t n, const int32_t* tile_counts, int32_t* counts,
-                           cudaStream_t stream);
-void scan_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* ends, int64_t n, cudaStream_t stream);
-// one (tile id, Gaussian index) pair per tile of its mask, in depth order;
-void launch_duplicate(const int32_t* order, const int32_t* counts, const int32_t* ends, const PixelBox* boxes,
-                      const uint32_t* tile_masks, int64_t n, const ViewParams& vp, uint32_t* pair_tiles,
-                      int32_t* pair_ids, cudaStream_t stream);
-// stable radix sort of the pairs by tile id (num_tiles: the bits it needs);
-void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out, const int32_t* ids_in,
-                  int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
-// ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
-void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
+                       PixelBox* boxes, uint32_t* depth_keys, uint32_t* tile_masks, int32_t* tile_counts,
+                       unsigned long long* total, cudaStream_t stream);
 
 struct ForwardImages {  // one view, channel-major (C,H,W)
   float* rgb;

@@ -39,7 +39,7 @@ __global__ void __launch_bounds__(kThreads)
                       const float* __restrict__ rotations, const float* __restrict__ colors,
                       const float* __restrict__ opacities, int64_t n, ViewParams vp,
                       ScreenGaussian<float>* __restrict__ screen, PixelBox* __restrict__ boxes,
-                      uint32_t* __restrict__ depth_keys, int32_t* __restrict__ order, uint32_t* __restrict__ tile_masks,
+                      uint32_t* __restrict__ depth_keys, uint32_t* __restrict__ tile_masks,
                       int32_t* __restrict__ tile_counts, unsigned long long* __restrict__ total) {
   __shared__ long long warp_sums[kThreads / 32];
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
@@ -64,7 +64,6 @@ __global__ void __launch_bounds__(kThreads)
       }
     }
     depth_keys[i] = key;
-    order[i] = (int32_t)i;
     tile_counts[i] = count;
   }
   // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
@@ -114,12 +113,12 @@ int blocks_of(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
-                       PixelBox* boxes, uint32_t* depth_keys, int32_t* order, uint32_t* tile_masks,
-                       int32_t* tile_counts, unsigned long long* total, cudaStream_t stream) {
+                       PixelBox* boxes, uint32_t* depth_keys, uint32_t* tile_masks, int32_t* tile_counts,
+                       unsigned long long* total, cudaStream_t stream) {
   cudaMemsetAsync(total, 0, sizeof(unsigned long long), stream);
   if (n == 0) return;
   preprocess_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, colors, opacities, n, vp, screen,
-                                                           boxes, depth_keys, order, tile_masks, tile_counts, total);
+                                                           boxes, depth_keys, tile_masks, tile_counts, total);
 }
 
 void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n, const ViewParams& vp,

@@ -59,14 +59,14 @@ __global__ void __launch_bounds__(kBlockSize)
         Fragment<float> f;
         if (shade(g, px, py, vp.k, f)) {
           const float test_T = T * (1.f - f.alpha);
-          if (test_T < vp.k.t_min) {
+          if (render::stops_before(test_T, vp.k)) {
             done = true;
           } else {
             w = f.alpha * T;
 #pragma unroll
             for (int c = 0; c < 3; ++c) acc[c] += w * g.color[c];
             acc[3] += w * g.z;
-            if (T > 0.5f) median = g.z;
+            if (T > float(render::kMedianTransmittance)) median = g.z;
             T = test_T;
             last = start + j - range.x + 1;
           }

@@ -1,8 +1,9 @@
 // libtorch glue of the CUDA Gaussian rasterizer: allocation, the per-view loop
 // and the launch checks. Per view: preprocess all Gaussians (screen data,
 // pixel boxes, depth keys, tile counts), wait for the view's pair count (the
-// one host sync a view; the input value checks ride on the first), bin and
-// sort the pairs, composite. The backward recomputes the screen data per view
+// one host sync a view; the input value checks ride on the first), bin the
+// boxes and tile masks (the shared binning, flat/render/shared/tile_lists.h),
+// composite. The backward recomputes the screen data per view
 // (one cheap kernel) instead of keeping it.
 #include "gaussians/cuda/raster_gaussians_cuda.h"
 
@@ -14,6 +15,7 @@
 #include <vector>
 
 #include "flat/core/error.h"
+#include "flat/render/shared/tile_lists.h"
 #include "gaussians/cuda/gaussian_kernels.h"
 
 namespace flat::gaussians::cuda {
@@ -55,19 +57,18 @@ uint32_t* u32(const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_p
 
 // One view's preprocessing state over all N Gaussians (reused across views).
 struct Preprocessed {
-  at::Tensor screen, boxes, depth_keys, order, masks, counts, total;
+  at::Tensor screen, boxes, depth_keys, masks, counts, total;
   explicit Preprocessed(int64_t n, const at::TensorOptions& f)
       : screen(at::empty({n * kScreenFloats}, f)),
         boxes(at::empty({n * 4}, f.dtype(at::kInt))),
         depth_keys(at::empty({n}, f.dtype(at::kInt))),
-        order(at::empty({n}, f.dtype(at::kInt))),
         masks(at::empty({n}, f.dtype(at::kInt))),
         counts(at::empty({n}, f.dtype(at::kInt))),
         total(at::empty({1}, f.dtype(at::kLong))) {}
   void run(const GaussianInputs& in, const ViewParams& vp, cudaStream_t stream) {
     launch_preprocess(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(),
                       in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), in.means.size(0), vp, screen_ptr(),
-                      box_ptr(), key_ptr(), order.data_ptr<int>(), u32(masks), counts.data_ptr<int>(),
+                      box_ptr(), key_ptr(), u32(masks), counts.data_ptr<int>(),
                       reinterpret_cast<unsigned long long*>(total.data_ptr<int64_t>()), stream);
     check_launch("preprocessing");
   }
@@ -75,41 +76,6 @@ struct Preprocessed {
   PixelBox* box_ptr() { return reinterpret_cast<PixelBox*>(boxes.data_ptr<int>()); }
   uint32_t* key_ptr() { return reinterpret_cast<uint32_t*>(depth_keys.data_ptr<int>()); }
 };
-
-// Bins one view's pairs (binning.cu): returns the sorted Gaussian ids and the
-// tile ranges ((tiles, 2) int).
-void bin_view(Preprocessed& pre, int64_t n, int64_t pairs, const ViewParams& vp, const at::TensorOptions& f,
-              cudaStream_t stream, at::Tensor& ids_sorted, at::Tensor& ranges) {
-  const int tiles = vp.tiles_x * vp.tiles_y;
-  ranges = at::zeros({tiles, 2}, f.dtype(at::kInt));
-  ids_sorted = at::empty({pairs}, f.dtype(at::kInt));
-  if (pairs == 0) return;
-  size_t depth_bytes = 0, scan_bytes = 0, tile_bytes = 0;
-  sort_by_depth(nullptr, depth_bytes, nullptr, nullptr, nullptr, nullptr, n, stream);
-  scan_counts(nullptr, scan_bytes, nullptr, nullptr, n, stream);
-  sort_by_tile(nullptr, tile_bytes, nullptr, nullptr, nullptr, nullptr, pairs, tiles, stream);
-  const at::Tensor temp = at::empty({(int64_t)std::max({depth_bytes, scan_bytes, tile_bytes}) + 1}, f.dtype(at::kByte));
-  const auto i32 = f.dtype(at::kInt);
-  const at::Tensor depth_sorted = at::empty({n}, i32), order_sorted = at::empty({n}, i32);
-  const at::Tensor counts = at::empty({n}, i32), ends = at::empty({n}, i32);
-  const at::Tensor pair_tiles = at::empty({pairs}, i32), tiles_sorted = at::empty({pairs}, i32);
-  const at::Tensor pair_ids = at::empty({pairs}, i32);
-  sort_by_depth(temp.data_ptr(), depth_bytes, pre.key_ptr(), u32(depth_sorted), pre.order.data_ptr<int>(),
-                order_sorted.data_ptr<int>(), n, stream);
-  check_launch("depth sort");
-  launch_ordered_counts(order_sorted.data_ptr<int>(), n, pre.counts.data_ptr<int>(), counts.data_ptr<int>(), stream);
-  check_launch("ordered tile counts");
-  scan_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), ends.data_ptr<int>(), n, stream);
-  check_launch("tile count scan");
-  launch_duplicate(order_sorted.data_ptr<int>(), counts.data_ptr<int>(), ends.data_ptr<int>(), pre.box_ptr(),
-                   u32(pre.masks), n, vp, u32(pair_tiles), pair_ids.data_ptr<int>(), stream);
-  check_launch("pair duplication");
-  sort_by_tile(temp.data_ptr(), tile_bytes, u32(pair_tiles), u32(tiles_sorted), pair_ids.data_ptr<int>(),
-               ids_sorted.data_ptr<int>(), pairs, tiles, stream);
-  check_launch("tile sort");
-  launch_tile_ranges(u32(tiles_sorted), pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
-  check_launch("tile ranges");
-}
 
 }  // namespace
 
@@ -136,8 +102,15 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
     FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(), "rasterize_gaussians (cuda): " + std::to_string(pairs) +
                                                                 " (Gaussian, tile) pairs in view " + std::to_string(v) +
                                                                 ", more than 2^31-1");
-    at::Tensor ids, ranges;
-    bin_view(pre, N, pairs, vp, f, stream, ids, ranges);
+    render::cuda::RectFootprints fp;
+    fp.depth_keys = pre.key_ptr();
+    fp.tile_counts = pre.counts.data_ptr<int>();
+    fp.rects = pre.box_ptr();
+    fp.masks = u32(pre.masks);
+    fp.n = N;
+    const render::cuda::TileLists lists =
+        render::cuda::bin_rects(fp, pairs, kTileSize, vp.tiles_x, vp.tiles_y, f, stream, "rasterize_gaussians");
+    const at::Tensor &ids = lists.ids, &ranges = lists.ranges;
     at::Tensor t_final, last;
     if (for_backward) {
       t_final = at::empty({H, W}, f);

@@ -20,10 +20,6 @@ constexpr int kThreads = 128;
 constexpr int kTriFloats = sizeof(PixelTri<float>) / sizeof(float);  // 24 (23 + alignment padding)
 constexpr int kTriStride = kTriFloats + 1;
 
-__device__ __forceinline__ bool can_show(float opacity, const RasterConstants& k) {
-  return !(k.alpha_min > 0.f) || opacity >= k.alpha_min;
-}
-
 __global__ void __launch_bounds__(kThreads)
     cull_kernel(const float* __restrict__ vertices, const float* __restrict__ opacities, int64_t n, ViewParams vp,
                 TriRect* __restrict__ rects, int32_t* __restrict__ tile_counts, float* __restrict__ keys,
@@ -40,7 +36,7 @@ __global__ void __launch_bounds__(kThreads)
     TriRect r;
     float key = 0.f;
     PixelTri<float> t;
-    if (can_show(opacities[i], vp.k) &&
+    if (opacity_can_blend(opacities[i], vp.k) &&
         preprocess_forward(sh_v + 9 * threadIdx.x, vp.cam, vp.k, vp.width, vp.height, t, r, key))
       count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));  // < 2^31: ints hold the tile grid
     tile_counts[i] = count;

@@ -187,7 +187,7 @@ struct TempSizes {
   void fit(int64_t group_rows, int64_t group_pairs, cudaStream_t stream) {
     if (group_rows > rows) {
       sort_by_depth(nullptr, depth, nullptr, nullptr, nullptr, nullptr, group_rows, stream);
-      scan_ordered_counts(nullptr, scan, nullptr, nullptr, group_rows, stream);
+      scan_counts(nullptr, scan, nullptr, nullptr, group_rows, stream);
       rows = group_rows;
     }
     if (group_pairs > pairs) {
@@ -245,7 +245,7 @@ at::Tensor bin_by_tile(BinScratch& bs, int64_t rows, ScreenData& sd, int64_t pai
   sort_by_depth(bs.temp, bs.depth_bytes, bs.depth_bits, bs.depth_sorted, bs.order, bs.order_sorted, rows, stream);
   check_launch("depth sort");
   launch_ordered_counts(bs.order_sorted, rows, sd.rect_ptr(), bs.counts, stream);
-  scan_ordered_counts(bs.temp, bs.scan_bytes, bs.counts, bs.offsets, rows, stream);
+  scan_counts(bs.temp, bs.scan_bytes, bs.counts, bs.offsets, rows, stream);
   check_launch("tile count scan (depth order)");
   launch_duplicate(bs.order_sorted, rows, sd.rect_ptr(), sd.tri_ptr(), vp, (int32_t)second, bs.offsets, bs.tiles,
                    bs.ids, stream);

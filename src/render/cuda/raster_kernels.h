@@ -10,6 +10,7 @@
 
 #include <cuda_runtime.h>
 
+#include "flat/render/shared/tile_binning.h"
 #include "flat/render/shared/triangle_math.h"
 
 namespace flat::render::cuda {
@@ -70,27 +71,24 @@ void launch_screen(const float* vertices, const float* colors, const float* opac
                    const int32_t* visible, int64_t nv, const ViewParams& vp, const TriRect* cull_rects,
                    PixelTri<float>* tris, TriRect* rects, int32_t* visible_out, cudaStream_t stream);
 
-// Binning of a bin group (render/cuda/binning.cu): up to kBinViews views
-// binned by one depth sort and one tile sort, which pays the sorts' fixed
-// host cost (a dozen calls each, whatever the size) once for the group. The
-// group's visible list is its views' lists one after another (view j's from
-// row first_j); pair ids index it, and tile ids count on through the views
-// (view j's tile t is j * num_tiles + t), so the tile sort gives each view's
-// lists apart. The depth sort may mix the views: each (view, tile) list still
-// comes out front to back. In this order:
+// Binning of a bin group (render/cuda/binning.cu; the sorts, scan, tile
+// ranges and tile order are the shared ones of tile_binning.h): up to
+// kBinViews views binned by one depth sort and one tile sort, which pays the
+// sorts' fixed host cost (a dozen calls each, whatever the size) once for the
+// group. The group's visible list is its views' lists one after another
+// (view j's from row first_j); pair ids index it, and tile ids count on
+// through the views (view j's tile t is j * num_tiles + t), so the tile sort
+// gives each view's lists apart. The depth sort may mix the views: each
+// (view, tile) list still comes out front to back. In this order:
 constexpr int kBinViews = 2;
 // depth_bits[k] = the sort key of visible[k], order[k] = first + k (one
 // view's rows of the group list, from row `first`);
 void launch_depth_keys(const int32_t* visible, int64_t nv, const float* keys, int32_t first, uint32_t* depth_bits,
                        int32_t* order, cudaStream_t stream);
-// stable radix sort of order by depth (cub; temp sized with temp == nullptr);
-void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,
-                   const int32_t* order_in, int32_t* order_out, int64_t nv, cudaStream_t stream);
-// tiles touched by each triangle in depth order, and their exclusive prefix sum;
+// sort_by_depth; then the tiles touched by each triangle in depth order, and
+// their exclusive prefix sum (scan_counts);
 void launch_ordered_counts(const int32_t* order, int64_t nv, const TriRect* rects, int32_t* counts,
                            cudaStream_t stream);
-void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* offsets, int64_t nv,
-                         cudaStream_t stream);
 // one (tile id, pair id) pair per touched tile, in depth order (pair ids
 // below: the visible-list index and the tile halves the window reaches);
 // rows from `second` on are the group's second view's (its tile ids are
@@ -98,18 +96,8 @@ void scan_ordered_counts(void* temp, size_t& temp_bytes, const int32_t* counts, 
 void launch_duplicate(const int32_t* order, int64_t nv, const TriRect* rects, const PixelTri<float>* tris,
                       const ViewParams& vp, int32_t second, const int32_t* offsets, uint32_t* pair_tiles,
                       int32_t* pair_ids, cudaStream_t stream);
-// stable radix sort of the pairs by tile id (num_tiles: the group's, the
-// bits it needs): each tile's pairs stay front to back;
-void sort_by_tile(void* temp, size_t& temp_bytes, const uint32_t* tiles_in, uint32_t* tiles_out,
-                  const int32_t* ids_in, int32_t* ids_out, int64_t count, int num_tiles, cudaStream_t stream);
-// ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
-void launch_tile_ranges(const uint32_t* sorted_tiles, int64_t count, int2* ranges, cudaStream_t stream);
-// Each view's compositing tile order (block b composites tile
-// tile_order[b] of the view; views of num_tiles tiles one after another, in
-// ranges and tile_order): longest lists first, so that the last wave of
-// blocks holds the short ones (a counting sort into 256 length classes, one
-// block a view).
-void launch_tile_order(const int2* ranges, int num_tiles, int views, int32_t* tile_order, cudaStream_t stream);
+// then sort_by_tile (num_tiles: the group's), launch_tile_ranges and each
+// view's launch_tile_order.
 
 // Per list entry and tile half (the warps' 8x4 regions, tile_pixel.cuh): the
 // region pixels where the entry's alpha reaches alpha_min (bit = pixel's lane),

@@ -2,18 +2,17 @@
 //  - per view, visible surfels are sorted by the camera depth of their centre
 //    (render::depth_sort_key(): to 2^-16), ties by surfel index (the CUDA
 //    radix sort is stable);
-//  - each pixel composites them front to back: skip fragments that do not
-//    blend (shade()), stop before the transmittance would drop below t_min;
+//  - each pixel composites them front to back (skipping fragments that do
+//    not blend, shade()) and the backward replays it back to front: the
+//    loops shared by the three rasterizers (flat/render/shared/per_view.h);
+//    here the surfel's part of them;
 //  - the depth distortion is accumulated as 2DGS does, sum_i w_i (m_i^2 A_i +
 //    M2_i - 2 m_i M1_i) with A, M1, M2 the sums of w, w m, w m^2 in front,
 //    with m measured from the pixel's first blended m (the sum is invariant
 //    under a shift of m, and the shift keeps float from cancelling);
-//  - the backward replays each pixel back to front (3DGS-style recurrence).
-//    The distortion D = 1/2 sum_ij w_i w_j (m_i - m_j)^2 enters it as one
+//  - the distortion D = 1/2 sum_ij w_i w_j (m_i - m_j)^2 enters the backward as one
 //    more channel: dD/dw_i = m_i^2 W - 2 m_i M1 + M2 and dD/dm_i = 2 w_i
 //    (m_i W - M1), with W, M1, M2 the pixel's totals.
-// Written surfel-major (each surfel updates the pixels of its support box in
-// depth order), which is the same per-pixel order.
 #include "surfels/cpu/raster_surfels_cpu.h"
 
 #include <algorithm>
@@ -25,178 +24,140 @@
 namespace flat::surfels::cpu {
 namespace {
 
-// r, g, b, depth, nx, ny, nz, alpha, distortion
-constexpr int kChannels = 9;
+using render::cpu::composite_backward;
+using render::cpu::composite_forward;
+using render::cpu::ViewSums;
 
+// One view's surfels for composite_forward / composite_backward
+// (render/shared/per_view.h): their fragments, the values they composite,
+// the depth distortion and the chain rule of their gradients.
 template <class T>
-struct ViewSetup {
+struct SurfelView {
+  using Fragment = SurfelFragment<T>;
+  static constexpr int kSums = 7;   // r, g, b, depth, nx, ny, nz
+  static constexpr int kGrads = 9;  // and alpha, distortion
+
+  const SurfelInputs& in;
   CameraView<T> cam;
-  std::vector<PixelSurfel<T>> surfels;  // visible, in compositing order
-  std::vector<SurfelRect> rects;
+  render::cpu::ViewList<PixelSurfel<T>> list;  // visible, in compositing order
+  // The distortion per pixel: the reference m and the sums of w m, w m^2
+  // (m from it), and the distortion itself.
+  std::vector<T> m_ref, m1, m2, dist;
+  // The backward: the forward's final transmittance, the entry being
+  // replayed's gradient sums, and where they go.
+  const std::vector<T>* t_final = nullptr;
+  SurfelGrad<T> gr;
+  SurfelGrads* grads = nullptr;
+
+  SurfelView(const SurfelInputs& in_, int64_t view) : in(in_) {
+    const int64_t HW = in.height * in.width;
+    m_ref.assign(HW, T(0));
+    m1.assign(HW, T(0));
+    m2.assign(HW, T(0));
+    dist.assign(HW, T(0));
+    cam = render::cpu::view_camera<T>(in.w2c, in.K, view);
+    const T* mean = in.means.data_ptr<T>();
+    const T* scale = in.scales.data_ptr<T>();
+    const T* quat = in.rotations.data_ptr<T>();
+    for (int64_t n = 0; n < in.means.size(0); ++n) {
+      PixelSurfel<T> s;
+      SurfelRect r;
+      T key;
+      if (!preprocess_forward(mean + 3 * n, scale + 2 * n, quat + 4 * n, in.opacities.data_ptr<T>()[n], cam, in.k,
+                              (int)in.width, (int)in.height, s, r, key))
+        continue;
+      render::cpu::set_appearance<T>(s, in.colors, in.opacities, n);
+      s.index = (int32_t)n;
+      list.add(s, r, n, (float)key);
+    }
+    list.sort();
+  }
+
+  bool fragment(size_t r, int x, int y, Fragment& f) const {
+    return shade(list.records[r], T(x) + T(0.5), T(y) + T(0.5), in.k, f);
+  }
+  void values(size_t r, const Fragment& f, T* v) const {
+    const PixelSurfel<T>& s = list.records[r];
+    v[0] = s.color[0], v[1] = s.color[1], v[2] = s.color[2], v[3] = f.z;
+    v[4] = s.normal[0], v[5] = s.normal[1], v[6] = s.normal[2];
+  }
+  // The distortion's running sums (2DGS): w (m^2 A + M2 - 2 m M1), A, M1, M2
+  // the sums of w, w m, w m^2 in front (A = 1 - t_front), m from the pixel's
+  // first blended m.
+  void blended(int64_t p, const Fragment& f, T w, T t_front, bool first) {
+    if (first) m_ref[p] = ndc_depth(f.z);
+    const T m = ndc_depth(f.z) - m_ref[p];
+    dist[p] += w * (m * m * (T(1) - t_front) + m2[p] - T(2) * m * m1[p]);
+    m1[p] += w * m;
+    m2[p] += w * m * m;
+  }
+
+  void start(size_t) {
+    std::fill(reinterpret_cast<T*>(&gr), reinterpret_cast<T*>(&gr) + kSurfelGradSize, T(0));
+  }
+  // The distortion's channel value is dD/dw_i = m_i^2 W - 2 m_i M1 + M2 (W,
+  // M1, M2 the pixel's totals).
+  void grad_values(size_t r, int64_t p, const Fragment& f, T* v) const {
+    values(r, f, v);
+    const T m = ndc_depth(f.z) - m_ref[p];
+    v[7] = T(1);
+    v[8] = m * m * (T(1) - (*t_final)[p]) - T(2) * m * m1[p] + m2[p];
+  }
+  // dD/dm_i = 2 w_i (m_i W - M1) reaches the fragment's depth.
+  void add_grad(size_t r, int x, int y, const Fragment& f, T w, T g_alpha, const T* Gp) {
+    const int64_t p = (int64_t)y * in.width + x;
+    const PixelSurfel<T>& s = list.records[r];
+    const T m = ndc_depth(f.z) - m_ref[p];
+    for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], gr.normal[c] += w * Gp[4 + c];
+    const T g_z = w * Gp[3] + Gp[8] * T(2) * w * (m * (T(1) - (*t_final)[p]) - m1[p]) * ndc_depth_grad(f.z);
+    fragment_backward(s, T(x) + T(0.5), T(y) + T(0.5), f, g_alpha, g_z, in.k, gr);
+  }
+  // Chains this view's surfel gradient to the inputs.
+  void finish(size_t r) {
+    const int64_t n = list.ids[r];
+    for (int c = 0; c < 3; ++c) grads->colors.data_ptr<T>()[3 * n + c] += gr.color[c];
+    grads->opacities.data_ptr<T>()[n] += gr.opacity;
+    preprocess_backward(in.means.data_ptr<T>() + 3 * n, in.scales.data_ptr<T>() + 2 * n,
+                        in.rotations.data_ptr<T>() + 4 * n, cam, gr, grads->means.data_ptr<T>() + 3 * n,
+                        grads->scales.data_ptr<T>() + 2 * n, grads->rotations.data_ptr<T>() + 4 * n);
+  }
 };
-
-template <class T>
-ViewSetup<T> setup_view(const SurfelInputs& in, int64_t view) {
-  ViewSetup<T> vs;
-  vs.cam = render::make_camera_view(in.w2c.data_ptr<T>() + view * 16, in.K.data_ptr<T>() + view * 4);
-  const int64_t N = in.means.size(0);
-  const T* mean = in.means.data_ptr<T>();
-  const T* scale = in.scales.data_ptr<T>();
-  const T* quat = in.rotations.data_ptr<T>();
-  const T* col = in.colors.data_ptr<T>();
-  const T* op = in.opacities.data_ptr<T>();
-  std::vector<PixelSurfel<T>> surfels;
-  std::vector<SurfelRect> rects;
-  std::vector<uint32_t> keys;  // depth_sort_key(), as the CUDA sort
-  for (int64_t n = 0; n < N; ++n) {
-    PixelSurfel<T> s;
-    SurfelRect r;
-    T key;
-    if (!preprocess_forward(mean + 3 * n, scale + 2 * n, quat + 4 * n, op[n], vs.cam, in.k, (int)in.width,
-                            (int)in.height, s, r, key))
-      continue;
-    for (int c = 0; c < 3; ++c) s.color[c] = col[3 * n + c];
-    s.opacity = op[n];
-    s.index = (int32_t)n;
-    surfels.push_back(s);
-    rects.push_back(r);
-    keys.push_back(render::depth_sort_key((float)key));
-  }
-  for (size_t i : render::cpu::depth_order(keys)) {
-    vs.surfels.push_back(surfels[i]);
-    vs.rects.push_back(rects[i]);
-  }
-  return vs;
-}
-
-// Per-pixel state left by the forward: final transmittance, the number of
-// list entries processed (the last contributor is entry last - 1), and the
-// distortion's totals: the reference m and the sums of w m, w m^2 (m from it).
-template <class T>
-struct PixelState {
-  std::vector<T> t_final, m_ref, m1, m2;
-  std::vector<int64_t> last;
-};
-
-template <class T>
-PixelState<T> forward_view(const SurfelInputs& in, const ViewSetup<T>& vs, int64_t view, const SurfelOutputs* out,
-                           T* max_weight) {
-  const int64_t W = in.width, HW = in.height * in.width;
-  const RasterConstants& k = in.k;
-  PixelState<T> ps;
-  ps.t_final.assign(HW, T(1));
-  ps.m_ref.assign(HW, T(0));
-  ps.m1.assign(HW, T(0));
-  ps.m2.assign(HW, T(0));
-  ps.last.assign(HW, 0);
-  std::vector<char> done(HW, 0);
-  std::vector<T> acc(HW * 7, T(0)), median(HW, T(0)), dist(HW, T(0));
-  for (size_t r = 0; r < vs.surfels.size(); ++r) {
-    const PixelSurfel<T>& s = vs.surfels[r];
-    const SurfelRect& rc = vs.rects[r];
-    for (int y = rc.y0; y < rc.y1; ++y)
-      for (int x = rc.x0; x < rc.x1; ++x) {
-        const int64_t p = (int64_t)y * W + x;
-        if (done[p]) continue;
-        SurfelFragment<T> f;
-        if (!shade(s, T(x) + T(0.5), T(y) + T(0.5), k, f)) continue;
-        T& Tp = ps.t_final[p];
-        const T test_T = Tp * (T(1) - f.alpha);
-        if (test_T < T(k.t_min)) {
-          done[p] = 1;
-          continue;
-        }
-        const T w = f.alpha * Tp;
-        T* a = &acc[p * 7];
-        for (int c = 0; c < 3; ++c) a[c] += w * s.color[c], a[4 + c] += w * s.normal[c];
-        a[3] += w * f.z;
-        if (Tp > T(0.5)) median[p] = f.z;
-        if (ps.last[p] == 0) ps.m_ref[p] = ndc_depth(f.z);
-        const T m = ndc_depth(f.z) - ps.m_ref[p];
-        dist[p] += w * (m * m * (T(1) - Tp) + ps.m2[p] - T(2) * m * ps.m1[p]);
-        ps.m1[p] += w * m;
-        ps.m2[p] += w * m * m;
-        max_weight[s.index] = std::max(max_weight[s.index], w);
-        Tp = test_T;
-        ps.last[p] = (int64_t)r + 1;
-      }
-  }
-  if (out) {
-    render::cpu::write_view_images(view, HW, acc.data(), 7, ps.t_final, median, in.background.data_ptr<T>(), out->rgb,
-                                   out->alpha, out->depth, out->normal, out->median_depth);
-    std::copy(dist.begin(), dist.end(), out->distortion.data_ptr<T>() + view * HW);
-  }
-  return ps;
-}
 
 template <class T>
 SurfelOutputs forward_impl(const SurfelInputs& in) {
+  const int64_t HW = in.height * in.width;
   SurfelOutputs out = SurfelOutputs::images_for(in);
   out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
-    const ViewSetup<T> vs = setup_view<T>(in, v);
-    forward_view<T>(in, vs, v, &out, out.max_weight.data_ptr<T>());
+    SurfelView<T> sv(in, v);
+    const ViewSums<T> sums =
+        composite_forward<T>(sv, sv.list.rects, sv.list.ids, in.width, HW, in.k, out.max_weight.data_ptr<T>());
+    render::cpu::write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth,
+                                   out.normal, out.median_depth);
+    std::copy(sv.dist.begin(), sv.dist.end(), out.distortion.data_ptr<T>() + v * HW);
   }
   return out;
 }
 
 template <class T>
 SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads) {
-  const int64_t V = in.w2c.size(0), W = in.width, HW = in.height * in.width;
-  const RasterConstants& k = in.k;
+  const int64_t HW = in.height * in.width;
+  constexpr int C = SurfelView<T>::kGrads;
   SurfelGrads g = SurfelGrads::zeros_for(in);
-  T* g_mean = g.means.data_ptr<T>();
-  T* g_scale = g.scales.data_ptr<T>();
-  T* g_quat = g.rotations.data_ptr<T>();
-  T* g_color = g.colors.data_ptr<T>();
-  T* g_opacity = g.opacities.data_ptr<T>();
-  const T* mean = in.means.data_ptr<T>();
-  const T* scale = in.scales.data_ptr<T>();
-  const T* quat = in.rotations.data_ptr<T>();
-  const T* bg = in.background.data_ptr<T>();
   std::vector<T> scratch_max(in.means.size(0), T(0));
-  for (int64_t view = 0; view < V; ++view) {
-    const ViewSetup<T> vs = setup_view<T>(in, view);
-    const PixelState<T> ps = forward_view<T>(in, vs, view, nullptr, scratch_max.data());
+  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
+    SurfelView<T> sv(in, view);
+    sv.grads = &g;
+    const ViewSums<T> fwd = composite_forward<T>(sv, sv.list.rects, sv.list.ids, in.width, HW, in.k, scratch_max.data());
+    sv.t_final = &fwd.t_final;
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
-    std::vector<T> G(HW * kChannels);
-    render::cpu::interleave_grad(grads.rgb, view, 3, HW, kChannels, 0, G);
-    render::cpu::interleave_grad(grads.depth, view, 1, HW, kChannels, 3, G);
-    render::cpu::interleave_grad(grads.normal, view, 3, HW, kChannels, 4, G);
-    render::cpu::interleave_grad(grads.alpha, view, 1, HW, kChannels, 7, G);
-    render::cpu::interleave_grad(grads.distortion, view, 1, HW, kChannels, 8, G);
-    render::cpu::BackToFront<T> replay(ps.t_final, kChannels);
-    for (int64_t r = (int64_t)vs.surfels.size() - 1; r >= 0; --r) {
-      const PixelSurfel<T>& s = vs.surfels[r];
-      const SurfelRect& rc = vs.rects[r];
-      SurfelGrad<T> gr;
-      std::fill(reinterpret_cast<T*>(&gr), reinterpret_cast<T*>(&gr) + kSurfelGradSize, T(0));
-      for (int y = rc.y0; y < rc.y1; ++y)
-        for (int x = rc.x0; x < rc.x1; ++x) {
-          const int64_t p = (int64_t)y * W + x;
-          if (r >= ps.last[p]) continue;
-          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
-          SurfelFragment<T> f;
-          if (!shade(s, px, py, k, f)) continue;
-          const T Tp = replay.step(p, f.alpha);  // transmittance in front of this surfel
-          const T w = f.alpha * Tp;
-          const T w_total = T(1) - ps.t_final[p];
-          const T m = ndc_depth(f.z) - ps.m_ref[p];
-          const T fv[kChannels] = {s.color[0],  s.color[1],  s.color[2], f.z, s.normal[0], s.normal[1],
-                                   s.normal[2], T(1),        m * m * w_total - T(2) * m * ps.m1[p] + ps.m2[p]};
-          const T* Gp = &G[p * kChannels];
-          const T g_alpha = replay.alpha_grad(p, fv, Gp, f.alpha, Tp, bg);
-          for (int c = 0; c < 3; ++c) gr.color[c] += w * Gp[c], gr.normal[c] += w * Gp[4 + c];
-          const T g_z = w * Gp[3] + Gp[8] * T(2) * w * (m * w_total - ps.m1[p]) * ndc_depth_grad(f.z);
-          fragment_backward(s, px, py, f, g_alpha, g_z, k, gr);
-        }
-      // Chain this view's surfel gradient to the inputs.
-      const int64_t n = s.index;
-      for (int c = 0; c < 3; ++c) g_color[3 * n + c] += gr.color[c];
-      g_opacity[n] += gr.opacity;
-      preprocess_backward(mean + 3 * n, scale + 2 * n, quat + 4 * n, vs.cam, gr, g_mean + 3 * n, g_scale + 2 * n,
-                          g_quat + 4 * n);
-    }
+    std::vector<T> G(HW * C);
+    render::cpu::interleave_grad(grads.rgb, view, 3, HW, C, 0, G);
+    render::cpu::interleave_grad(grads.depth, view, 1, HW, C, 3, G);
+    render::cpu::interleave_grad(grads.normal, view, 3, HW, C, 4, G);
+    render::cpu::interleave_grad(grads.alpha, view, 1, HW, C, 7, G);
+    render::cpu::interleave_grad(grads.distortion, view, 1, HW, C, 8, G);
+    composite_backward<T>(sv, sv.list.rects, fwd, in.width, G, C, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -36,7 +36,7 @@ __global__ void __launch_bounds__(kBlockSize)
       SurfelFragment<float> f;
       if (!shade(s, px, py, vp.k, f)) continue;
       const float test_T = T * (1.f - f.alpha);
-      if (test_T < vp.k.t_min) {
+      if (render::stops_before(test_T, vp.k)) {
         done = true;
         break;
       }
@@ -44,7 +44,7 @@ __global__ void __launch_bounds__(kBlockSize)
 #pragma unroll
       for (int c = 0; c < 3; ++c) acc[c] += w * s.color[c], acc[4 + c] += w * s.normal[c];
       acc[3] += w * f.z;
-      if (T > 0.5f) median = f.z;
+      if (T > float(render::kMedianTransmittance)) median = f.z;
       const float m_abs = ndc_depth(f.z);
       if (last == 0) m_ref = m_abs;
       const float m = m_abs - m_ref;

@@ -1,7 +1,7 @@
 // libtorch glue of the CUDA surfel rasterizer: allocation, the per-view loop
-// and the launch checks. Per view: preprocess all surfels, scan their tile
-// counts (one host wait: the pair count), duplicate, sort and find the tile
-// ranges, composite. The forward keeps per view the sorted surfel indices,
+// and the launch checks. Per view: preprocess all surfels, sum their tile
+// counts (one host wait: the pair count), bin their support boxes (the
+// shared binning, flat/render/shared/tile_lists.h), composite. The forward keeps per view the sorted surfel indices,
 // the tile ranges and the per-pixel state (final transmittance, last entry,
 // distortion totals); the backward recomputes the screen data (one cheap
 // kernel), replays every tile and chains the view's gradients to the inputs.
@@ -13,6 +13,7 @@
 #include <c10/cuda/CUDAGuard.h>
 
 #include "flat/core/error.h"
+#include "flat/render/shared/tile_lists.h"
 #include "surfels/cuda/surfel_kernels.h"
 
 namespace flat::surfels::cuda {
@@ -68,44 +69,23 @@ struct ScreenData {
   PixelSurfel<float>* surfel_ptr() const { return reinterpret_cast<PixelSurfel<float>*>(surfels.data_ptr<float>()); }
 };
 
-// Bins one view: the sorted surfel indices (pairs) and the tile ranges.
-void bin(const ScreenData& sd, const ViewParams& vp, int64_t N, at::Tensor& sorted_values, at::Tensor& ranges,
-         cudaStream_t stream, int64_t view) {
-  const auto f = sd.tile_counts.options();
-  const int num_tiles = vp.tiles_x * vp.tiles_y;
-  ranges = at::zeros({num_tiles, 2}, f);
+// Bins one view (the shared binning of the support boxes): the sorted surfel
+// indices and the tile ranges.
+render::cuda::TileLists bin(const ScreenData& sd, const ViewParams& vp, int64_t N, cudaStream_t stream,
+                            int64_t view) {
   // The pair count in 64 bits (one host wait a view). The kernels index the
   // pairs in int32 and step through a tile's list in rounds of kBlockSize.
   const int64_t pairs = N > 0 ? sd.tile_counts.sum(at::kLong).item<int64_t>() : 0;
   FLAT_CHECK(pairs <= std::numeric_limits<int32_t>::max() - kBlockSize,
              "rasterize_surfels (cuda): view " + std::to_string(view) + " needs " + std::to_string(pairs) +
                  " (surfel, tile) pairs, more than the ~2^31 the sort supports; render fewer or smaller surfels");
-  sorted_values = at::empty({pairs}, f);
-  if (pairs == 0) return;
-  const at::Tensor offsets = at::empty({N}, f);
-  size_t scan_bytes = 0;
-  scan_tile_counts(nullptr, scan_bytes, sd.tile_counts.data_ptr<int>(), offsets.data_ptr<int>(), N, stream);
-  at::Tensor temp = at::empty({(int64_t)scan_bytes + 1}, f.dtype(at::kByte));
-  scan_tile_counts(temp.data_ptr(), scan_bytes, sd.tile_counts.data_ptr<int>(), offsets.data_ptr<int>(), N, stream);
-  check_launch("tile count scan");
-  const at::Tensor keys = at::empty({pairs}, f.dtype(at::kLong)), keys_sorted = at::empty({pairs}, f.dtype(at::kLong));
-  const at::Tensor values = at::empty({pairs}, f);
-  auto* k_in = reinterpret_cast<uint64_t*>(keys.data_ptr<int64_t>());
-  auto* k_out = reinterpret_cast<uint64_t*>(keys_sorted.data_ptr<int64_t>());
-  launch_duplicate(offsets.data_ptr<int>(), sd.tile_counts.data_ptr<int>(),
-                   reinterpret_cast<const SurfelRect*>(sd.rects.data_ptr<int>()),
-                   reinterpret_cast<const uint32_t*>(sd.depth_keys.data_ptr<int>()), N, vp, k_in,
-                   values.data_ptr<int>(), stream);
-  check_launch("duplicate");
-  size_t sort_bytes = 0;
-  sort_pairs(nullptr, sort_bytes, k_in, k_out, values.data_ptr<int>(), sorted_values.data_ptr<int>(), pairs, num_tiles,
-             stream);
-  temp = at::empty({(int64_t)sort_bytes + 1}, f.dtype(at::kByte));
-  sort_pairs(temp.data_ptr(), sort_bytes, k_in, k_out, values.data_ptr<int>(), sorted_values.data_ptr<int>(), pairs,
-             num_tiles, stream);
-  check_launch("pair sort");
-  launch_tile_ranges(k_out, pairs, reinterpret_cast<int2*>(ranges.data_ptr<int>()), stream);
-  check_launch("tile ranges");
+  render::cuda::RectFootprints fp;
+  fp.depth_keys = reinterpret_cast<const uint32_t*>(sd.depth_keys.data_ptr<int>());
+  fp.tile_counts = sd.tile_counts.data_ptr<int>();
+  fp.rects = reinterpret_cast<const SurfelRect*>(sd.rects.data_ptr<int>());
+  fp.n = N;
+  return render::cuda::bin_rects(fp, pairs, kTileSize, vp.tiles_x, vp.tiles_y, sd.tile_counts.options(), stream,
+                                 "rasterize_surfels");
 }
 
 void check_sizes(const SurfelInputs& in) {
@@ -129,8 +109,8 @@ SurfelOutputs forward(const SurfelInputs& in, bool for_backward, std::vector<at:
   for (int64_t v = 0; v < V; ++v) {
     const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
     const ScreenData sd(in, vp, stream);
-    at::Tensor sorted_values, ranges;
-    bin(sd, vp, N, sorted_values, ranges, stream, v);
+    const render::cuda::TileLists lists = bin(sd, vp, N, stream, v);
+    const at::Tensor &sorted_values = lists.ids, &ranges = lists.ranges;
     const at::Tensor t_final = at::empty({H, W}, f), last = at::empty({H, W}, f.dtype(at::kInt));
     const at::Tensor dist = at::empty({3, H, W}, f);
     const ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,    out.alpha.data_ptr<float>() + v * HW,

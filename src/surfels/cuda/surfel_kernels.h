@@ -19,7 +19,7 @@ constexpr int kBlockSize = kTileSize * kTileSize;
 
 struct ViewParams {
   CameraView<float> cam;
-  RasterConstants k;
+  CompositingConstants k;
   int width = 0, height = 0;
   int tiles_x = 0, tiles_y = 0;
   float background[3] = {0.f, 0.f, 0.f};
@@ -31,24 +31,12 @@ FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
 // Per surfel of all n (surfels/cuda/preprocess.cu): tiles touched (0 when
 // culled) and, for the others only, the PixelSurfel screen data, support box
-// and depth sort key (render::depth_sort_key of the centre's camera z).
+// and depth sort key (render::depth_sort_key of the centre's camera z). The
+// binning is the shared one (flat/render/shared/tile_lists.h:
+// render::cuda::bin_rects) of these boxes.
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
                        const float* opacities, int64_t n, const ViewParams& vp, PixelSurfel<float>* surfels,
                        SurfelRect* rects, int32_t* tile_counts, uint32_t* depth_keys, cudaStream_t stream);
-
-// Binning (surfels/cuda/binning.cu). Inclusive prefix sum of the tile counts
-// (cub; `temp` of temp_bytes, ask with temp == nullptr);
-void scan_tile_counts(void* temp, size_t& temp_bytes, const int32_t* counts, int32_t* offsets, int64_t n,
-                      cudaStream_t stream);
-// one (key, surfel) pair per touched tile, key = tile << 24 | depth key;
-void launch_duplicate(const int32_t* offsets, const int32_t* tile_counts, const SurfelRect* rects,
-                      const uint32_t* depth_keys, int64_t n, const ViewParams& vp, uint64_t* keys, int32_t* values,
-                      cudaStream_t stream);
-// stable radix sort of the pairs by key (tile, then depth, then surfel index);
-void sort_pairs(void* temp, size_t& temp_bytes, const uint64_t* keys_in, uint64_t* keys_out, const int32_t* values_in,
-                int32_t* values_out, int64_t count, int num_tiles, cudaStream_t stream);
-// ranges[t] = [start, end) of tile t in the sorted pairs (ranges zeroed first).
-void launch_tile_ranges(const uint64_t* sorted_keys, int64_t count, int2* ranges, cudaStream_t stream);
 
 // Per-pixel state the forward keeps for the backward, (H,W) each: final
 // transmittance, number of list entries processed, and the distortion's

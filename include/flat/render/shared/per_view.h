@@ -1,8 +1,10 @@
-// Per-view scaffolding shared by the three CPU references (render/cpu,
-// gaussians/cpu, surfels/cpu) around their primitive-specific maths: the
-// compositing order, the images written from the per-pixel sums, the
-// upstream gradients laid out per pixel, and the backward's back-to-front
-// replay (3DGS' recurrence), which is the same whatever the primitive.
+// The CPU references' per-view compositing, shared by the three rasterizers
+// (render/cpu, gaussians/cpu, surfels/cpu): the compositing order, the
+// front-to-back loop and its back-to-front replay (3DGS' recurrence), the
+// images written from the per-pixel sums and the upstream gradients laid out
+// per pixel, which are the same whatever the primitive. Each primitive
+// supplies a small struct with its own maths (its fragment at a pixel, the
+// values it composites, its gradient: composite_forward, composite_backward).
 // Public, under flat/render/shared/, because the gaussians and surfels
 // modules include it; not part of the rasterizer's API.
 #pragma once
@@ -12,6 +14,9 @@
 #include <vector>
 
 #include <ATen/ATen.h>
+
+#include "flat/render/shared/compositing.h"
+#include "flat/render/shared/view_geometry.h"
 
 namespace flat::render::cpu {
 
@@ -25,27 +30,140 @@ inline std::vector<size_t> depth_order(const std::vector<uint32_t>& keys) {
   return order;
 }
 
-// Writes view `view` of the (V,C,H,W) images from the forward's per-pixel
-// sums: acc holds r, g, b, depth and (when `normal` is defined) nx, ny, nz at
-// offsets 0..6 of `stride` values a pixel; rgb gets the background behind the
-// final transmittance t_final.
+// View `view`'s camera from the host tensors w2c (V,4,4) and K (V,4).
 template <class T>
-void write_view_images(int64_t view, int64_t HW, const T* acc, int stride, const std::vector<T>& t_final,
-                       const std::vector<T>& median, const T* bg, const at::Tensor& rgb, const at::Tensor& alpha,
-                       const at::Tensor& depth, const at::Tensor& normal, const at::Tensor& median_depth) {
+CameraView<T> view_camera(const at::Tensor& w2c, const at::Tensor& K, int64_t view) {
+  return make_camera_view(w2c.data_ptr<T>() + view * 16, K.data_ptr<T>() + view * 4);
+}
+
+// Primitive n's colour (colors (N,3)) and opacity (opacities (N)) into its
+// record's color[3] and opacity.
+template <class T, class Record>
+void set_appearance(Record& record, const at::Tensor& colors, const at::Tensor& opacities, int64_t n) {
+  for (int c = 0; c < 3; ++c) record.color[c] = colors.data_ptr<T>()[3 * n + c];
+  record.opacity = opacities.data_ptr<T>()[n];
+}
+
+// A view's visible primitives: each one's record (what a pixel needs of it
+// in this view), pixel rectangle and input row; add() them in index order,
+// then sort() puts them in compositing order.
+template <class Record>
+struct ViewList {
+  std::vector<Record> records;
+  std::vector<PixelRect> rects;
+  std::vector<int64_t> ids;
+  std::vector<uint32_t> keys;  // depth_sort_key(), as the CUDA sort
+
+  void add(const Record& record, const PixelRect& rect, int64_t id, float depth) {
+    records.push_back(record);
+    rects.push_back(rect);
+    ids.push_back(id);
+    keys.push_back(depth_sort_key(depth));
+  }
+  void sort() {
+    const std::vector<size_t> order = depth_order(keys);
+    ViewList sorted;
+    for (size_t i : order) sorted.add_sorted(records[i], rects[i], ids[i], keys[i]);
+    *this = std::move(sorted);
+  }
+  size_t size() const { return records.size(); }
+
+ private:
+  void add_sorted(const Record& record, const PixelRect& rect, int64_t id, uint32_t key) {
+    records.push_back(record);
+    rects.push_back(rect);
+    ids.push_back(id);
+    keys.push_back(key);
+  }
+};
+
+// What the forward leaves of one view, per pixel: the final transmittance,
+// the number of list entries processed (the last contributor is entry
+// last - 1), the channel sums sum_k w_k v_k (`stride` a pixel: r, g, b,
+// depth, then the primitive's others) and the median depth.
+template <class T>
+struct ViewSums {
+  int stride = 0;
+  std::vector<T> t_final;
+  std::vector<int64_t> last;
+  std::vector<T> sums;
+  std::vector<T> median;
+};
+
+// Composites one view's list front to back: skip a fragment that does not
+// blend, stop a pixel before its transmittance would drop below t_min. Written
+// primitive-major (each entry updates the pixels of its rectangle in list
+// order), which is the order in which each pixel meets them. max_weight (by
+// input row) gets each primitive's largest blending weight. Prim, the
+// primitive's maths in this view, has for list entry r:
+//   Fragment                    what a pixel computes of it (with .alpha);
+//   kSums                       its channels: r, g, b, depth, then its own;
+//   fragment(r, x, y, f)        the fragment at pixel (x, y): whether it blends
+//                               (fragment_blends() and the primitive's own tests);
+//   values(r, f, v)             its kSums channel values at that fragment;
+//   blended(p, f, w, t_front, first)  anything more it sums at pixel p (the
+//                               fragment's weight w, the transmittance in front
+//                               of it, whether it is the pixel's first).
+template <class T, class Prim>
+ViewSums<T> composite_forward(Prim& prim, const std::vector<PixelRect>& rects, const std::vector<int64_t>& ids,
+                              int64_t W, int64_t HW, const CompositingConstants& k, T* max_weight) {
+  constexpr int C = Prim::kSums;
+  ViewSums<T> s;
+  s.stride = C;
+  s.t_final.assign(HW, T(1));
+  s.last.assign(HW, 0);
+  s.sums.assign(HW * C, T(0));
+  s.median.assign(HW, T(0));
+  std::vector<char> done(HW, 0);
+  for (size_t r = 0; r < rects.size(); ++r) {
+    const PixelRect& rc = rects[r];
+    for (int y = rc.y0; y < rc.y1; ++y)
+      for (int x = rc.x0; x < rc.x1; ++x) {
+        const int64_t p = (int64_t)y * W + x;
+        if (done[p]) continue;
+        typename Prim::Fragment f;
+        if (!prim.fragment(r, x, y, f)) continue;
+        T& Tp = s.t_final[p];
+        const T test_T = Tp * (T(1) - f.alpha);
+        if (stops_before(test_T, k)) {
+          done[p] = 1;
+          continue;
+        }
+        const T w = f.alpha * Tp;
+        T v[C];
+        prim.values(r, f, v);
+        T* a = &s.sums[p * C];
+        for (int c = 0; c < C; ++c) a[c] += w * v[c];
+        if (Tp > T(kMedianTransmittance)) s.median[p] = v[3];
+        prim.blended(p, f, w, Tp, s.last[p] == 0);
+        max_weight[ids[r]] = std::max(max_weight[ids[r]], w);
+        Tp = test_T;
+        s.last[p] = (int64_t)r + 1;
+      }
+  }
+  return s;
+}
+
+// Writes view `view` of the (V,C,H,W) images from the forward's per-pixel
+// sums (r, g, b, depth and, when `normal` is defined, nx, ny, nz at offsets
+// 0..6); rgb gets the background behind the final transmittance.
+template <class T>
+void write_view_images(int64_t view, int64_t HW, const ViewSums<T>& s, const T* bg, const at::Tensor& rgb,
+                       const at::Tensor& alpha, const at::Tensor& depth, const at::Tensor& normal,
+                       const at::Tensor& median_depth) {
   T* out_rgb = rgb.data_ptr<T>() + view * 3 * HW;
   T* out_alpha = alpha.data_ptr<T>() + view * HW;
   T* out_depth = depth.data_ptr<T>() + view * HW;
   T* out_normal = normal.defined() ? normal.data_ptr<T>() + view * 3 * HW : nullptr;
   T* out_median = median_depth.data_ptr<T>() + view * HW;
   for (int64_t p = 0; p < HW; ++p) {
-    const T* a = acc + p * stride;
-    for (int c = 0; c < 3; ++c) out_rgb[c * HW + p] = a[c] + t_final[p] * bg[c];
-    out_alpha[p] = T(1) - t_final[p];
+    const T* a = &s.sums[p * s.stride];
+    for (int c = 0; c < 3; ++c) out_rgb[c * HW + p] = a[c] + s.t_final[p] * bg[c];
+    out_alpha[p] = T(1) - s.t_final[p];
     out_depth[p] = a[3];
     if (out_normal)
       for (int c = 0; c < 3; ++c) out_normal[c * HW + p] = a[4 + c];
-    out_median[p] = median[p];
+    out_median[p] = s.median[p];
   }
 }
 
@@ -104,5 +222,38 @@ struct BackToFront {
     return g;
   }
 };
+
+// The backward of composite_forward: replays each pixel's fragments back to
+// front from the forward's state `fwd`. G holds the upstream gradients, C a
+// pixel, of the channels whose values Prim::grad_values gives (r, g, b
+// first); bg the background. Prim, as in the forward, and for list entry r:
+//   start(r)                             entry r's gradient sums start at zero;
+//   grad_values(r, p, f, v)              its C channel values at pixel p;
+//   add_grad(r, x, y, f, w, g_alpha, Gp) its gradient from pixel (x, y): w its
+//                                        weight, g_alpha dL/dalpha, Gp the pixel's G;
+//   finish(r)                            it has met all its pixels (chain to the inputs).
+template <class T, class Prim>
+void composite_backward(Prim& prim, const std::vector<PixelRect>& rects, const ViewSums<T>& fwd, int64_t W,
+                        const std::vector<T>& G, int C, const T* bg) {
+  BackToFront<T> replay(fwd.t_final, C);
+  std::vector<T> v(C);
+  for (int64_t r = (int64_t)rects.size() - 1; r >= 0; --r) {
+    const PixelRect& rc = rects[r];
+    prim.start(r);
+    for (int y = rc.y0; y < rc.y1; ++y)
+      for (int x = rc.x0; x < rc.x1; ++x) {
+        const int64_t p = (int64_t)y * W + x;
+        if (r >= fwd.last[p]) continue;
+        typename Prim::Fragment f;
+        if (!prim.fragment(r, x, y, f)) continue;
+        const T Tp = replay.step(p, f.alpha);  // transmittance in front of this entry
+        prim.grad_values(r, p, f, v.data());
+        const T* Gp = &G[p * C];
+        const T g_alpha = replay.alpha_grad(p, v.data(), Gp, f.alpha, Tp, bg);
+        prim.add_grad(r, x, y, f, f.alpha * Tp, g_alpha, Gp);
+      }
+    prim.finish(r);
+  }
+}
 
 }  // namespace flat::render::cpu

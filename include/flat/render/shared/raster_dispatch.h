@@ -24,18 +24,8 @@
 namespace flat::render {
 
 // ---------------------------------------------------------------- constants
-// The constants every rasterizer composites with. K is the module's constants
-// struct (render::RasterConstants, gaussians::GaussianConstants): both have
-// these four fields, and the primitive-specific ones are set by the caller.
-template <class K>
-void set_compositing_constants(const RasterSettings& s, K& k) {
-  k.near_plane = (float)s.near_plane;
-  k.alpha_max = (float)s.alpha_max;
-  k.alpha_min = (float)s.alpha_min;
-  k.t_min = (float)s.transmittance_min;
-}
-
-// The constants struct K and the image size, kept in the autograd context
+// The constants struct K (CompositingConstants, or the triangles'
+// RasterConstants) and the image size, kept in the autograd context
 // for the backward as ONE small byte tensor (K is trivially copyable): no
 // string key per field, and a field added to K travels without a line here.
 template <class K>
@@ -87,7 +77,7 @@ at::TensorOptions compute_options(const at::Tensor& lead);
 struct HostViews {
   at::Tensor w2c, K, background;
 };
-HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width, const RasterSettings& settings,
+HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width, const CompositingSettings& settings,
                      const at::TensorOptions& opts);
 
 // ---------------------------------------------------------------- value checks

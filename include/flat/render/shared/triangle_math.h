@@ -1,10 +1,10 @@
 // Per-triangle and per-pixel maths of the triangle rasterizer, shared by the
 // CPU reference (templated on float/double) and the CUDA kernels (float).
 // Plain C++ with __host__ __device__ under nvcc: no torch, no std containers.
-// Shared with the gaussians and surfels modules (gaussian_math.h,
-// surfel_math.h take FLAT_HD, CameraView, make_camera_view, the near/far
-// bounds and depth_sort_key from here), so it is public, under
-// flat/render/shared/: an edit here changes all three rasterizers.
+// What the three rasterizers share (FLAT_HD, the compositing constants and
+// rules, the depth key, the camera view, pixel rectangles) is in
+// compositing.h and view_geometry.h beside it; this header is the
+// triangle's own maths.
 //
 // Notation (paper, Method, "Window Function"): projected vertices q_k, edge
 // i runs q_i -> q_{i+1}, L_i(p) its signed distance (negative inside), rho the
@@ -18,48 +18,23 @@
 #pragma once
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 
-#if defined(__CUDACC__)
-#define FLAT_HD __host__ __device__ __forceinline__
-#else
-#define FLAT_HD inline
-#endif
+#include "flat/render/shared/compositing.h"
+#include "flat/render/shared/view_geometry.h"
 
 namespace flat::render {
 
 enum WindowKind : int { kWindowFlat = 0, kWindowTS = 1 };
 
-// Constants of one rasterization (docs/rasterizer.md lists each one).
-struct RasterConstants {
+// Constants of one triangle rasterization (docs/rasterizer.md lists each
+// one): the compositing ones every primitive has, and the window's and the
+// culling's of triangles.
+struct RasterConstants : CompositingConstants {
   float eps = 0.1f;            // FLAT window: support beyond each edge, in inradii
-  float near_plane = 0.01f;    // cull a triangle if any vertex has camera z < near_plane
-  float alpha_max = 0.99f;     // alpha cap (keeps 1 - alpha invertible in backward)
-  float alpha_min = 1.f / 255.f;  // a fragment with alpha below this is skipped
-  float t_min = 1e-4f;         // a pixel stops before its transmittance would drop below this
   float min_inradius = 1e-3f;  // cull triangles with a screen inradius below this (pixels)
   float min_cos = 1e-3f;       // cull edge-on triangles: |cos(normal, view ray to centroid)| below this
   int window = kWindowFlat;
 };
-
-template <class T>
-struct CameraView {
-  T R[9];  // world-to-camera rotation, row-major
-  T t[3];
-  T fx, fy, cx, cy;  // pixels
-};
-
-// From a row-major 4x4 world-to-camera matrix and pixel intrinsics fx, fy, cx, cy.
-template <class T>
-FLAT_HD CameraView<T> make_camera_view(const T* w2c, const T* K) {
-  CameraView<T> cam;
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) cam.R[3 * r + c] = w2c[4 * r + c];
-    cam.t[r] = w2c[4 * r + 3];
-  }
-  cam.fx = K[0], cam.fy = K[1], cam.cx = K[2], cam.cy = K[3];
-  return cam;
-}
 
 // What one pixel needs of one triangle (also the shared-memory record on CUDA;
 // 16-byte aligned so that it moves with 128-bit loads: 23 floats with padding).
@@ -77,10 +52,8 @@ struct alignas(16) PixelTri {
   int32_t index;     // the triangle's row in the inputs (CUDA: where its max weight goes)
 };
 
-// Screen-space support rectangle [x0,x1) x [y0,y1) in pixels and the sort key.
-struct TriRect {
-  int x0, y0, x1, y1;
-};
+// Screen-space support rectangle [x0,x1) x [y0,y1) in pixels.
+using TriRect = PixelRect;
 
 // Gradient of the loss with respect to one triangle's PixelTri geometry. The
 // normal's gradient is not a field: it is folded into h (fold_normal_grad()),
@@ -96,9 +69,6 @@ struct TriGrad {
   T opacity, sigma;
 };
 constexpr int kTriGradSize = 18;  // number of T in TriGrad
-
-template <class T> FLAT_HD T tmin(T a, T b) { return a < b ? a : b; }
-template <class T> FLAT_HD T tmax(T a, T b) { return a > b ? a : b; }
 
 // ---------------------------------------------------------------- projection
 // World vertices (v[0..8], three xyz) -> camera space.
@@ -134,21 +104,6 @@ FLAT_HD ScreenTriangle<T> project_triangle(const T c[3][3], const CameraView<T>&
   st.P = st.l[0] + st.l[1] + st.l[2];
   st.A2 = (st.q[1][0] - st.q[0][0]) * (st.q[2][1] - st.q[0][1]) - (st.q[1][1] - st.q[0][1]) * (st.q[2][0] - st.q[0][0]);
   return st;
-}
-
-// The depth sort's key of a (positive) centroid depth: its float bits, which
-// order as the floats, less the lowest 7: depths within 2^-16 of each other
-// (0.08 mm at 5 m) tie and keep triangle order. 24-bit keys take one radix
-// pass fewer than 32-bit ones (render/cuda/binning.cu).
-constexpr int kDepthKeyBits = 24;
-FLAT_HD uint32_t depth_sort_key(float depth) {
-  uint32_t bits;
-#if defined(__CUDA_ARCH__)
-  bits = __float_as_uint(depth);
-#else
-  std::memcpy(&bits, &depth, sizeof bits);
-#endif
-  return bits >> (31 - kDepthKeyBits);  // bit 31 (the sign) is 0
 }
 
 // Forward of the per-(view, triangle) preprocessing. Returns false when the
@@ -204,17 +159,7 @@ FLAT_HD bool preprocess_forward(const T* v, const CameraView<T>& cam, const Rast
       lo[d] = tmin(lo[d], p);
       hi[d] = tmax(hi[d], p);
     }
-  // Pixel x is covered when its centre x + 0.5 lies in [lo, hi]; clamp before int conversion.
-  const T big = T(1 << 24);
-  const T fx0 = std::ceil(tmax(tmin(lo[0] - T(0.5), big), -big));
-  const T fx1 = std::floor(tmax(tmin(hi[0] - T(0.5), big), -big)) + T(1);
-  const T fy0 = std::ceil(tmax(tmin(lo[1] - T(0.5), big), -big));
-  const T fy1 = std::floor(tmax(tmin(hi[1] - T(0.5), big), -big)) + T(1);
-  rect.x0 = (int)tmax(fx0, T(0));
-  rect.y0 = (int)tmax(fy0, T(0));
-  rect.x1 = (int)tmin(fx1, T(width));
-  rect.y1 = (int)tmin(fy1, T(height));
-  return rect.x0 < rect.x1 && rect.y0 < rect.y1;
+  return covered_pixels(lo, hi, width, height, rect);
 }
 
 // Reverse of preprocess_forward's geometry: gradient of the PixelTri geometry
@@ -429,7 +374,7 @@ FLAT_HD void shade(const PixelTri<T>& t, T px, T py, T rx, T ry, const RasterCon
   const T dx = px - t.sx, dy = py - t.sy;
   for (int i = 0; i < 3; ++i) f.u[i] = T(1) + t.nx[i] * dx + t.ny[i] * dy;
   f.I = window_forward(f.u, t.sigma, T(k.eps), k.window);
-  f.alpha = tmin(T(k.alpha_max), t.opacity * f.I);
+  f.alpha = fragment_alpha(t.opacity, f.I, k);
 }
 
 template <class T>
