@@ -22,24 +22,11 @@ struct Edge {
 
 double pct(int64_t part, int64_t whole) { return whole > 0 ? 100.0 * double(part) / double(whole) : 0.0; }
 
-}  // namespace
-
-MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_eps) {
-  primitives::check_mesh(mesh, "mesh statistics");
-  MeshStatistics s;
-  s.vertices = mesh.num_vertices();
-  s.faces = mesh.num_faces();
-  if (s.faces == 0) return s;
-  const auto faces = mesh.faces.to(at::kCPU).contiguous();
-  const auto verts = mesh.vertices.to(at::kCPU, at::kDouble).contiguous();
-  const int64_t* f = faces.data_ptr<int64_t>();
-  const double* v = verts.data_ptr<double>();
-
-  // Degenerate faces: a repeated index, or (almost) no area.
-  const auto extent = (verts.amax(0) - verts.amin(0)).norm().item<double>();
-  const double min_area2 = std::pow(area_eps * extent * extent, 2);
+// Faces with a repeated index, or (almost) no area: area squared at most
+// min_area2.
+int64_t count_degenerate(const int64_t* f, const double* v, int64_t faces, double min_area2) {
   int64_t degenerate = 0;
-  for (int64_t i = 0; i < s.faces; ++i) {
+  for (int64_t i = 0; i < faces; ++i) {
     const int64_t* t = f + 3 * i;
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
       ++degenerate;
@@ -54,9 +41,13 @@ MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_
                  cz = e1[0] * e2[1] - e1[1] * e2[0];
     if (0.25 * (cx * cx + cy * cy + cz * cz) <= min_area2) ++degenerate;
   }
-  s.degenerate_faces_pct = pct(degenerate, s.faces);
+  return degenerate;
+}
 
-  // Edges, sorted so that the faces of one edge are adjacent.
+// Edges, sorted so that the faces of one edge are adjacent: their count, the
+// non-manifold and boundary shares, and the mean number of faces a face
+// shares an edge with.
+void add_edge_statistics(const int64_t* f, MeshStatistics& s) {
   std::vector<Edge> edges;
   edges.reserve(size_t(3 * s.faces));
   for (int64_t i = 0; i < s.faces; ++i)
@@ -90,8 +81,10 @@ MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_
   s.mean_face_neighbours = total_neighbours / double(s.faces);
   s.non_manifold_edges_pct = pct(non_manifold, s.edges);
   s.boundary_edges_pct = pct(boundary, s.edges);
+}
 
-  // Components and isolated faces through shared vertices.
+// Components and isolated faces through shared vertices.
+void add_vertex_connectivity(const int64_t* f, MeshStatistics& s) {
   std::vector<int64_t> faces_of_vertex(size_t(s.vertices), 0);
   for (int64_t i = 0; i < 3 * s.faces; ++i) ++faces_of_vertex[size_t(f[i])];
   int64_t isolated = 0;
@@ -112,6 +105,25 @@ MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_
   }
   s.isolated_faces_pct = pct(isolated, s.faces);
   s.connected_components = uf.count();
+}
+
+}  // namespace
+
+MeshStatistics mesh_statistics(const primitives::IndexedMesh& mesh, double area_eps) {
+  primitives::check_mesh(mesh, "mesh statistics");
+  MeshStatistics s;
+  s.vertices = mesh.num_vertices();
+  s.faces = mesh.num_faces();
+  if (s.faces == 0) return s;
+  const auto faces = mesh.faces.to(at::kCPU).contiguous();
+  const auto verts = mesh.vertices.to(at::kCPU, at::kDouble).contiguous();
+  const int64_t* f = faces.data_ptr<int64_t>();
+
+  const auto extent = (verts.amax(0) - verts.amin(0)).norm().item<double>();
+  const double min_area2 = std::pow(area_eps * extent * extent, 2);
+  s.degenerate_faces_pct = pct(count_degenerate(f, verts.data_ptr<double>(), s.faces, min_area2), s.faces);
+  add_edge_statistics(f, s);
+  add_vertex_connectivity(f, s);
   s.edge_connected_pieces = edge_connected_pieces(mesh);
   return s;
 }
