@@ -132,6 +132,99 @@ primitives::IndexedMesh repair(const primitives::IndexedMesh& mesh, const ViewTa
   return {m.vertices.detach().cpu(), m.colors.detach().cpu(), mesh.faces.cpu()};
 }
 
+// The mesh drawn as its opaque soup on the targets' device, scored for the
+// report's trail.
+double mesh_psnr(const primitives::IndexedMesh& m, const ViewTargets& t, const OpaqueOptions& o) {
+  const auto soup = opaque_render_soup(m, o);
+  const auto d = t.rgb.device();
+  return psnr_over_views({soup.vertices.to(d), soup.colors.to(d), soup.opacities.to(d), soup.sigmas.to(d)}, t,
+                         opaque_raster(o.raster));
+}
+
+// Grid stages: the soup's surface per view on the token grid, fused; edge
+// pieces too small to be surface removed.
+primitives::IndexedMesh fused_grid_mesh(const primitives::TriangleSoup& soup, const ViewTargets& targets,
+                                        const OpaqueOptions& o, ConversionReport& r) {
+  ViewFusionOptions fo;
+  fo.grid_step = o.grid_step;
+  fo.depth_tolerance = o.fusion_depth_tolerance;
+  fo.grid.max_stretch = o.grid_max_stretch;
+  fo.mesh_raster = opaque_raster(o.raster);
+  fo.mesh_opacity = o.snap_opacity;
+  fo.mesh_sigma = o.sigma_end;
+  ViewFusionReport fr;
+  auto mesh = fuse_view_grids(soup, targets, o.raster, fo, &fr);
+  r.grid_faces = fr.grid_faces;
+  r.fused_faces = fr.fused_faces;
+  require_some(mesh.num_faces(), "the view-grid fusion");
+  r.stage_psnr.emplace_back("fused grids", mesh_psnr(mesh, targets, o));
+  mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces, /*through_edges=*/true);
+  require_some(mesh.num_faces(), "floater pruning");
+  r.stage_psnr.emplace_back("floaters", mesh_psnr(mesh, targets, o));
+  return mesh;
+}
+
+// Stage 2: the selected triangles snapped to the opaque opacity, those with
+// too little support over the views removed.
+primitives::TriangleSoup keep_supported(const primitives::TriangleSoup& selected, const ViewTargets& targets,
+                                        const OpaqueOptions& o) {
+  auto snapped = selected;
+  snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
+  const auto support = support_over_views(snapped, targets, opaque_raster(o.raster));
+  const auto keep = (support > o.support_min).nonzero().reshape({-1});
+  require_some(keep.numel(), fmt::format("removing triangles with support <= {}", o.support_min));
+  return {selected.vertices.index_select(0, keep), selected.colors.index_select(0, keep),
+          snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
+}
+
+// Stitch stages 1-3 (the paper's): opacity selection, the support cleanup and
+// the snap; then stitch, densify the open border, stitch again, drop floaters.
+primitives::IndexedMesh stitched_mesh(const primitives::TriangleSoup& soup, const ViewTargets& targets,
+                                      const OpaqueOptions& o, ConversionReport& r) {
+  auto selected = select_opaque(soup, targets, o, r);
+  r.after_selection = selected.vertices.size(0);
+  r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
+  selected = keep_supported(selected, targets, o);
+  r.after_support = selected.vertices.size(0);
+  r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
+
+  auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
+                                          selected.sigmas.cpu()});
+  const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
+  StitchReport sr;
+  r.stage_psnr.emplace_back("as mesh", mesh_psnr(mesh, targets, o));
+  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+  r.stitched_pairs += sr.merged_pairs;
+  r.collapsed_faces += sr.collapsed_faces;
+  r.stage_psnr.emplace_back("stitch 1", mesh_psnr(mesh, targets, o));
+  mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
+  mesh = stitch_boundary_vertices(mesh, stitch, &sr);
+  r.stitched_pairs += sr.merged_pairs;
+  r.collapsed_faces += sr.collapsed_faces;
+  r.stage_psnr.emplace_back("stitch 2", mesh_psnr(mesh, targets, o));
+  mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
+  require_some(mesh.num_faces(), "floater pruning");
+  r.stage_psnr.emplace_back("floaters", mesh_psnr(mesh, targets, o));
+  return mesh;
+}
+
+void log_conversion(const ConversionReport& r, const OpaqueOptions& o, int64_t views) {
+  if (o.conversion == "grid")
+    spdlog::info("opaque conversion (view grids): {} soup triangles -> {} grid faces over {} views -> {} fused -> "
+                 "mesh of {} vertices, {} faces ({} floater faces removed), {:.1f} s",
+                 r.soup_triangles, r.grid_faces, views, r.fused_faces, r.mesh_vertices, r.mesh_faces,
+                 r.floater_faces, r.seconds);
+  else
+    spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
+                 "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "
+                 "{:.1f} s",
+                 r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
+                 r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
+  std::string trail;
+  for (const auto& [stage, psnr] : r.stage_psnr) trail += fmt::format("{}{} {:.2f} dB", trail.empty() ? "" : ", ", stage, psnr);
+  spdlog::info("opaque conversion, PSNR over the fitted views after each stage: {}", trail);
+}
+
 }  // namespace
 
 render::RasterSettings opaque_raster(const render::RasterSettings& base) {
@@ -163,89 +256,17 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
   require_some(r.soup_triangles, "the input");
   r.median_edge = triangle_sizes(soup.vertices.detach()).median().item<double>();
 
-  const auto on_device = [&](const primitives::IndexedMesh& m) {
-    const auto soup = opaque_render_soup(m, o);
-    return primitives::TriangleSoup{soup.vertices.to(targets.rgb.device()), soup.colors.to(targets.rgb.device()),
-                                    soup.opacities.to(targets.rgb.device()), soup.sigmas.to(targets.rgb.device())};
-  };
-  primitives::IndexedMesh mesh;
-  if (o.conversion == "grid") {
-    // The soup's surface per view on the token grid, fused; edge pieces too small to be surface removed.
-    ViewFusionOptions fo;
-    fo.grid_step = o.grid_step;
-    fo.depth_tolerance = o.fusion_depth_tolerance;
-    fo.grid.max_stretch = o.grid_max_stretch;
-    fo.mesh_raster = opaque_raster(o.raster);
-    fo.mesh_opacity = o.snap_opacity;
-    fo.mesh_sigma = o.sigma_end;
-    ViewFusionReport fr;
-    mesh = fuse_view_grids(soup, targets, o.raster, fo, &fr);
-    r.grid_faces = fr.grid_faces;
-    r.fused_faces = fr.fused_faces;
-    require_some(mesh.num_faces(), "the view-grid fusion");
-    r.stage_psnr.emplace_back("fused grids", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-    mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces, /*through_edges=*/true);
-    require_some(mesh.num_faces(), "floater pruning");
-    r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-  } else {
-    // 1-2. Opacity selection, then the support cleanup and the snap.
-    auto selected = select_opaque(soup, targets, o, r);
-    r.after_selection = selected.vertices.size(0);
-    r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
-    {
-      auto snapped = selected;
-      snapped.opacities = at::full_like(selected.opacities, o.snap_opacity);
-      const auto support = support_over_views(snapped, targets, opaque_raster(o.raster));
-      const auto keep = (support > o.support_min).nonzero().reshape({-1});
-      require_some(keep.numel(), fmt::format("removing triangles with support <= {}", o.support_min));
-      selected = {selected.vertices.index_select(0, keep), selected.colors.index_select(0, keep),
-                  snapped.opacities.index_select(0, keep), selected.sigmas.index_select(0, keep)};
-    }
-    r.after_support = selected.vertices.size(0);
-    r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
-
-    // 3. Stitch, densify the open border, stitch again, drop floaters.
-    mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
-                                            selected.sigmas.cpu()});
-    const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
-    StitchReport sr;
-    r.stage_psnr.emplace_back("as mesh", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-    mesh = stitch_boundary_vertices(mesh, stitch, &sr);
-    r.stitched_pairs += sr.merged_pairs;
-    r.collapsed_faces += sr.collapsed_faces;
-    r.stage_psnr.emplace_back("stitch 1", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-    mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
-    mesh = stitch_boundary_vertices(mesh, stitch, &sr);
-    r.stitched_pairs += sr.merged_pairs;
-    r.collapsed_faces += sr.collapsed_faces;
-    r.stage_psnr.emplace_back("stitch 2", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-    mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
-    require_some(mesh.num_faces(), "floater pruning");
-    r.stage_psnr.emplace_back("floaters", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
-  }
+  auto mesh = o.conversion == "grid" ? fused_grid_mesh(soup, targets, o, r) : stitched_mesh(soup, targets, o, r);
 
   // 4. Repair (grid: towards the soup's own normals as well as the frames).
   mesh = o.conversion == "grid" && o.repair_soup_normals > 0
              ? repair(mesh, with_soup_normals(soup, targets, o.raster), o, r)
              : repair(mesh, targets, o, r);
-  r.stage_psnr.emplace_back("repaired", psnr_over_views(on_device(mesh), targets, opaque_raster(o.raster)));
+  r.stage_psnr.emplace_back("repaired", mesh_psnr(mesh, targets, o));
   r.mesh_vertices = mesh.num_vertices();
   r.mesh_faces = mesh.num_faces();
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (o.conversion == "grid")
-    spdlog::info("opaque conversion (view grids): {} soup triangles -> {} grid faces over {} views -> {} fused -> "
-                 "mesh of {} vertices, {} faces ({} floater faces removed), {:.1f} s",
-                 r.soup_triangles, r.grid_faces, targets.size(), r.fused_faces, r.mesh_vertices, r.mesh_faces,
-                 r.floater_faces, r.seconds);
-  else
-    spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
-                 "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "
-                 "{:.1f} s",
-                 r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
-                 r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
-  std::string trail;
-  for (const auto& [stage, psnr] : r.stage_psnr) trail += fmt::format("{}{} {:.2f} dB", trail.empty() ? "" : ", ", stage, psnr);
-  spdlog::info("opaque conversion, PSNR over the fitted views after each stage: {}", trail);
+  log_conversion(r, o, targets.size());
   if (report) *report = r;
   return mesh;
 }
