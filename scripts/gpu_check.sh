@@ -8,18 +8,14 @@
 #   GPU_SKIP_TESTS=1 skips ctest; GPU_TARGETS limits the build.
 # Logs go to $OUT (or ./gpu_out); a summary table is printed last.
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 MODE="${1:-bench}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 PY="$(command -v python3)"
 summary=()
 source "$ROOT/scripts/stage_sizes.sh"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
+gpu_card
 t0=$(date +%s)
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$PY" ${GPU_CMAKE_ARGS:-} >"$OUT/configure.log" 2>&1 \
-  || { tail -40 "$OUT/configure.log"; echo "CONFIGURE FAILED"; exit 1; }
+gpu_configure ${GPU_CMAKE_ARGS:-}
 ninja -C "$BUILD" -k 0 ${GPU_TARGETS:-} >"$OUT/build.log" 2>&1; build_rc=$?
 summary+=("build rc=$build_rc in $(( $(date +%s) - t0 )) s")
 [ $build_rc -ne 0 ] && grep -E "error|FAILED" "$OUT/build.log" | head -30

@@ -8,22 +8,16 @@
 # CONC_SYNTH="16 96x160" (rooms, size), CONC_TRAIN_STEPS=40, CONC_GPU_TRAIN=1
 # also runs two small flat_train on the GPU side by side (device=cuda).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 AB_DIR="${AB_DIR:-$ROOT/.ab}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 BIN="${CONC_BIN_DIR:-/tmp/flat_conc}"; rm -rf "$BIN"
 nproc; nvidia-smi --query-gpu=name --format=csv,noheader
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:--DFLAT_CUTLASS=OFF} \
-  >"$OUT/configure.log" 2>&1 || { tail -40 "$OUT/configure.log"; exit 1; }
-source "$ROOT/scripts/gpu_sync_mtimes.sh"
+gpu_configure ${GPU_CMAKE_ARGS:--DFLAT_CUTLASS=OFF}
 names=(base)
 build_variant() {  # $1: name
   local t0; t0=$(date +%s)
   sync_mtimes "$ROOT" "$BUILD"
-  ninja -C "$BUILD" flat_synth flat_latents flat_train >>"$OUT/build.log" 2>&1 ||
-    { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_build flat_synth flat_latents flat_train
   mkdir -p "$BIN/$1"; cp "$BUILD/flat_synth" "$BUILD/flat_latents" "$BUILD/flat_train" "$BIN/$1/"
   echo "== variant $1 built in $(( $(date +%s) - t0 )) s"
 }

@@ -25,9 +25,7 @@
 # the step-0 gradient norms (with precision=fp32 and NVIDIA_TF32_OVERRIDE=0
 # they agree to ~1e-6; TF32 convolutions alone leave ~2e-4).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 NGPU=$(nvidia-smi -L | wc -l)
 NPROCS="${DP_NPROCS:-1 $NGPU}"
 STEPS="${DP_STEPS:-30}"

@@ -9,19 +9,13 @@
 # on the base build. Usage there (repo root; .deps/glm and the patches carried):
 #   AB_DIR=.ab AB_PATCHES=sync DP_PARTS=scaling DP_STEPS=60 DP_SKIP=10 bash scripts/gpu_dp_ab.sh
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 AB_DIR="${AB_DIR:-$ROOT/.ab}"
 t0=$(date +%s)
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} \
-  >"$OUT/configure.log" 2>&1 || { tail -40 "$OUT/configure.log"; exit 1; }
-source "$ROOT/scripts/gpu_sync_mtimes.sh"
+gpu_configure ${GPU_CMAKE_ARGS:-}
 tests=(); for t in ${AB_TESTS:-}; do tests+=("tests/flat_test_$t"); done
 sync_mtimes "$ROOT" "$BUILD"
-ninja -C "$BUILD" flat_train flat_synth flat_latents flat_bench "${tests[@]}" >"$OUT/build.log" 2>&1 ||
-  { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+gpu_build flat_train flat_synth flat_latents flat_bench "${tests[@]}"
 echo "== base built in $(( $(date +%s) - t0 )) s"
 for t in ${AB_TESTS:-}; do
   "$BUILD/tests/flat_test_$t" "[cuda]" >"$OUT/test_cuda_$t.log" 2>&1
@@ -32,7 +26,7 @@ DP_TAG=_base bash "$ROOT/scripts/gpu_data_parallel.sh" | grep -vE "^== end"
 for p in ${AB_PATCHES:-}; do
   (cd "$ROOT" && patch -p1 -s <"$AB_DIR/$p.patch") || { echo "patch $p does not apply"; exit 1; }
   sync_mtimes "$ROOT" "$BUILD"
-  ninja -C "$BUILD" flat_train >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | tail -30; exit 1; }
+  gpu_build flat_train
   DP_TAG=_$p DP_PARTS="${DP_PARTS_AB:-${DP_PARTS:-scaling equivalence kill}}" bash "$ROOT/scripts/gpu_data_parallel.sh" |
     grep -vE "^== (end|data-parallel)"
 done

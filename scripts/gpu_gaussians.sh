@@ -10,13 +10,11 @@
 # with the log's tail (SKIP_GSPLAT=1: ours only).
 # Logs and tables go to $OUT; GPU_BUILD_DIR is shared with scripts/gpu_recipe.sh.
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 T0=$(date +%s)
 say() { echo "[gaussians $(( $(date +%s) - T0 )) s] $*"; }
 cd "$ROOT"
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+gpu_card
 
 GS_PID=""
 if [ -d "$ROOT/.deps/wheels" ] && [ "${SKIP_GSPLAT:-0}" != 1 ]; then
@@ -47,13 +45,10 @@ print('gsplat', gsplat.__version__, 'built:', _C is not None); sys.exit(0 if _C 
   GS_PID=$!
 fi
 
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
-  || { tail -30 "$OUT/configure.log"; exit 1; }
+gpu_configure -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF
 # GPU_TESTS: the suites whose [cuda] cases run (default: the two Gaussian rasterizers).
 read -r -a SUITES <<< "${GPU_TESTS:-flat_test_gaussians flat_test_surfels}"
-ninja -C "$BUILD" -j "${BUILD_JOBS:-12}" "${SUITES[@]}" flat_bench >"$OUT/build.log" 2>&1 \
-  || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+gpu_build -j "${BUILD_JOBS:-12}" "${SUITES[@]}" flat_bench
 say "built"
 for n in "${SUITES[@]}"; do
   t="$(find "$BUILD" -name "$n" -type f | head -1)"

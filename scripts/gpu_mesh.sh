@@ -11,23 +11,18 @@
 # Usage on the GPU machine (repo root, .deps carried): bash scripts/gpu_mesh.sh chain|paper|all
 # Logs, metrics and PNG grids go to $OUT.
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 PHASE="${1:-all}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 D="$ROOT/runs/mesh"
 CHAIN_STEPS="${MESH_CHAIN_STEPS:-2000}"
 T0=$(date +%s)
 note() { echo "[mesh $(( $(date +%s) - T0 )) s] $1" | tee -a "$OUT/notes.txt"; }
 cd "$ROOT"
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+gpu_card
 
 if [ ! -x "$BUILD/flat_mesh" ]; then
-  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF \
-    -DFLAT_CUTLASS=OFF -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
-    || { tail -30 "$OUT/configure.log"; exit 1; }
-  ninja -C "$BUILD" flat_synth flat_latents flat_train flat_infer flat_mesh >"$OUT/build.log" 2>&1 \
-    || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_configure -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF
+  gpu_build flat_synth flat_latents flat_train flat_infer flat_mesh
   note "built"
 fi
 grid_png() { python3 "$ROOT/scripts/safetensors_to_png.py" "$1/renders/compare.safetensors" "$OUT/$2.png" ${3:-} >/dev/null; }

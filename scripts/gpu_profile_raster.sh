@@ -17,23 +17,16 @@
 #   RASTER_CUTLASS=ON builds the decoder's CUTLASS convs too (off: the raster
 #   bench needs none of them, and they take most of the build).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 W="${RASTER_WORK_DIR:-/tmp/flat_raster_workloads}"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
+gpu_card
 t0=$(date +%s)
 targets="flat_bench"
 [ "${RASTER_TESTS:-0}" = 1 ] && targets="$targets flat_test_render flat_test_bench"
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
-  -DFLAT_CUTLASS="${RASTER_CUTLASS:-OFF}" \
-  ${RASTER_NCU_SOURCE:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
-  || { tail -40 "$OUT/configure.log"; exit 1; }
-source "$ROOT/scripts/gpu_sync_mtimes.sh"
+gpu_configure -DFLAT_CUTLASS="${RASTER_CUTLASS:-OFF}" ${RASTER_NCU_SOURCE:+-DCMAKE_CUDA_FLAGS=-lineinfo}
 sync_mtimes "$ROOT" "$BUILD"
-ninja -C "$BUILD" $targets >"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+gpu_build $targets
 echo "== built $targets in $(( $(date +%s) - t0 )) s"
 B="$BUILD/flat_bench"
 if [ "${RASTER_TESTS:-0}" = 1 ]; then

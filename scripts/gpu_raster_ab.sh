@@ -17,24 +17,17 @@
 # Output: a summary at the end (times, profiles, test result) and every log
 # in $OUT/ab_logs.tgz (the device tool returns at most 8 files).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-FINAL_OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$FINAL_OUT"
-OUT=/tmp/flat_ab_logs; rm -rf "$OUT"; mkdir -p "$OUT"
-trap 'tar czf "$FINAL_OUT/ab_logs.tgz" -C "$OUT" .' EXIT
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
+gpu_archive_logs ab_logs
 AB_DIR="${AB_DIR:-$ROOT/.ab}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 BIN="${AB_BIN_DIR:-/tmp/flat_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
 WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
 ROUNDS="${AB_ROUNDS:-2}"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_CUTLASS=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" \
-  ${AB_NCU:+-DCMAKE_CUDA_FLAGS=-lineinfo} >"$OUT/configure.log" 2>&1 \
-  || { tail -40 "$OUT/configure.log"; exit 1; }
-source "$ROOT/scripts/gpu_sync_mtimes.sh"
+gpu_card
+gpu_configure -DFLAT_CUTLASS=OFF ${AB_NCU:+-DCMAKE_CUDA_FLAGS=-lineinfo}
 names=(base)
 run_tests() {  # $1: index
-  ninja -C "$BUILD" flat_test_render flat_test_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_build flat_test_render flat_test_bench
   (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed|FAILED" \
     >"$OUT/test_render_$1.log"; echo "== render tests (variant $1) rc=${PIPESTATUS[0]}"; tail -1 "$OUT/test_render_$1.log")
   (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -1)
@@ -42,7 +35,7 @@ run_tests() {  # $1: index
 build_variant() {  # $1: index
   local t0; t0=$(date +%s)
   sync_mtimes "$ROOT" "$BUILD"
-  ninja -C "$BUILD" flat_bench >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_build flat_bench
   cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
   echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
   [ "${RASTER_TESTS:-0}" = each ] && run_tests "$1"

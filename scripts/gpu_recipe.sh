@@ -26,10 +26,8 @@
 # (it checkpoints and stops; flat_eval then reads the newest checkpoint).
 # Logs and tables go to $OUT; a summary is printed last.
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 PHASE="${1:-data}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 R="$ROOT/runs/recipe"
 ROOMS="${RECIPE_ROOMS:-256}"; VAL="${RECIPE_VAL_ROOMS:-16}"; FRAMES="${RECIPE_FRAMES:-49}"; SIZE=176x320
 DIM="${RECIPE_DIM:-32}"
@@ -45,14 +43,11 @@ T0=$(date +%s)
 summary=()
 note() { summary+=("$(printf '%4d s  %s' $(( $(date +%s) - T0 )) "$1")"); echo "[recipe $(( $(date +%s) - T0 )) s] $1"; }
 cd "$ROOT"
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+gpu_card
 
 if [ "$PHASE" = "data" ]; then
-  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF \
-    -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$OUT/configure.log" 2>&1 \
-    || { tail -30 "$OUT/configure.log"; exit 1; }
-  ninja -C "$BUILD" flat_synth flat_latents flat_train flat_eval >"$OUT/build.log" 2>&1 \
-    || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_configure -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF
+  gpu_build flat_synth flat_latents flat_train flat_eval
   note "built"
   rm -rf "$R"; mkdir -p "$R/data"
   # Rooms in parallel batches (each process 2 threads: unbounded ones starve each other).

@@ -25,9 +25,7 @@
 #   -DFLAT_CUTLASS=OFF: every conv through cuDNN, a shorter build).
 # Logs and the summary go to $OUT (or ./gpu_out).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
-BUILD="${BUILD:-$ROOT/build-gpu}"
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
 W="${W:-/tmp/rehearsal}"
 PHASES="${PHASES:-build data import latents train eval mesh}"
 NPROC="${NPROC:-$(nvidia-smi -L 2>/dev/null | wc -l)}"
@@ -52,9 +50,8 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee -a "$SUMMAR
 note "commit ${FLAT_COMMIT:-unknown}, $(date -u +%F), NPROC=$NPROC, steps $S1/$S2/$S3/$S4, clips $N_RE+$N_DL train, $N_VRE+$N_VDL held out, $FRAMES frames"
 
 if has build; then
-  timed "configure" "$OUT/configure.log" cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release \
-    -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" \
-    -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} || { tail -30 "$OUT/configure.log"; exit 1; }
+  timed "configure" "$OUT/configure.log" gpu_cmake -DFLAT_BUILD_TESTS=OFF ${GPU_CMAKE_ARGS:-} ||
+    { tail -30 "$OUT/configure.log"; exit 1; }
   timed "build" "$OUT/build.log" ninja -C "$BUILD" flat_synth flat_import flat_latents flat_train flat_eval flat_infer \
     flat_mesh || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
 fi

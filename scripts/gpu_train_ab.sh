@@ -17,28 +17,22 @@
 # of its variant. Output: a summary table (step as trained, it/s, LPIPS alone,
 # peak, by part) and every log in $OUT/train_ab_logs.tgz.
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-FINAL_OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$FINAL_OUT"
-OUT=/tmp/flat_train_ab_logs; rm -rf "$OUT"; mkdir -p "$OUT"
-trap 'tar czf "$FINAL_OUT/train_ab_logs.tgz" -C "$OUT" .' EXIT
+source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
+gpu_archive_logs train_ab_logs
 AB_DIR="${AB_DIR:-$ROOT/.ab}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 BIN="${AB_BIN_DIR:-/tmp/flat_train_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
 DATA="${AB_DATA_DIR:-/tmp/flat_train_ab_data}"
 STAGES="${AB_STAGES:-1}"
 ROUNDS="${AB_ROUNDS:-1}"
 STEPS="${AB_STEPS:-10}"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/gpu.txt"
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF \
-  -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" ${GPU_CMAKE_ARGS:-} \
-  >"$OUT/configure.log" 2>&1 || { tail -40 "$OUT/configure.log"; exit 1; }
-source "$ROOT/scripts/gpu_sync_mtimes.sh"
+gpu_card
+gpu_configure ${GPU_CMAKE_ARGS:-}
 source "$ROOT/scripts/stage_sizes.sh"
 names=(base)
 build_variant() {  # $1: index; $2: extra targets
   local t0; t0=$(date +%s)
   sync_mtimes "$ROOT" "$BUILD"
-  ninja -C "$BUILD" flat_bench $2 >>"$OUT/build.log" 2>&1 || { grep -E "error|FAILED" "$OUT/build.log" | head -30; exit 1; }
+  gpu_build flat_bench $2
   cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
   rm -rf "$BIN/configs_$1"; cp -a "$ROOT/configs" "$BIN/configs_$1"
   echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
