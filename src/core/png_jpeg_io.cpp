@@ -123,6 +123,22 @@ struct PngReadGuard {
   ~PngReadGuard() { png_destroy_read_struct(&png, info ? &info : nullptr, nullptr); }
 };
 
+// The info struct beside a libpng reader or writer (`what`) just created;
+// false with `error` set when either could not be made. Called before
+// setjmp, which must stay in the function that calls libpng.
+bool with_info(png_structp png, png_infop& info, const char* what, std::string& error) {
+  if (!png) {
+    error = std::string("cannot create a libpng ") + what + " (out of memory?)";
+    return false;
+  }
+  info = png_create_info_struct(png);
+  if (!info) {
+    error = "cannot create a libpng info struct (out of memory?)";
+    return false;
+  }
+  return true;
+}
+
 struct PngImage {
   int64_t width = 0, height = 0, channels = 0;
   int bit_depth = 8;
@@ -137,15 +153,7 @@ bool decode_png(const std::vector<unsigned char>& bytes, PngImage& out, std::str
   PngSource source{bytes.data(), bytes.size(), 0};
   std::vector<png_bytep> row_pointers;
   guard.png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &failure, png_error_fn, png_warning_fn);
-  if (!guard.png) {
-    error = "cannot create a libpng reader (out of memory?)";
-    return false;
-  }
-  guard.info = png_create_info_struct(guard.png);
-  if (!guard.info) {
-    error = "cannot create a libpng info struct (out of memory?)";
-    return false;
-  }
+  if (!with_info(guard.png, guard.info, "reader", error)) return false;
   if (setjmp(failure.jump)) {
     error = failure.message;
     return false;
@@ -248,15 +256,7 @@ bool encode_png(const std::vector<unsigned char>& rows, int64_t width, int64_t h
   PngWriteGuard guard;
   const size_t row_bytes = size_t(width * channels * (bit_depth / 8));
   guard.png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &failure, png_error_fn, png_warning_fn);
-  if (!guard.png) {
-    error = "cannot create a libpng writer (out of memory?)";
-    return false;
-  }
-  guard.info = png_create_info_struct(guard.png);
-  if (!guard.info) {
-    error = "cannot create a libpng info struct (out of memory?)";
-    return false;
-  }
+  if (!with_info(guard.png, guard.info, "writer", error)) return false;
   if (setjmp(failure.jump)) {
     error = failure.message;
     return false;

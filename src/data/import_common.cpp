@@ -55,7 +55,15 @@ std::unique_ptr<StagedDir> begin_import(const std::string& out_dir, bool overwri
   return std::make_unique<StagedDir>(out_dir, overwrite);
 }
 
-void finish_import(Scene& scene, StagedDir& staged) {
+void add_import_frame(Scene& scene, int64_t index, SceneFrame frame, const at::Tensor& rgb, GeometryImport& geometry,
+                      int64_t source_height, int64_t source_width, const Distortion& distortion) {
+  frame.image = write_import_image(scene, index, rgb);
+  geometry.attach(scene, index, frame, source_height, source_width, distortion);
+  scene.frames.push_back(std::move(frame));
+}
+
+void finish_import(Scene& scene, const GeometryImport& geometry, StagedDir& staged) {
+  geometry.finish(scene);
   write_scene_json(scene);
   staged.commit();
   scene.dir = staged.target();

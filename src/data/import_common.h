@@ -9,6 +9,7 @@
 #include <ATen/ATen.h>
 
 #include "flat/core/staged_dir.h"
+#include "flat/data/geometry_maps.h"
 #include "flat/data/importers.h"
 #include "flat/data/scene.h"
 
@@ -36,8 +37,16 @@ at::Tensor rigid(const at::Tensor& c2w, const std::string& where);
 // counts as absent). Call it after the inputs are parsed, before frames are written.
 std::unique_ptr<StagedDir> begin_import(const std::string& out_dir, bool overwrite);
 
-// Writes scene.json into the staging folder, moves the folder to its target
-// (scene.dir becomes the target) and logs the principal-axes focus of the cameras.
-void finish_import(Scene& scene, StagedDir& staged);
+// Frame `index` appended to the scene: its image written (rgb (3,H,W) as
+// read), its depth and normal maps attached (geometry_maps.h: the source
+// image was source_height x source_width, `distortion` removed at the output
+// size). frame.intrinsics must be set.
+void add_import_frame(Scene& scene, int64_t index, SceneFrame frame, const at::Tensor& rgb, GeometryImport& geometry,
+                      int64_t source_height, int64_t source_width, const Distortion& distortion = {});
+
+// Records the scene's maps (GeometryImport::finish), writes scene.json into
+// the staging folder, moves the folder to its target (scene.dir becomes the
+// target) and logs the principal-axes focus of the cameras.
+void finish_import(Scene& scene, const GeometryImport& geometry, StagedDir& staged);
 
 }  // namespace flat::data::detail

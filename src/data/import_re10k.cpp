@@ -117,14 +117,11 @@ Scene import_re10k(const std::string& camera_file, const std::string& frames_dir
     frame.intrinsics = at::tensor({l.values[0], l.values[1], l.values[2], l.values[3]}, at::kDouble).to(at::kFloat);
     frame.c2w = detail::rigid(c2w, where);
     frame.timestamp = std::stod(l.timestamp);
-    frame.image = detail::write_import_image(scene, int64_t(k), rgb);
-    geometry.attach(scene, int64_t(k), frame, rgb.size(1), rgb.size(2));
-    scene.frames.push_back(std::move(frame));
+    detail::add_import_frame(scene, int64_t(k), std::move(frame), rgb, geometry, rgb.size(1), rgb.size(2));
     progress.step();
   }
   progress.finish();
-  geometry.finish(scene);
-  detail::finish_import(scene, *staged);
+  detail::finish_import(scene, geometry, *staged);
   return scene;
 }
 

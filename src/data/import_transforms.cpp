@@ -187,14 +187,12 @@ Scene import_transforms_json(const std::string& source, const std::string& out_d
     SceneFrame frame;
     frame.intrinsics = at::tensor({c.fx / c.w, c.fy / c.h, c.cx / c.w, c.cy / c.h}, at::kDouble).to(at::kFloat);
     frame.c2w = detail::rigid(c2w, where + ": 'transform_matrix'");
-    frame.image = detail::write_import_image(scene, int64_t(i), rgb);
-    geometry.attach(scene, int64_t(i), frame, H, W, c.dist);  // resized and undistorted as the image
-    scene.frames.push_back(std::move(frame));
+    // Its maps resized and undistorted as the image.
+    detail::add_import_frame(scene, int64_t(i), std::move(frame), rgb, geometry, H, W, c.dist);
     progress.step();
   }
   progress.finish();
-  geometry.finish(scene);
-  detail::finish_import(scene, *staged);
+  detail::finish_import(scene, geometry, *staged);
   return scene;
 }
 
