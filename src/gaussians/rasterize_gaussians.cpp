@@ -18,12 +18,19 @@ namespace {
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
+using Call = render::RasterCall<CompositingConstants>;
+
+GaussianInputs inputs_of(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
+                         const at::Tensor& colors, const at::Tensor& opacities, const Call& c) {
+  return {means,        scales,       rotations,          colors,   opacities, c.views.w2c,
+          c.views.K,    c.views.background, c.height, c.width, c.k,     c.value_stats};
+}
+
 struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGaussiansFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& means, const at::Tensor& scales,
                                const at::Tensor& rotations, const at::Tensor& colors, const at::Tensor& opacities,
-                               const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& background,
-                               const at::Tensor& value_stats, int64_t height, int64_t width, CompositingConstants k) {
-    GaussianInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, k, value_stats};
+                               const Call& call) {
+    const GaussianInputs in = inputs_of(means, scales, rotations, colors, opacities, call);
     GaussianOutputs out;
     if (means.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -38,17 +45,16 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
     } else {
       out = cpu::forward(in);
     }
-    ctx->save_for_backward({means, scales, rotations, colors, opacities, w2c, K, background});
-    render::save_constants(ctx, k, height, width);
+    ctx->save_for_backward({means, scales, rotations, colors, opacities});
+    render::save_call(ctx, call);
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.median_depth, out.max_weight};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto c = render::load_constants<CompositingConstants>(ctx);
-    GaussianInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
-                      c.height, c.width, c.k, at::Tensor()};
+    const GaussianInputs in =
+        inputs_of(saved[0], saved[1], saved[2], saved[3], saved[4], render::load_call<CompositingConstants>(ctx));
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
     const at::Tensor g_rgb = render::grad_or_zero(grads[0], opts, V, 3, H, W);
@@ -59,14 +65,13 @@ struct RasterizeGaussiansFunction : public torch::autograd::Function<RasterizeGa
 #if FLAT_WITH_CUDA
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad: nothing to compute.
-      if (views.empty()) return variable_list(12);
+      if (views.empty()) return variable_list(6);
       g = cuda::backward(in, views, g_rgb, g_alpha, g_depth);
 #endif
     } else {
       g = cpu::backward(in, g_rgb, g_alpha, g_depth);
     }
-    return {g.means,      g.scales,     g.rotations,  g.colors,     g.opacities,  at::Tensor(),
-            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+    return {g.means, g.scales, g.rotations, g.colors, g.opacities, at::Tensor()};  // the call gets none
   }
 };
 
@@ -100,31 +105,15 @@ render::RenderOutput rasterize_gaussians(const at::Tensor& means, const at::Tens
   settings.check();
   const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(means, scales, rotations, colors, opacities, host_cams, height, width);
-  const auto dev = means.device();
   const auto opts = render::compute_options(means);
-  auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
-  GaussianInputs in;
-  in.means = prep(means);
-  in.scales = prep(scales);
-  in.rotations = prep(rotations);
-  in.colors = prep(colors);
-  in.opacities = prep(opacities);
-  const render::HostViews views = render::host_views(host_cams, height, width, settings, opts);
-  in.w2c = views.w2c;
-  in.K = views.K;
-  in.background = views.background;
-  in.height = height;
-  in.width = width;
-  in.k = settings.constants();
+  const std::vector<at::Tensor> t = render::to_compute({means, scales, rotations, colors, opacities}, opts);
+  Call call = render::make_call(host_cams, height, width, settings, opts, settings.constants());
   // The value checks' statistics: on the GPU copied to the host without a
   // sync, checked at the CUDA back end's first wait for the device.
-  in.value_stats = in.means.size(0) > 0 ? render::to_host_async(render::input_stats(
-                                              {in.means, in.scales, in.rotations, in.colors, in.opacities},
-                                              in.opacities, in.scales, in.rotations))
-                                        : at::empty({0}, at::kDouble);
-  if (!dev.is_cuda()) check_input_values(in);  // else at the CUDA back end's first sync
-  auto outs = RasterizeGaussiansFunction::apply(in.means, in.scales, in.rotations, in.colors, in.opacities, in.w2c,
-                                                in.K, in.background, in.value_stats, height, width, in.k);
+  call.value_stats = means.size(0) > 0 ? render::to_host_async(render::input_stats(t, t[4], t[1], t[2]))
+                                       : at::empty({0}, at::kDouble);
+  if (!means.is_cuda()) check_input_values(inputs_of(t[0], t[1], t[2], t[3], t[4], call));
+  auto outs = RasterizeGaussiansFunction::apply(t[0], t[1], t[2], t[3], t[4], call);
   render::RenderOutput r;
   r.rgb = outs[0];
   r.alpha = outs[1];

@@ -33,6 +33,12 @@ at::TensorOptions compute_options(const at::Tensor& lead) {
   return at::TensorOptions().device(lead.device()).dtype(use_double ? at::kDouble : at::kFloat);
 }
 
+std::vector<at::Tensor> to_compute(const std::vector<at::Tensor>& inputs, const at::TensorOptions& opts) {
+  std::vector<at::Tensor> out;
+  for (const at::Tensor& t : inputs) out.push_back(t.to(opts).contiguous());
+  return out;
+}
+
 HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width,
                      const CompositingSettings& settings,
                      const at::TensorOptions& opts) {

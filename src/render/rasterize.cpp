@@ -57,14 +57,23 @@ RasterConstants to_constants(const RasterSettings& s) {
   return k;
 }
 
+using Call = RasterCall<RasterConstants>;
+
+// vertices as (N,9) rows.
+RasterInputs inputs_of(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                       const at::Tensor& sigmas, const Call& c, int64_t views_per_bin) {
+  RasterInputs in{vertices.reshape({vertices.size(0), 9}), colors, opacities, sigmas, c.views.w2c, c.views.K,
+                  c.views.background, c.height, c.width, c.k};
+  in.views_per_bin = views_per_bin;
+  in.value_stats = c.value_stats;
+  return in;
+}
+
 struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& vertices, const at::Tensor& colors,
-                               const at::Tensor& opacities, const at::Tensor& sigmas, const at::Tensor& w2c,
-                               const at::Tensor& K, const at::Tensor& background, const at::Tensor& value_stats,
-                               int64_t height, int64_t width, RasterConstants k, int64_t views_per_bin) {
-    RasterInputs in{vertices.reshape({vertices.size(0), 9}), colors, opacities, sigmas, w2c, K, background, height, width, k};
-    in.value_stats = value_stats;
-    in.views_per_bin = views_per_bin;
+                               const at::Tensor& opacities, const at::Tensor& sigmas, const Call& call,
+                               int64_t views_per_bin) {
+    const RasterInputs in = inputs_of(vertices, colors, opacities, sigmas, call, views_per_bin);
     RasterOutputs out;
     if (vertices.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -79,17 +88,17 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
     } else {
       out = cpu::forward(in);
     }
-    ctx->save_for_backward({vertices, colors, opacities, sigmas, w2c, K, background});
-    save_constants(ctx, k, height, width);
+    ctx->save_for_backward({vertices, colors, opacities, sigmas});
+    save_call(ctx, call);
+    ctx->saved_data["views_per_bin"] = views_per_bin;
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.normal, out.median_depth, out.max_weight};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto c = load_constants<RasterConstants>(ctx);
-    RasterInputs in{saved[0].reshape({saved[0].size(0), 9}), saved[1], saved[2], saved[3], saved[4], saved[5], saved[6],
-                    c.height, c.width, c.k};
+    const RasterInputs in = inputs_of(saved[0], saved[1], saved[2], saved[3], load_call<RasterConstants>(ctx),
+                                      ctx->saved_data["views_per_bin"].toInt());
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.vertices.options();
     const at::Tensor g_rgb = grad_or_zero(grads[0], opts, V, 3, H, W), g_alpha = grad_or_zero(grads[1], opts, V, 1, H, W);
@@ -101,14 +110,14 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad (only the
       // cameras did, which get no gradient): nothing to compute.
-      if (views.empty()) return variable_list(12);
+      if (views.empty()) return variable_list(6);
       g = cuda::backward(in, views, g_rgb, g_alpha, g_depth, g_normal);
 #endif
     } else {
       g = cpu::backward(in, g_rgb, g_alpha, g_depth, g_normal);
     }
-    return {g.vertices.view_as(saved[0]), g.colors, g.opacities, g.sigmas, at::Tensor(), at::Tensor(),
-            at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor(), at::Tensor()};
+    // The call and views_per_bin get none.
+    return {g.vertices.view_as(saved[0]), g.colors, g.opacities, g.sigmas, at::Tensor(), at::Tensor()};
   }
 };
 
@@ -133,38 +142,33 @@ void check_input_values(const RasterInputs& in) {
 
 namespace {
 
-// Checked inputs in the back ends' dtype and layout.
-RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
-                            const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
-                            const RasterSettings& settings) {
+// Checked inputs in the back ends' dtype and layout, and the call.
+struct Prepared {
+  at::Tensor vertices, colors, opacities, sigmas;
+  Call call;
+  int64_t views_per_bin = 2;
+  RasterInputs inputs() const { return inputs_of(vertices, colors, opacities, sigmas, call, views_per_bin); }
+};
+
+Prepared prepare(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
+                 const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
+                 const RasterSettings& settings) {
   settings.check();
   const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(vertices, colors, opacities, sigmas, host_cams, height, width);
-  const auto dev = vertices.device();
   const auto opts = compute_options(vertices);
   auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
-  RasterInputs in;
-  in.vertices = prep(vertices);
-  in.colors = prep(colors);
-  in.opacities = prep(opacities);
-  in.sigmas = prep(sigmas);
-  const HostViews views = host_views(host_cams, height, width, settings, opts);
-  in.w2c = views.w2c;
-  in.K = views.K;
-  in.background = views.background;
-  in.height = height;
-  in.width = width;
-  in.k = to_constants(settings);
-  in.views_per_bin = settings.views_per_bin;
+  Prepared p{prep(vertices), prep(colors), prep(opacities), prep(sigmas),
+             make_call(host_cams, height, width, settings, opts, to_constants(settings)), settings.views_per_bin};
   // The value checks' statistics: on the GPU copied to the host without a
   // sync, checked at the CUDA back end's first wait for the device
   // (cuda::forward), so the GPU does not idle through the call's setup.
-  in.value_stats = in.vertices.size(0) > 0
-                       ? to_host_async(input_stats({in.vertices, in.colors, in.opacities, in.sigmas}, in.opacities,
-                                                   in.sigmas))
-                       : at::empty({0}, at::kDouble);
-  if (!dev.is_cuda()) check_input_values(in);  // else at the CUDA back end's first sync
-  return in;
+  p.call.value_stats = p.vertices.size(0) > 0
+                           ? to_host_async(input_stats({p.vertices, p.colors, p.opacities, p.sigmas}, p.opacities,
+                                                       p.sigmas))
+                           : at::empty({0}, at::kDouble);
+  if (!vertices.is_cuda()) check_input_values(p.inputs());  // else at the CUDA back end's first sync
+  return p;
 }
 
 }  // namespace
@@ -172,9 +176,8 @@ RasterInputs prepare_inputs(const at::Tensor& vertices, const at::Tensor& colors
 RenderOutput rasterize(const at::Tensor& vertices, const at::Tensor& colors, const at::Tensor& opacities,
                        const at::Tensor& sigmas, const camera::Cameras& cams, int64_t height, int64_t width,
                        const RasterSettings& settings) {
-  const RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
-  auto outs = RasterizeFunction::apply(in.vertices, in.colors, in.opacities, in.sigmas, in.w2c, in.K, in.background,
-                                       in.value_stats, height, width, in.k, in.views_per_bin);
+  const Prepared p = prepare(vertices, colors, opacities, sigmas, cams, height, width, settings);
+  auto outs = RasterizeFunction::apply(p.vertices, p.colors, p.opacities, p.sigmas, p.call, p.views_per_bin);
   return RenderOutput{outs[0], outs[1], outs[2], outs[3], outs[4], outs[5]};
 }
 
@@ -186,8 +189,7 @@ std::vector<ViewLoad> measure_raster_load(const at::Tensor& vertices, const at::
   std::vector<ViewLoad> load;
 #if FLAT_WITH_CUDA
   at::NoGradGuard no_grad;
-  RasterInputs in = prepare_inputs(vertices, colors, opacities, sigmas, cams, height, width, settings);
-  in.vertices = in.vertices.reshape({in.vertices.size(0), 9});
+  const RasterInputs in = prepare(vertices, colors, opacities, sigmas, cams, height, width, settings).inputs();
   std::vector<at::Tensor> views;
   cuda::forward(in, false, views, &load);
 #else

@@ -22,12 +22,19 @@ namespace {
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
+using Call = render::RasterCall<CompositingConstants>;
+
+SurfelInputs inputs_of(const at::Tensor& means, const at::Tensor& scales, const at::Tensor& rotations,
+                       const at::Tensor& colors, const at::Tensor& opacities, const Call& c) {
+  return {means, scales, rotations, colors, opacities, c.views.w2c, c.views.K, c.views.background,
+          c.height, c.width, c.k};
+}
+
 struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurfelsFunction> {
   static variable_list forward(AutogradContext* ctx, const at::Tensor& means, const at::Tensor& scales,
                                const at::Tensor& rotations, const at::Tensor& colors, const at::Tensor& opacities,
-                               const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& background,
-                               int64_t height, int64_t width, CompositingConstants k) {
-    SurfelInputs in{means, scales, rotations, colors, opacities, w2c, K, background, height, width, k};
+                               const Call& call) {
+    const SurfelInputs in = inputs_of(means, scales, rotations, colors, opacities, call);
     SurfelOutputs out;
     if (means.is_cuda()) {
 #if FLAT_WITH_CUDA
@@ -42,17 +49,16 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
     } else {
       out = cpu::forward(in);
     }
-    ctx->save_for_backward({means, scales, rotations, colors, opacities, w2c, K, background});
-    render::save_constants(ctx, k, height, width);
+    ctx->save_for_backward({means, scales, rotations, colors, opacities});
+    render::save_call(ctx, call);
     ctx->mark_non_differentiable({out.median_depth, out.max_weight});
     return {out.rgb, out.alpha, out.depth, out.normal, out.median_depth, out.max_weight, out.distortion};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto c = render::load_constants<CompositingConstants>(ctx);
-    SurfelInputs in{saved[0], saved[1], saved[2], saved[3], saved[4], saved[5], saved[6], saved[7],
-                    c.height, c.width, c.k};
+    const SurfelInputs in =
+        inputs_of(saved[0], saved[1], saved[2], saved[3], saved[4], render::load_call<CompositingConstants>(ctx));
     const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
     const auto opts = in.means.options();
     auto grad_or_zero = [&](const at::Tensor& g, int64_t C) { return render::grad_or_zero(g, opts, V, C, H, W); };
@@ -63,19 +69,13 @@ struct RasterizeSurfelsFunction : public torch::autograd::Function<RasterizeSurf
 #if FLAT_WITH_CUDA
       const auto views = ctx->saved_data["views"].toTensorVector();
       // No state was kept when no scene input required grad: nothing to compute.
-      if (views.empty()) return variable_list(11);
+      if (views.empty()) return variable_list(6);
       g = cuda::backward(in, views, up);
 #endif
     } else {
       g = cpu::backward(in, up);
     }
-    variable_list out(11);  // one per forward input
-    out[0] = g.means;
-    out[1] = g.scales;
-    out[2] = g.rotations;
-    out[3] = g.colors;
-    out[4] = g.opacities;
-    return out;
+    return {g.means, g.scales, g.rotations, g.colors, g.opacities, at::Tensor()};  // the call gets none
   }
 };
 
@@ -100,12 +100,12 @@ void check_inputs(const at::Tensor& means, const at::Tensor& scales, const at::T
                               "means, scales, rotations, colors and opacities", cams, height, width);
 }
 
-// Finite values, opacities in [0, 1], scales > 0, non-zero quaternions: one
-// reduction each, read with one host copy (a sync on the GPU).
-void check_values(const SurfelInputs& in) {
-  if (in.means.size(0) == 0) return;
-  const std::vector<at::Tensor> inputs = {in.means, in.scales, in.rotations, in.colors, in.opacities};
-  const at::Tensor stats = render::input_stats(inputs, in.opacities, in.scales, in.rotations).cpu();
+// Finite values, opacities in [0, 1], scales > 0, non-zero quaternions of
+// the inputs (means, scales, rotations, colors, opacities): one reduction
+// each, read with one host copy (a sync on the GPU).
+void check_values(const std::vector<at::Tensor>& inputs) {
+  if (inputs[0].size(0) == 0) return;
+  const at::Tensor stats = render::input_stats(inputs, inputs[4], inputs[1], inputs[2]).cpu();
   render::check_input_stats(stats.data_ptr<double>(), "rasterize_surfels", inputs,
                             {"means", "scales", "rotations", "colors", "opacities"}, "scales", true);
 }
@@ -120,23 +120,10 @@ render::RenderOutput rasterize_surfels(const at::Tensor& means, const at::Tensor
   const camera::Cameras host_cams = cams.to(at::kCPU);  // both back ends read them there
   check_inputs(means, scales, rotations, colors, opacities, host_cams, height, width);
   const auto opts = render::compute_options(means);
-  auto prep = [&](const at::Tensor& t) { return t.to(opts).contiguous(); };
-  SurfelInputs in;
-  in.means = prep(means);
-  in.scales = prep(scales);
-  in.rotations = prep(rotations);
-  in.colors = prep(colors);
-  in.opacities = prep(opacities);
-  const render::HostViews views = render::host_views(host_cams, height, width, settings, opts);
-  in.w2c = views.w2c;
-  in.K = views.K;
-  in.background = views.background;
-  in.height = height;
-  in.width = width;
-  in.k = settings.constants();
-  check_values(in);
-  auto outs = RasterizeSurfelsFunction::apply(in.means, in.scales, in.rotations, in.colors, in.opacities, in.w2c,
-                                              in.K, in.background, height, width, in.k);
+  const std::vector<at::Tensor> t = render::to_compute({means, scales, rotations, colors, opacities}, opts);
+  check_values(t);
+  const Call call = render::make_call(host_cams, height, width, settings, opts, settings.constants());
+  auto outs = RasterizeSurfelsFunction::apply(t[0], t[1], t[2], t[3], t[4], call);
   render::RenderOutput r;
   r.rgb = outs[0];
   r.alpha = outs[1];

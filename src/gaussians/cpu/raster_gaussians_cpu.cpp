@@ -91,8 +91,7 @@ GaussianOutputs forward_impl(const GaussianInputs& in) {
   out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     GaussianView<T> gv(in, v);
-    const ViewSums<T> sums =
-        composite_forward<T>(gv, gv.list.rects, gv.list.ids, in.width, HW, in.k, out.max_weight.data_ptr<T>());
+    const ViewSums<T> sums = composite_forward<T>(gv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
     render::cpu::write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth,
                                    at::Tensor(), out.median_depth);
   }
@@ -109,13 +108,13 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
     GaussianView<T> gv(in, view);
     gv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(gv, gv.list.rects, gv.list.ids, in.width, HW, in.k, scratch_max.data());
+    const ViewSums<T> fwd = composite_forward<T>(gv, in.width, HW, in.k, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, alpha).
     std::vector<T> G(HW * C);
     render::cpu::interleave_grad(g_rgb, view, 3, HW, C, 0, G);
     render::cpu::interleave_grad(g_depth, view, 1, HW, C, 3, G);
     render::cpu::interleave_grad(g_alpha, view, 1, HW, C, 4, G);
-    composite_backward<T>(gv, gv.list.rects, fwd, in.width, G, C, in.background.data_ptr<T>());
+    composite_backward<T>(gv, fwd, in.width, G, C, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -122,8 +122,7 @@ RasterOutputs forward_impl(const RasterInputs& in) {
   out.max_weight = at::zeros({in.vertices.size(0)}, in.vertices.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     TriangleView<T> tv(in, v);
-    const ViewSums<T> sums =
-        composite_forward<T>(tv, tv.list.rects, tv.list.ids, in.width, HW, in.k, out.max_weight.data_ptr<T>());
+    const ViewSums<T> sums = composite_forward<T>(tv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
     write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth, out.normal,
                       out.median_depth);
   }
@@ -140,14 +139,14 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
     TriangleView<T> tv(in, view);
     tv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(tv, tv.list.rects, tv.list.ids, in.width, HW, in.k, scratch_max.data());
+    const ViewSums<T> fwd = composite_forward<T>(tv, in.width, HW, in.k, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha).
     std::vector<T> G(HW * C);
     interleave_grad(g_rgb, view, 3, HW, C, 0, G);
     interleave_grad(g_depth, view, 1, HW, C, 3, G);
     interleave_grad(g_normal, view, 3, HW, C, 4, G);
     interleave_grad(g_alpha, view, 1, HW, C, 7, G);
-    composite_backward<T>(tv, tv.list.rects, fwd, in.width, G, C, in.background.data_ptr<T>());
+    composite_backward<T>(tv, fwd, in.width, G, C, in.background.data_ptr<T>());
   }
   return g;
 }

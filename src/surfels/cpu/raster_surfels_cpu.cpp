@@ -130,8 +130,7 @@ SurfelOutputs forward_impl(const SurfelInputs& in) {
   out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     SurfelView<T> sv(in, v);
-    const ViewSums<T> sums =
-        composite_forward<T>(sv, sv.list.rects, sv.list.ids, in.width, HW, in.k, out.max_weight.data_ptr<T>());
+    const ViewSums<T> sums = composite_forward<T>(sv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
     render::cpu::write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth,
                                    out.normal, out.median_depth);
     std::copy(sv.dist.begin(), sv.dist.end(), out.distortion.data_ptr<T>() + v * HW);
@@ -148,7 +147,7 @@ SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
     SurfelView<T> sv(in, view);
     sv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(sv, sv.list.rects, sv.list.ids, in.width, HW, in.k, scratch_max.data());
+    const ViewSums<T> fwd = composite_forward<T>(sv, in.width, HW, in.k, scratch_max.data());
     sv.t_final = &fwd.t_final;
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
     std::vector<T> G(HW * C);
@@ -157,7 +156,7 @@ SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads
     render::cpu::interleave_grad(grads.normal, view, 3, HW, C, 4, G);
     render::cpu::interleave_grad(grads.alpha, view, 1, HW, C, 7, G);
     render::cpu::interleave_grad(grads.distortion, view, 1, HW, C, 8, G);
-    composite_backward<T>(sv, sv.list.rects, fwd, in.width, G, C, in.background.data_ptr<T>());
+    composite_backward<T>(sv, fwd, in.width, G, C, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -95,7 +95,8 @@ struct ViewSums {
 // primitive-major (each entry updates the pixels of its rectangle in list
 // order), which is the order in which each pixel meets them. max_weight (by
 // input row) gets each primitive's largest blending weight. Prim, the
-// primitive's maths in this view, has for list entry r:
+// primitive's maths in this view, has its ViewList `list` and for list
+// entry r:
 //   Fragment                    what a pixel computes of it (with .alpha);
 //   kSums                       its channels: r, g, b, depth, then its own;
 //   fragment(r, x, y, f)        the fragment at pixel (x, y): whether it blends
@@ -105,8 +106,9 @@ struct ViewSums {
 //                               fragment's weight w, the transmittance in front
 //                               of it, whether it is the pixel's first).
 template <class T, class Prim>
-ViewSums<T> composite_forward(Prim& prim, const std::vector<PixelRect>& rects, const std::vector<int64_t>& ids,
-                              int64_t W, int64_t HW, const CompositingConstants& k, T* max_weight) {
+ViewSums<T> composite_forward(Prim& prim, int64_t W, int64_t HW, const CompositingConstants& k, T* max_weight) {
+  const std::vector<PixelRect>& rects = prim.list.rects;
+  const std::vector<int64_t>& ids = prim.list.ids;
   constexpr int C = Prim::kSums;
   ViewSums<T> s;
   s.stride = C;
@@ -233,8 +235,9 @@ struct BackToFront {
 //                                        weight, g_alpha dL/dalpha, Gp the pixel's G;
 //   finish(r)                            it has met all its pixels (chain to the inputs).
 template <class T, class Prim>
-void composite_backward(Prim& prim, const std::vector<PixelRect>& rects, const ViewSums<T>& fwd, int64_t W,
-                        const std::vector<T>& G, int C, const T* bg) {
+void composite_backward(Prim& prim, const ViewSums<T>& fwd, int64_t W, const std::vector<T>& G, int C,
+                        const T* bg) {
+  const std::vector<PixelRect>& rects = prim.list.rects;
   BackToFront<T> replay(fwd.t_final, C);
   std::vector<T> v(C);
   for (int64_t r = (int64_t)rects.size() - 1; r >= 0; --r) {

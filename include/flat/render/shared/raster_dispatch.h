@@ -70,6 +70,9 @@ void check_common_inputs(const std::string& fn, const std::vector<at::Tensor>& i
 // all-double CPU inputs run the reference in double (finite differences).
 at::TensorOptions compute_options(const at::Tensor& lead);
 
+// The inputs in `opts` (compute_options()), contiguous, in their order.
+std::vector<at::Tensor> to_compute(const std::vector<at::Tensor>& inputs, const at::TensorOptions& opts);
+
 // The cameras and background as both back ends read them: on the host (a few
 // hundred bytes; each check or small op on the GPU would cost a sync or a
 // launch) in the dtype of `opts`: w2c (V,4,4), K (V,4) pixel intrinsics fx,
@@ -79,6 +82,49 @@ struct HostViews {
 };
 HostViews host_views(const camera::Cameras& host_cams, int64_t height, int64_t width, const CompositingSettings& settings,
                      const at::TensorOptions& opts);
+
+// ---------------------------------------------------------------- autograd
+// What a rasterizer's autograd Function takes besides its differentiable
+// inputs, as one argument: the views, the image size, the constants K
+// (CompositingConstants, or the triangles' RasterConstants) and the value
+// checks' statistics (input_stats(), on the host; empty: nothing to check).
+template <class K>
+struct RasterCall {
+  HostViews views;
+  int64_t height = 0, width = 0;
+  K k;
+  at::Tensor value_stats;
+};
+
+// The call of checked settings k: the views of host_cams in the dtype of
+// `opts`, no statistics yet.
+template <class K>
+RasterCall<K> make_call(const camera::Cameras& host_cams, int64_t height, int64_t width,
+                        const CompositingSettings& settings, const at::TensorOptions& opts, const K& k) {
+  return {host_views(host_cams, height, width, settings, opts), height, width, k, at::Tensor()};
+}
+
+// Keeps the call in the autograd context for the backward (not the
+// statistics, which the forward has checked).
+template <class K>
+void save_call(torch::autograd::AutogradContext* ctx, const RasterCall<K>& call) {
+  ctx->saved_data["w2c"] = call.views.w2c;
+  ctx->saved_data["K"] = call.views.K;
+  ctx->saved_data["background"] = call.views.background;
+  save_constants(ctx, call.k, call.height, call.width);
+}
+
+template <class K>
+RasterCall<K> load_call(torch::autograd::AutogradContext* ctx) {
+  const SavedConstants<K> c = load_constants<K>(ctx);
+  RasterCall<K> call;
+  call.views = {ctx->saved_data["w2c"].toTensor(), ctx->saved_data["K"].toTensor(),
+                ctx->saved_data["background"].toTensor()};
+  call.height = c.height;
+  call.width = c.width;
+  call.k = c.k;
+  return call;
+}
 
 // ---------------------------------------------------------------- value checks
 // The value checks' statistics on the inputs' device, one reduction each:
