@@ -141,4 +141,36 @@ inline GradOutliers gradient_outliers(const torch::Tensor& got, const torch::Ten
   return {outlier.sum().item<int64_t>(), rel_error(got.index({keep}), ref.index({keep}))};
 }
 
+// The compositing rules every rasterizer shares, checked on its output.
+
+// A pile of n primitives over the image centre, in index order front to back
+// (opacity 0.5 each): the centre pixel saturates but stops before its
+// transmittance would fall below the default transmittance_min (1e-4; within
+// one step), the front primitive dominates and the deepest gets next to no
+// weight.
+inline void check_transmittance_floor(const render::RenderOutput& out, int64_t n) {
+  const int64_t H = out.alpha.size(2), W = out.alpha.size(3);
+  const float a = out.alpha[0][0][H / 2][W / 2].item<float>();
+  CHECK(a > 0.999f);
+  CHECK(a < 1.0f);
+  CHECK(1.0f - a >= 1e-4f * 0.49f);
+  CHECK(out.max_weight[0].item<float>() > 0.3f);
+  CHECK(out.max_weight[n - 1].item<float>() < 1e-3f);
+}
+
+// A rasterizer of a fixed scene into given cameras.
+using ViewsFn = std::function<render::RenderOutput(const camera::Cameras&)>;
+
+// Rendering all of `cams` at once equals rendering each view alone, bit for
+// bit: rgb, depth and (where the rasterizer has it) the distortion.
+inline void check_views_independent(const ViewsFn& render, const camera::Cameras& cams) {
+  const render::RenderOutput all = render(cams);
+  for (int64_t v = 0; v < cams.size(); ++v) {
+    const render::RenderOutput one = render(cams.index(torch::tensor({v}, torch::kLong)));
+    CHECK(torch::equal(one.rgb[0], all.rgb[v]));
+    CHECK(torch::equal(one.depth[0], all.depth[v]));
+    if (all.distortion.defined()) CHECK(torch::equal(one.distortion[0], all.distortion[v]));
+  }
+}
+
 }  // namespace flat::test
