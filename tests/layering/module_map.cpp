@@ -7,18 +7,12 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "layering/source_files.h"
+
 namespace fs = std::filesystem;
 
 namespace flat::layering {
 namespace {
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("cannot read " + path.string());
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 std::vector<std::string> read_lines(const fs::path& path) {
   std::istringstream in(read_text(path));
@@ -55,20 +49,6 @@ std::string deps_text(const ModuleMap& map, const std::string& m) {
 }
 
 std::string rel(const fs::path& p, const fs::path& root) { return p.lexically_relative(root).generic_string(); }
-
-bool is_code(const fs::path& p) {
-  static const std::set<std::string> ext = {".h", ".hpp", ".cuh", ".inl", ".cpp", ".cc", ".cu"};
-  return ext.count(p.extension().string()) > 0;
-}
-
-std::vector<fs::path> code_files(const fs::path& dir) {
-  std::vector<fs::path> out;
-  if (!fs::is_directory(dir)) return out;
-  for (const auto& e : fs::recursive_directory_iterator(dir))
-    if (e.is_regular_file() && is_code(e.path())) out.push_back(e.path());
-  std::sort(out.begin(), out.end());
-  return out;
-}
 
 // One #include "..." or <flat/...> of a file that names a module: as
 // "flat/<module>/..." (public) or "<module>/..." (private, under src/).
