@@ -102,7 +102,6 @@ template <class T>
 GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, const at::Tensor& g_alpha,
                             const at::Tensor& g_depth) {
   const int64_t HW = in.height * in.width;
-  constexpr int C = GaussianView<T>::kGrads;
   GaussianGrads g = GaussianGrads::zeros_for(in);
   std::vector<T> scratch_max(in.means.size(0), T(0));
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
@@ -110,11 +109,8 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
     gv.grads = &g;
     const ViewSums<T> fwd = composite_forward<T>(gv, in.width, HW, in.k, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, alpha).
-    std::vector<T> G(HW * C);
-    render::cpu::interleave_grad(g_rgb, view, 3, HW, C, 0, G);
-    render::cpu::interleave_grad(g_depth, view, 1, HW, C, 3, G);
-    render::cpu::interleave_grad(g_alpha, view, 1, HW, C, 4, G);
-    composite_backward<T>(gv, fwd, in.width, G, C, in.background.data_ptr<T>());
+    const std::vector<T> G = render::cpu::interleave_grads<T>({g_rgb, g_depth, g_alpha}, view, HW);
+    composite_backward<T>(gv, fwd, in.width, G, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -133,7 +133,6 @@ template <class T>
 RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const at::Tensor& g_alpha,
                           const at::Tensor& g_depth, const at::Tensor& g_normal) {
   const int64_t HW = in.height * in.width;
-  constexpr int C = TriangleView<T>::kGrads;
   RasterGrads g = RasterGrads::zeros_for(in);
   std::vector<T> scratch_max(in.vertices.size(0), T(0));
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
@@ -141,12 +140,8 @@ RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const
     tv.grads = &g;
     const ViewSums<T> fwd = composite_forward<T>(tv, in.width, HW, in.k, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha).
-    std::vector<T> G(HW * C);
-    interleave_grad(g_rgb, view, 3, HW, C, 0, G);
-    interleave_grad(g_depth, view, 1, HW, C, 3, G);
-    interleave_grad(g_normal, view, 3, HW, C, 4, G);
-    interleave_grad(g_alpha, view, 1, HW, C, 7, G);
-    composite_backward<T>(tv, fwd, in.width, G, C, in.background.data_ptr<T>());
+    const std::vector<T> G = interleave_grads<T>({g_rgb, g_depth, g_normal, g_alpha}, view, HW);
+    composite_backward<T>(tv, fwd, in.width, G, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -141,7 +141,6 @@ SurfelOutputs forward_impl(const SurfelInputs& in) {
 template <class T>
 SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads) {
   const int64_t HW = in.height * in.width;
-  constexpr int C = SurfelView<T>::kGrads;
   SurfelGrads g = SurfelGrads::zeros_for(in);
   std::vector<T> scratch_max(in.means.size(0), T(0));
   for (int64_t view = 0; view < in.w2c.size(0); ++view) {
@@ -150,13 +149,9 @@ SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads
     const ViewSums<T> fwd = composite_forward<T>(sv, in.width, HW, in.k, scratch_max.data());
     sv.t_final = &fwd.t_final;
     // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
-    std::vector<T> G(HW * C);
-    render::cpu::interleave_grad(grads.rgb, view, 3, HW, C, 0, G);
-    render::cpu::interleave_grad(grads.depth, view, 1, HW, C, 3, G);
-    render::cpu::interleave_grad(grads.normal, view, 3, HW, C, 4, G);
-    render::cpu::interleave_grad(grads.alpha, view, 1, HW, C, 7, G);
-    render::cpu::interleave_grad(grads.distortion, view, 1, HW, C, 8, G);
-    composite_backward<T>(sv, fwd, in.width, G, C, in.background.data_ptr<T>());
+    const std::vector<T> G = render::cpu::interleave_grads<T>(
+        {grads.rgb, grads.depth, grads.normal, grads.alpha, grads.distortion}, view, HW);
+    composite_backward<T>(sv, fwd, in.width, G, in.background.data_ptr<T>());
   }
   return g;
 }

@@ -169,15 +169,23 @@ void write_view_images(int64_t view, int64_t HW, const ViewSums<T>& s, const T* 
   }
 }
 
-// Copies the C planes of view `view` of an upstream gradient grad (V,C,H,W)
-// into G, `stride` values a pixel, at offsets offset .. offset + C - 1: the
-// backward reads a pixel's gradients of every output side by side.
+// View `view` of the upstream gradients `grads` ((V,C_i,H,W) each, HW
+// pixels a view) side by side per pixel, in their order: the backward reads
+// a pixel's gradients of every output together (sum C_i values a pixel).
 template <class T>
-void interleave_grad(const at::Tensor& grad, int64_t view, int C, int64_t HW, int stride, int offset,
-                     std::vector<T>& G) {
-  const T* g = grad.data_ptr<T>() + view * C * HW;
-  for (int64_t p = 0; p < HW; ++p)
-    for (int c = 0; c < C; ++c) G[p * stride + offset + c] = g[c * HW + p];
+std::vector<T> interleave_grads(const std::vector<at::Tensor>& grads, int64_t view, int64_t HW) {
+  int64_t stride = 0;
+  for (const at::Tensor& g : grads) stride += g.size(1);
+  std::vector<T> G(HW * stride);
+  int64_t offset = 0;
+  for (const at::Tensor& grad : grads) {
+    const int64_t C = grad.size(1);
+    const T* g = grad.data_ptr<T>() + view * C * HW;
+    for (int64_t p = 0; p < HW; ++p)
+      for (int64_t c = 0; c < C; ++c) G[p * stride + offset + c] = g[c * HW + p];
+    offset += C;
+  }
+  return G;
 }
 
 // The backward's per-pixel state as it replays one view's fragments back to
@@ -226,20 +234,21 @@ struct BackToFront {
 };
 
 // The backward of composite_forward: replays each pixel's fragments back to
-// front from the forward's state `fwd`. G holds the upstream gradients, C a
-// pixel, of the channels whose values Prim::grad_values gives (r, g, b
-// first); bg the background. Prim, as in the forward, and for list entry r:
+// front from the forward's state `fwd`. G holds the upstream gradients,
+// Prim::kGrads a pixel (interleave_grads()), of the channels whose values
+// Prim::grad_values gives (r, g, b first); bg the background. Prim, as in
+// the forward, and for list entry r:
 //   start(r)                             entry r's gradient sums start at zero;
 //   grad_values(r, p, f, v)              its C channel values at pixel p;
 //   add_grad(r, x, y, f, w, g_alpha, Gp) its gradient from pixel (x, y): w its
 //                                        weight, g_alpha dL/dalpha, Gp the pixel's G;
 //   finish(r)                            it has met all its pixels (chain to the inputs).
 template <class T, class Prim>
-void composite_backward(Prim& prim, const ViewSums<T>& fwd, int64_t W, const std::vector<T>& G, int C,
-                        const T* bg) {
+void composite_backward(Prim& prim, const ViewSums<T>& fwd, int64_t W, const std::vector<T>& G, const T* bg) {
+  constexpr int C = Prim::kGrads;
   const std::vector<PixelRect>& rects = prim.list.rects;
   BackToFront<T> replay(fwd.t_final, C);
-  std::vector<T> v(C);
+  T v[C];
   for (int64_t r = (int64_t)rects.size() - 1; r >= 0; --r) {
     const PixelRect& rc = rects[r];
     prim.start(r);
@@ -250,9 +259,9 @@ void composite_backward(Prim& prim, const ViewSums<T>& fwd, int64_t W, const std
         typename Prim::Fragment f;
         if (!prim.fragment(r, x, y, f)) continue;
         const T Tp = replay.step(p, f.alpha);  // transmittance in front of this entry
-        prim.grad_values(r, p, f, v.data());
+        prim.grad_values(r, p, f, v);
         const T* Gp = &G[p * C];
-        const T g_alpha = replay.alpha_grad(p, v.data(), Gp, f.alpha, Tp, bg);
+        const T g_alpha = replay.alpha_grad(p, v, Gp, f.alpha, Tp, bg);
         prim.add_grad(r, x, y, f, f.alpha * Tp, g_alpha, Gp);
       }
     prim.finish(r);
