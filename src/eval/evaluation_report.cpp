@@ -12,16 +12,11 @@
 
 #include "flat/core/error.h"
 #include "flat/eval/depth_metrics.h"
+#include "eval/mean_of.h"
 
 namespace flat::eval {
 
 namespace {
-
-double mean_of(const std::vector<double>& x) {
-  double s = 0;
-  for (double v : x) s += v;
-  return x.empty() ? NAN : s / double(x.size());
-}
 
 void accumulate(Means& m, const std::vector<const SceneScore*>& scores) {
   std::vector<double> psnr, ssim, lpips, l1, cosine, si_log, roughness, oracle, dataset_mean, swap;

@@ -5,18 +5,9 @@
 #include "flat/data/frame_resize.h"
 #include "flat/eval/depth_metrics.h"
 #include "flat/eval/normal_metrics.h"
+#include "eval/mean_of.h"
 
 namespace flat::eval {
-
-namespace {
-
-double mean(const std::vector<double>& x) {
-  double m = 0;
-  for (double v : x) m += v;
-  return x.empty() ? NAN : m / double(x.size());
-}
-
-}  // namespace
 
 SceneScoreSums::SceneScoreSums(const EvalSettings& settings, loss::Lpips lpips, const BaselineInputs& baselines,
                                int64_t H, int64_t W, const at::Device& device)
@@ -87,18 +78,18 @@ void SceneScoreSums::add_geometry(const ViewChunk& c) {
 }
 
 void SceneScoreSums::write(SceneScore& r) const {
-  r.psnr = mean(psnr_);
-  r.ssim = mean(ssim_);
-  r.lpips = mean(lpips_values_);
-  r.mean_colour_psnr = mean(mean_colour_);
-  r.dataset_mean_psnr = mean(dataset_mean_);
-  r.swap_psnr = mean(swap_);
+  r.psnr = mean_of(psnr_);
+  r.ssim = mean_of(ssim_);
+  r.lpips = mean_of(lpips_values_);
+  r.mean_colour_psnr = mean_of(mean_colour_);
+  r.dataset_mean_psnr = mean_of(dataset_mean_);
+  r.swap_psnr = mean_of(swap_);
   r.normal_pixels = normal_pixels_;
   if (normal_pixels_ > 0) {
     r.normal_l1 = l1_sum_ / double(normal_pixels_);
     r.normal_cosine = cos_sum_ / double(normal_pixels_);
   }
-  r.depth_si_log = mean(si_log_);
+  r.depth_si_log = mean_of(si_log_);
   r.planar_pixels = planar_pixels_;
   if (planar_pixels_ > 0) r.planar_roughness = roughness_sum_ / double(planar_pixels_);
 }
