@@ -38,6 +38,39 @@ struct alignas(sizeof(T) * N) Pack {
   T v[N];
 };
 
+// The sum over a group's L lanes (every lane of the group gets it).
+template <int L>
+__device__ __forceinline__ float group_sum(float v) {
+#pragma unroll
+  for (int off = L / 2; off > 0; off /= 2) v += __shfl_xor_sync(0xffffffffu, v, off);
+  return v;
+}
+
+// ||x||^2 of the group's pixel from the packs this lane holds (packs lane,
+// lane + L, ...); an inactive lane adds nothing but joins the shuffles.
+template <class T, int N, int L, int M>
+__device__ __forceinline__ float group_sum_squares(const Pack<T, N> (&held)[M], int lane, int packs, bool active) {
+  float ss = 0.f;
+#pragma unroll
+  for (int k = 0; k < M; ++k) {
+    const int i = lane + k * L;
+    if (active && i < packs) {
+#pragma unroll
+      for (int e = 0; e < N; ++e) {
+        const float v = to_float(held[k].v[e]);
+        ss += v * v;
+      }
+    }
+  }
+  return group_sum<L>(ss);
+}
+
+// d silu(y) / dy times the output's gradient go.
+__device__ __forceinline__ float silu_backward(float y, float go) {
+  const float s = 1.f / (1.f + __expf(-y));
+  return go * s * (1.f + y * (1.f - s));
+}
+
 // L lanes per pixel, N elements per access, at most M accesses per lane; lane
 // l of a group handles packs l, l+L, l+2L, ... of its pixel (so a group's
 // accesses are contiguous).
@@ -53,25 +86,12 @@ __global__ void __launch_bounds__(kThreads)
   const int packs = int(channels / N);
   const P* src = reinterpret_cast<const P*>(x + (active ? r : 0) * channels);
   P held[M];
-  float ss = 0.f;
 #pragma unroll
   for (int k = 0; k < M; ++k) {
     const int i = lane + k * L;
     if (active && i < packs) held[k] = src[i];
   }
-#pragma unroll
-  for (int k = 0; k < M; ++k) {
-    const int i = lane + k * L;
-    if (active && i < packs) {
-#pragma unroll
-      for (int e = 0; e < N; ++e) {
-        const float v = to_float(held[k].v[e]);
-        ss += v * v;
-      }
-    }
-  }
-#pragma unroll
-  for (int off = L / 2; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
+  const float ss = group_sum_squares<T, N, L, M>(held, lane, packs, active);
   if (!active) return;
   const float inv = scale / fmaxf(sqrtf(ss), 1e-12f);
   // Input row r = (b*frames + t)*pixels + p lands at (b*out_frames + offset + t)*pixels + p.
@@ -115,26 +135,37 @@ void launch(const void* x, const void* gamma, void* out, int64_t rows, int64_t f
 constexpr int kVecPacks = 4;      // 16-byte packs per lane
 constexpr int kScalarPacks = 16;  // elements per lane, warp per pixel
 
-// 16-byte packs with the fewest lanes per pixel that hold it in kVecPacks
-// accesses each; else single elements with a warp per pixel.
+// Lanes per pixel, forward and backward: with 16-byte packs the fewest that
+// hold a pixel in kVecPacks accesses each; else 32 (a warp per pixel, single
+// elements).
+template <class T>
+int lanes_for(bool vec, int64_t channels) {
+  constexpr int N = 16 / sizeof(T);
+  const int64_t packs = channels / N;
+  if (vec && packs <= 4 * kVecPacks) return 4;
+  if (vec && packs <= 8 * kVecPacks) return 8;
+  if (vec && packs <= 16 * kVecPacks) return 16;
+  return 32;
+}
+
 template <class T>
 void dispatch(bool vec, const void* x, const void* gamma, void* out, int64_t rows, int64_t frames, int64_t pixels,
               int64_t channels, int64_t out_frames, int64_t frame_offset, float scale, bool silu, void* history,
               int64_t history_frames, cudaStream_t stream) {
   constexpr int N = 16 / sizeof(T);
-  const int64_t packs = channels / N;
-  if (vec && packs <= 4 * kVecPacks) {
-    launch<T, N, 4, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
-        history_frames, stream);
-  } else if (vec && packs <= 8 * kVecPacks) {
-    launch<T, N, 8, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
-        history_frames, stream);
-  } else if (vec && packs <= 16 * kVecPacks) {
-    launch<T, N, 16, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
-        history_frames, stream);
-  } else {
-    launch<T, 1, 32, kScalarPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale, silu, history,
-        history_frames, stream);
+  switch (lanes_for<T>(vec, channels)) {
+    case 4:
+      return launch<T, N, 4, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
+                                        silu, history, history_frames, stream);
+    case 8:
+      return launch<T, N, 8, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
+                                        silu, history, history_frames, stream);
+    case 16:
+      return launch<T, N, 16, kVecPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
+                                         silu, history, history_frames, stream);
+    default:
+      return launch<T, 1, 32, kScalarPacks>(x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset,
+                                            scale, silu, history, history_frames, stream);
   }
 }
 
@@ -170,7 +201,6 @@ __global__ void __launch_bounds__(kThreads)
     const P* xs = reinterpret_cast<const P*>(x + row * channels);
     const P* gos = reinterpret_cast<const P*>(grad_out + (row + (b * (out_frames - frames) + frame_offset) * pixels) * channels);
     P xh[M], gh[M];
-    float ss = 0.f;
 #pragma unroll
     for (int k = 0; k < M; ++k) {
       const int i = lane + k * L;
@@ -179,20 +209,7 @@ __global__ void __launch_bounds__(kThreads)
         gh[k] = gos[i];
       }
     }
-#pragma unroll
-    for (int k = 0; k < M; ++k) {
-      const int i = lane + k * L;
-      if (active && i < packs) {
-#pragma unroll
-        for (int e = 0; e < N; ++e) {
-          const float v = to_float(xh[k].v[e]);
-          ss += v * v;
-        }
-      }
-    }
-#pragma unroll
-    for (int off = L / 2; off > 0; off /= 2) ss += __shfl_xor_sync(0xffffffffu, ss, off);
-    const float n = sqrtf(ss);
+    const float n = sqrtf(group_sum_squares<T, N, L, M>(xh, lane, packs, active));
     const float inv = scale / fmaxf(n, 1e-12f);
     float dot = 0.f;  // sum_k a_k x_k
 #pragma unroll
@@ -202,15 +219,13 @@ __global__ void __launch_bounds__(kThreads)
 #pragma unroll
         for (int e = 0; e < N; ++e) {
           const float xv = to_float(xh[k].v[e]), g = gamma[i * N + e];
-          const float y = g * xv * inv, s = 1.f / (1.f + __expf(-y));
-          const float dy = to_float(gh[k].v[e]) * s * (1.f + y * (1.f - s));  // d/dy of silu
+          const float dy = silu_backward(g * xv * inv, to_float(gh[k].v[e]));
           dot += g * dy * xv;
           dg[k][e] += dy * xv * inv;
         }
       }
     }
-#pragma unroll
-    for (int off = L / 2; off > 0; off /= 2) dot += __shfl_xor_sync(0xffffffffu, dot, off);
+    dot = group_sum<L>(dot);
     if (!active) continue;
     const float shrink = n > 1e-12f ? inv / (n * n) * dot : 0.f;
     P* gxs = reinterpret_cast<P*>(grad_x + row * channels);
@@ -222,8 +237,7 @@ __global__ void __launch_bounds__(kThreads)
 #pragma unroll
         for (int e = 0; e < N; ++e) {
           const float xv = to_float(xh[k].v[e]), g = gamma[i * N + e];
-          const float y = g * xv * inv, s = 1.f / (1.f + __expf(-y));
-          const float dy = to_float(gh[k].v[e]) * s * (1.f + y * (1.f - s));
+          const float dy = silu_backward(g * xv * inv, to_float(gh[k].v[e]));
           o.v[e] = from_float<T>(inv * g * dy - shrink * xv);
         }
         gxs[i] = o;
@@ -247,17 +261,6 @@ constexpr int64_t kBackwardBlocksMax = 2048;
 template <int L>
 int64_t backward_blocks(int64_t rows) {
   return std::min<int64_t>((rows * L + kThreads - 1) / kThreads, kBackwardBlocksMax);
-}
-
-// The lanes per pixel launch picks (the same choice as dispatch's).
-template <class T>
-int lanes_for(bool vec, int64_t channels) {
-  constexpr int N = 16 / sizeof(T);
-  const int64_t packs = channels / N;
-  if (vec && packs <= 4 * kVecPacks) return 4;
-  if (vec && packs <= 8 * kVecPacks) return 8;
-  if (vec && packs <= 16 * kVecPacks) return 16;
-  return 32;
 }
 
 template <class T, int N, int L, int M>
@@ -328,9 +331,7 @@ void launch_rms_norm_silu(const void* x, const void* gamma, void* out, int64_t b
                           cudaStream_t stream) {
   const int64_t rows = batch * frames * pixels;
   if (rows == 0) return;
-  auto aligned = [](const void* ptr) { return reinterpret_cast<uintptr_t>(ptr) % 16 == 0; };
-  const bool vec = channels % (is_bf16 ? 8 : 4) == 0 && aligned(x) && aligned(gamma) && aligned(out) &&
-                   (history == nullptr || aligned(history));
+  const bool vec = vector_access(channels, is_bf16, {x, gamma, out, history});
   if (is_bf16) {
     dispatch<__nv_bfloat16>(vec, x, gamma, out, rows, frames, pixels, channels, out_frames, frame_offset, scale,
                             silu, history, history_frames, stream);
