@@ -64,12 +64,20 @@ int main(int argc, char** argv) {
   app.add_option("--baseline-scenes", o.baseline_scenes,
                  "other scene folders (same window): score the dataset-mean and swap baselines beside the results")
       ->take_all();
+  bool no_seam_weld = false;
   app.add_flag("--no-mesh", no_mesh, "stop after the post-optimisation (no opaque conversion)");
   app.add_option("--conversion", o.opaque.conversion,
                  "mesh: grid (each view's depth grid, fused: faces share edges) | stitch (the paper's opacity "
                  "selection and boundary stitching)")
       ->check(CLI::IsMember({"grid", "stitch"}))
       ->capture_default_str();
+  app.add_option("--grid-depth-weight", o.opaque.grid_depth_weight,
+                 "mesh, grid: each view's depth re-solved from the refined soup's normals, with this pull towards its "
+                 "rendered depth (0: the rendered depth as it is)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_flag("--no-seam-weld", no_seam_weld,
+               "mesh, grid: append each view's faces beside the mesh so far instead of welding its seam onto it");
   app.add_option("--selection-steps", o.opaque.selection_steps, "mesh, stitch: opacity selection steps (paper: 50)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
@@ -94,6 +102,7 @@ int main(int argc, char** argv) {
   try {
     flat::setup_logging(o.log_level);
     o.convert = !no_mesh;
+    o.opaque.fusion_weld = !no_seam_weld;
     o.viewer = !no_viewer;
     if (!std::filesystem::exists(o.from)) {
       std::cerr << "flat_mesh: --from " << o.from << ": no such file or folder\n";

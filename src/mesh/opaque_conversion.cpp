@@ -152,10 +152,17 @@ primitives::IndexedMesh fused_grid_mesh(const primitives::TriangleSoup& soup, co
   fo.mesh_raster = opaque_raster(o.raster);
   fo.mesh_opacity = o.snap_opacity;
   fo.mesh_sigma = o.sigma_end;
+  fo.normal_guided = o.grid_depth_weight > 0;
+  if (fo.normal_guided) fo.guided.depth_weight = o.grid_depth_weight;
+  fo.guided.max_step = o.grid_max_step;
+  fo.weld = o.fusion_weld;
   ViewFusionReport fr;
   auto mesh = fuse_view_grids(soup, targets, o.raster, fo, &fr);
   r.grid_faces = fr.grid_faces;
   r.fused_faces = fr.fused_faces;
+  r.welded_vertices = fr.welded_vertices;
+  r.unwelded_vertices = fr.unwelded_vertices;
+  r.weld_dropped_faces = fr.dropped_faces;
   require_some(mesh.num_faces(), "the view-grid fusion");
   r.stage_psnr.emplace_back("fused grids", mesh_psnr(mesh, targets, o));
   mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces, /*through_edges=*/true);
@@ -210,10 +217,11 @@ primitives::IndexedMesh stitched_mesh(const primitives::TriangleSoup& soup, cons
 
 void log_conversion(const ConversionReport& r, const OpaqueOptions& o, int64_t views) {
   if (o.conversion == "grid")
-    spdlog::info("opaque conversion (view grids): {} soup triangles -> {} grid faces over {} views -> {} fused -> "
-                 "mesh of {} vertices, {} faces ({} floater faces removed), {:.1f} s",
-                 r.soup_triangles, r.grid_faces, views, r.fused_faces, r.mesh_vertices, r.mesh_faces,
-                 r.floater_faces, r.seconds);
+    spdlog::info("opaque conversion (view grids): {} soup triangles -> {} grid faces over {} views -> {} fused "
+                 "({} seam vertices welded, {} left unwelded, {} seam faces dropped) -> mesh of {} vertices, {} faces "
+                 "({} floater faces removed), {:.1f} s",
+                 r.soup_triangles, r.grid_faces, views, r.fused_faces, r.welded_vertices, r.unwelded_vertices,
+                 r.weld_dropped_faces, r.mesh_vertices, r.mesh_faces, r.floater_faces, r.seconds);
   else
     spdlog::info("opaque conversion: {} soup triangles -> {} after selection -> {} with support > {} -> mesh of {} "
                  "vertices, {} faces ({} pairs stitched, {} faces collapsed, {} split, {} floater faces removed), "

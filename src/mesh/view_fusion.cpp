@@ -6,6 +6,8 @@
 #include <spdlog/spdlog.h>
 
 #include "flat/core/error.h"
+#include "flat/mesh/normal_guided_depth.h"
+#include "flat/mesh/seam_weld.h"
 
 namespace flat::mesh {
 
@@ -48,11 +50,15 @@ primitives::IndexedMesh fuse_view_grids(const primitives::TriangleSoup& soup, co
     // The first surface (where transmittance crosses 0.5) where there is one, so that silhouettes do not
     // blend the foreground into the wall behind; else the alpha-normalised depth of a thinner cover.
     const auto median = out.median_depth[0][0].cpu();
-    const auto depth = at::where(median > 0, median, out.depth[0][0].cpu() / alpha.clamp_min(1e-6));
+    auto depth = at::where(median > 0, median, out.depth[0][0].cpu() / alpha.clamp_min(1e-6));
     // The surface's own colour: the background's share taken out, then un-blended.
     const auto bg = at::tensor(soup_raster.background, at::kFloat).reshape({3, 1, 1});
     const auto rgb = ((out.rgb[0].cpu() - (1 - alpha) * bg) / alpha.clamp_min(1e-6)).clamp(0, 1);
     const auto valid = (alpha >= o.min_alpha) & (depth > 0);
+    if (o.normal_guided) {
+      const auto normals = out.normal[0].cpu() / alpha.clamp_min(1e-6);
+      depth = normal_guided_depth(depth, normals, valid, cam.intrinsics[0].cpu(), o.guided);
+    }
     at::Tensor skip;
     if (fused.num_faces() > 0) {
       const auto drawn = primitives::soup_from_mesh(fused, o.mesh_opacity, o.mesh_sigma);
@@ -70,8 +76,17 @@ primitives::IndexedMesh fuse_view_grids(const primitives::TriangleSoup& soup, co
     spdlog::debug("view fusion: view {}: {} of {} samples covered, {} grid faces, {} new", v,
                   valid.sum().item<int64_t>(), H * W, all.num_faces(), grid.num_faces());
     if (grid.num_faces() == 0) continue;
-    fused = {at::cat({fused.vertices, grid.vertices}), at::cat({fused.colors, grid.colors}),
-             at::cat({fused.faces, grid.faces + fused.num_vertices()})};
+    if (skip.defined() && o.weld) {
+      SeamWeldReport wr;
+      fused = weld_view_seam(fused, grid, skip, cam.intrinsics[0].cpu(), cam.c2w[0].cpu(),
+                             {o.weld_radius, o.depth_tolerance}, &wr);
+      r.welded_vertices += wr.welded_vertices;
+      r.unwelded_vertices += wr.unwelded_vertices;
+      r.dropped_faces += wr.dropped_faces;
+    } else {
+      fused = {at::cat({fused.vertices, grid.vertices}), at::cat({fused.colors, grid.colors}),
+               at::cat({fused.faces, grid.faces + fused.num_vertices()})};
+    }
   }
   r.fused_faces = fused.num_faces();
   if (report) *report = r;

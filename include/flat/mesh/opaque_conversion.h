@@ -4,7 +4,10 @@
 //
 // "grid" (default, issue #44): the soup's rendered surface per fitted view
 // becomes a grid mesh at the token grid (grid_step 2: one sample per 2x2
-// pixel block corner), fused over the views (view_fusion.h); edge-connected
+// pixel block corner), its depth re-solved from the soup's rendered normals
+// (normal_guided_depth.h: grid_depth_weight, grid_max_step), fused over the
+// views with each view's seam welded onto the mesh so far (view_fusion.h,
+// seam_weld.h: fusion_weld); edge-connected
 // pieces with fewer than min_component_faces faces are removed as floaters
 // (floaters.h); then the repair (4. below) with two more terms: the mesh's
 // rendered normals towards the soup's own rendered normals
@@ -50,6 +53,10 @@ struct OpaqueOptions {
   int64_t grid_step = 2;            // grid: pixels per grid sample (2: the decoder's token grid of 2x2 blocks)
   double grid_max_stretch = 6.0;    // grid: open a face whose edge exceeds this many pixel footprints
   double fusion_depth_tolerance = 0.05;  // grid: relative depth within which a view's surface is already held
+  double grid_depth_weight = 0.005;  // grid: pull towards each view's rendered depth against the soup's normals
+                                     // (normal_guided_depth.h; 0: the depth as rendered, unguided)
+  double grid_max_step = 0.3;        // grid: log-depth step beyond the normals' taken as a discontinuity
+  bool fusion_weld = true;           // grid: each view's seam welded onto the rim of the mesh so far
   double repair_smoothness = 0.05;  // weight of the normal-consistency term in the repair (0 = photometric only)
   double repair_soup_normals = 0.1; // grid: weight of the repair's normal term towards the soup's rendered normals
   int64_t selection_steps = 50;   // paper: 50
@@ -82,6 +89,10 @@ struct OpaqueOptions {
     v.field("grid_max_stretch", grid_max_stretch, config::positive(), "grid: longest edge in pixel footprints");
     v.field("fusion_depth_tolerance", fusion_depth_tolerance, config::non_negative(),
             "grid: relative depth tolerance of the coverage test");
+    v.field("grid_depth_weight", grid_depth_weight, config::non_negative(),
+            "grid: depth re-solved from the soup's normals, this pull towards the rendered depth (0 = off)");
+    v.field("grid_max_step", grid_max_step, config::positive(), "grid: log-depth departure cut as a discontinuity");
+    v.field("fusion_weld", fusion_weld, "grid: weld each view's seam onto the mesh so far");
     v.field("repair_smoothness", repair_smoothness, config::non_negative(), "repair: normal-consistency weight");
     v.field("repair_soup_normals", repair_soup_normals, config::non_negative(),
             "grid repair: weight of the term towards the soup's rendered normals");
@@ -105,6 +116,7 @@ struct ConversionReport {
   int64_t soup_triangles = 0, after_selection = 0, after_support = 0;
   int64_t stitched_pairs = 0, collapsed_faces = 0, densified_faces = 0, floater_faces = 0;
   int64_t grid_faces = 0, fused_faces = 0;  // grid conversion: every view's grid, and what the fusion kept
+  int64_t welded_vertices = 0, unwelded_vertices = 0, weld_dropped_faces = 0;  // grid: the seams (seam_weld.h)
   int64_t mesh_vertices = 0, mesh_faces = 0;
   double median_edge = 0;
   std::vector<double> selection_losses, repair_losses;

@@ -5,13 +5,19 @@
 // share edges by construction, and the views are fused greedily: the middle
 // view first, then outwards, each adding only the faces whose surface the
 // mesh so far does not already show in that view (rendered there, within a
-// relative depth tolerance). The soup's geometry (its rendered depth, hence
-// its normals) is what the mesh keeps, instead of the midpoints of stitched
-// vertex pairs that bent the faces before.
+// relative depth tolerance). Each view's depth is first re-solved from the
+// soup's rendered normals (normal_guided_depth.h), and each view's seam is
+// welded onto the rim of the mesh so far (seam_weld.h), so that the views
+// make one surface, not sheets side by side. The soup's geometry (its
+// rendered normals, its depth at larger scales) is what the mesh keeps,
+// instead of the midpoints of stitched vertex pairs that bent the faces
+// before.
 #pragma once
 #include <cstdint>
 
 #include "flat/mesh/depth_grid_mesh.h"
+#include "flat/mesh/normal_guided_depth.h"
+#include "flat/mesh/seam_weld.h"
 #include "flat/mesh/view_targets.h"
 #include "flat/primitives/indexed_mesh.h"
 #include "flat/primitives/triangle_soup.h"
@@ -24,6 +30,10 @@ struct ViewFusionOptions {
   double min_alpha = 0.2;        // pixels the soup covers less than this have no surface
   double depth_tolerance = 0.05; // relative: a view's pixel is already held when the mesh shows a depth this close
   DepthGridOptions grid;
+  bool normal_guided = true;       // each view's depth re-solved from the soup's normals (normal_guided_depth.h)
+  NormalGuidedDepthOptions guided;
+  bool weld = true;                // a view's seam vertices become the mesh's rim vertices (seam_weld.h)
+  double weld_radius = 1.0;        // in samples; the weld's depth tolerance is depth_tolerance
   // How the mesh so far is drawn for the coverage test (opaque_conversion.h's opaque_raster).
   render::RasterSettings mesh_raster;
   double mesh_opacity = 0.9999, mesh_sigma = 0.01;
@@ -31,6 +41,7 @@ struct ViewFusionOptions {
 
 struct ViewFusionReport {
   int64_t views = 0, grid_faces = 0, fused_faces = 0;  // grid_faces: all views' grids before the coverage test
+  int64_t welded_vertices = 0, unwelded_vertices = 0, dropped_faces = 0;  // seam_weld.h, summed over the views
 };
 
 // soup: one scene, drawn with soup_raster; targets: the fitted views (their
