@@ -156,7 +156,7 @@ void AdamW::step(double lr) {
     }
     // The fused kernel walks params, grads and moments as flat arrays: only
     // when they share one dense layout.
-    const bool fusable = o.fused && s.param.is_cuda() && s.param.scalar_type() == at::kFloat &&
+    const bool fusable = o.fused && (s.param.is_cuda() || s.param.is_cpu()) && s.param.scalar_type() == at::kFloat &&
                          g.scalar_type() == at::kFloat && s.param.is_non_overlapping_and_dense() &&
                          g.strides() == s.param.strides() && s.exp_avg.strides() == s.param.strides();
     if (fusable) {
@@ -182,6 +182,13 @@ void AdamW::step(double lr) {
     at::_foreach_add_(ts, 1);
     at::_fused_adamw_(ps, gs, ms, vs, /*max_exp_avg_sqs=*/{}, ts, lr, o.beta1, o.beta2, o.weight_decay, o.eps,
                       /*amsgrad=*/false, /*maximize=*/false);
+    // ATen's fused kernel writes in place without bumping the version
+    // counters (checked on 2.11). Caches keyed on a weight's version (the
+    // upsamples' subpixel filters) would then keep serving the weights of
+    // their first use: the trainer's validation decoded with step-0 filters
+    // (issue #44's "falling" VAE and its two held-out numbers).
+    for (const auto& list : {ps, ms, vs, ts})
+      for (const auto& x : list) x.unsafeGetTensorImpl()->bump_version();
   }
 }
 

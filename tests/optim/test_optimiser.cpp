@@ -1,9 +1,11 @@
 // AdamW against a plain double-precision reference of its update rule, the
 // learning-rate schedule against hand values, and the optimiser state's
-// round trip (the basis of exact resume).
+// round trip (the basis of exact resume); and that a step reaches caches
+// keyed on weight versions.
 #include <cmath>
 
 #include "flat/core/error.h"
+#include "flat/model/resample.h"
 #include "flat/optim/adamw.h"
 #include "test_support.h"
 
@@ -125,4 +127,60 @@ TEST_CASE("AdamW on CUDA (fused and op by op) equals the CPU update", "[optim][c
       CHECK(flat::test::rel_error(gpu[i].second, cpu[i].second) < 1e-5);
     }
   }
+}
+
+namespace {
+
+// A sub-pixel upsample, its no-grad output cached after one call, then
+// stepped by AdamW on `device` (fused or op by op): its next no-grad output
+// must be that of a fresh module holding the stepped weights. A step that
+// leaves the version counters alone (ATen's _fused_adamw_ does) keeps the
+// cached filters of the first call: the trainer's validation then decodes
+// with stale upsamples.
+void check_upsample_follows_step(const at::Device& device, bool fused) {
+  using flat::model::Resample;
+  using flat::model::ResampleMode;
+  torch::manual_seed(8);
+  Resample r(8, ResampleMode::upsample2d);
+  r->to(device);
+  REQUIRE(r->subpixel_upsample());
+  const auto x = torch::randn({1, 8, 2, 5, 4}).to(device);
+  at::Tensor first;
+  {
+    torch::NoGradGuard no_grad;
+    first = r->forward(x);  // builds the filter cache
+  }
+  const auto versions_before = std::make_pair(r->conv_weight._version(), r->conv_bias._version());
+  AdamWOptions o;
+  o.fused = fused;
+  AdamW adam(r->named_parameters().pairs(), o);
+  for (auto& p : r->parameters()) p.mutable_grad() = torch::randn_like(p);
+  adam.step(5e-2);
+  CHECK(r->conv_weight._version() != versions_before.first);
+  CHECK(r->conv_bias._version() != versions_before.second);
+
+  Resample fresh(8, ResampleMode::upsample2d);
+  fresh->to(device);
+  {
+    torch::NoGradGuard no_grad;
+    fresh->conv_weight.copy_(r->conv_weight);
+    fresh->conv_bias.copy_(r->conv_bias);
+    const auto after = r->forward(x), expected = fresh->forward(x);
+    INFO("device " << device << ", fused " << fused);
+    CHECK(flat::test::rel_error(after, expected) < 1e-6);
+    CHECK(flat::test::rel_error(after, first) > 1e-3);  // the step did change the output
+  }
+}
+
+}  // namespace
+
+TEST_CASE("AdamW's step reaches caches keyed on weight versions (sub-pixel upsample filters)", "[optim]") {
+  check_upsample_follows_step(at::kCPU, true);
+  check_upsample_follows_step(at::kCPU, false);
+}
+
+TEST_CASE("AdamW's fused CUDA step reaches caches keyed on weight versions", "[optim][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  check_upsample_follows_step(at::Device(at::kCUDA, 0), true);
+  check_upsample_follows_step(at::Device(at::kCUDA, 0), false);
 }

@@ -6,9 +6,12 @@
 //   m <- b1 m + (1 - b1) g ;  v <- b2 v + (1 - b2) g^2
 //   p <- p - lr * (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps)
 //
-// On CUDA the update is ATen's fused multi-tensor kernel (_fused_adamw_, as
-// PyTorch's `fused=True`); on the CPU it is the loop below, op for op as
-// torch.optim.AdamW's single-tensor path, so CPU runs are deterministic.
+// With `fused` (the default) the update is ATen's fused multi-tensor kernel
+// (_fused_adamw_, as PyTorch's `fused=True`) on CUDA and on the CPU alike, so
+// the CPU tests run the path the GPU runs; otherwise, and for tensors the
+// kernel does not take, the loop in step(), op for op as torch.optim.AdamW's
+// single-tensor path. The fused kernel does not bump version counters; step()
+// does, so caches keyed on a weight's version see every step.
 //
 // With state_bits = 8 (the paper's stage 4: 8-bit Adam) m and v of every
 // parameter with at least min_8bit_numel values are held block-wise quantised
@@ -36,7 +39,7 @@ namespace flat::optim {
 
 struct AdamWOptions {
   double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, weight_decay = 0.01;
-  bool fused = true;       // CUDA, fp32-state tensors: ATen's fused multi-tensor kernel; false: op by op
+  bool fused = true;       // fp32-state tensors: ATen's fused multi-tensor kernel (CUDA and CPU); false: op by op
   bool fused_8bit = true;  // CUDA, 8-bit-state tensors: our fused kernel; false: the ATen reference ops
   int state_bits = 32;             // 32 | 8
   int64_t min_8bit_numel = 4096;   // smaller tensors keep fp32 state

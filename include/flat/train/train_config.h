@@ -87,7 +87,7 @@ struct OptimConfig {
     v.field("schedule", schedule, config::one_of({"constant", "cosine", "linear"}), "schedule after warm-up");
     v.field("min_lr_ratio", min_lr_ratio, config::range(0.0, 1.0), "final lr / peak lr (cosine, linear)");
     v.field("grad_clip", grad_clip, config::non_negative(), "clip the global gradient norm to this (0 = off)");
-    v.field("fused", fused, "CUDA: ATen's fused multi-tensor AdamW for the fp32-state parameters; false: op by op");
+    v.field("fused", fused, "ATen's fused multi-tensor AdamW for the fp32-state parameters (CUDA and CPU); false: op by op");
     v.field("fused_8bit", fused_8bit,
             "CUDA, adamw8bit: our fused kernel for the 8-bit-state parameters (one per tensor); false: ATen ops");
   }
