@@ -11,6 +11,7 @@
 #include <torch/torch.h>
 
 #include "flat/core/error.h"
+#include "flat/train/random_background.h"
 
 namespace flat::train {
 
@@ -139,7 +140,7 @@ std::string nonfinite_loss(const std::map<std::string, double>& terms,
 }  // namespace
 
 StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
-                            bool bf16, StepTimes* times) {
+                            bool bf16, StepTimes* times, int64_t background_seed) {
   const auto device = pipeline.decoder()->conv2->weight.device();
   FLAT_CHECK(batch.video_latents.defined(), "training step: the batch has no latents (data.latents: true)");
   PhaseClock clock{times, device};
@@ -164,6 +165,9 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
     const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
     rendered.push_back(pipeline.render(leaf.scene.scene(b), batch.target_cameras(b).to(device), H, W));
     r.triangles += rendered.back().triangles;
+    if (background_seed >= 0)
+      use_random_background(rendered.back(), pipeline.config().raster.background,
+                            uint64_t(background_seed) * 1000003ull + uint64_t(b));
   }
   clock.lap(&StepTimes::render_forward);
 

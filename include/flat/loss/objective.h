@@ -34,6 +34,7 @@ struct LossConfig {
   std::string lpips_precision = "auto";    // auto (bf16 in a bf16 run on CUDA) | fp32 | bf16
   std::string depth_target = "depth";      // the target map holds "depth" or "disparity"
   double normal_alpha_threshold = 0.5;     // M = alpha > threshold
+  bool random_background = false;          // training renders over a colour drawn per view (train/random_background.h)
 
   template <class V>
   void visit(V& v) {
@@ -59,6 +60,9 @@ struct LossConfig {
     v.field("depth_target", depth_target, config::one_of({"depth", "disparity"}), "what the target depth map holds");
     v.field("normal_alpha_threshold", normal_alpha_threshold, config::range(0.0, 1.0),
             "normal loss mask: alpha above this");
+    v.field("random_background", random_background,
+            "training renders composite over a colour drawn per view and step instead of pipeline.raster.background "
+            "(validation and evaluation keep it): transparency cannot stand in for a dark surface");
   }
 };
 

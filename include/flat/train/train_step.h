@@ -46,7 +46,9 @@ struct StepResult {
 
 // Forward and backward of one batch; gradients accumulate into the decoder's
 // parameters (the caller zeroes them). times: optional per-phase timing.
+// background_seed >= 0: the renders take random backgrounds drawn from it
+// (loss.random_background, train/random_background.h); -1: the configured one.
 StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
-                            bool bf16, StepTimes* times = nullptr);
+                            bool bf16, StepTimes* times = nullptr, int64_t background_seed = -1);
 
 }  // namespace flat::train

@@ -71,6 +71,7 @@ class TrainingSession {
 
  private:
   double grad_clip_ = 0;
+  int64_t background_seed_ = -1;  // loss.random_background: the run's seed (a step's colours follow from it); -1: off
   DataParallel* dp_ = nullptr;
 };
 
