@@ -20,10 +20,8 @@
 # A small CPU rehearsal of the script itself: DEVICE=cpu SETS="48x80 48x80 64x112 80x144" ROOMS=4 VAL=2
 #   STEPS="2 2 2 2" EXTRA_SET="--set optim.warmup_steps=0" GPUS_PER_SEED=1 bash scripts/gpu_four_stages.sh all (VAE_FILE from README command 1).
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"   # ROOT, OUT, BUILD
 PHASE="${1:-all}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 S="${STAGES_RUNS:-/tmp/flat_stages}"
 D="$S/data"
 DEVICE="${DEVICE:-cuda}"

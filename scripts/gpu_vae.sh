@@ -23,10 +23,8 @@
 # Usage on the GPU machine (4 GPUs; repo root, .deps carried):
 #   bash scripts/gpu_vae.sh prep && bash scripts/gpu_vae.sh start && WAIT_SECONDS=300 bash scripts/gpu_vae.sh wait
 set -uo pipefail
-ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-OUT="${OUT:-$ROOT/gpu_out}"; mkdir -p "$OUT"
+source "$(dirname "$0")/gpu_common.sh"   # ROOT, OUT, BUILD; gpu_cmake
 PHASE="${1:-prep}"
-BUILD="${GPU_BUILD_DIR:-$ROOT/build-gpu}"
 R="${VAE_RUNS:-/tmp/flat_vae}"
 ROOMS="${SETS_ROOMS:-256}"; FRAMES=49; SIZE=176x320
 declare -A TRAIN_SEED=([A]=7 [B]=41 [C]=53) VAL_SEED=([A]=1001 [B]=1041 [C]=1053)
@@ -35,9 +33,8 @@ cd "$ROOT"
 if [ "$PHASE" = "prep" ]; then
   nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
   t0=$(date +%s); mkdir -p "$R"
-  cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLAT_WITH_OIIO=OFF -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF \
-    -DCMAKE_PREFIX_PATH="$ROOT/.deps/glm/usr" -DFLAT_TORCH_PYTHON="$(command -v python3)" >"$R/configure.log" 2>&1 \
-    || { tail -30 "$R/configure.log"; exit 1; }
+  # Logs stay under $R: the device returns few files.
+  gpu_cmake -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF >"$R/configure.log" 2>&1 || { tail -30 "$R/configure.log"; exit 1; }
   ninja -C "$BUILD" flat_synth flat_train flat_latents flat_eval >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
   echo "built in $(( $(date +%s) - t0 )) s"
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
