@@ -194,11 +194,6 @@ std::set<std::string> parse_config_keys(const std::string& help_config) {
   return keys;
 }
 
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
-
 // A tool with one subcommand, as CLI11 prints it.
 const char* kFakeTop = R"(fake: a tool
 Usage: ./fake [OPTIONS] SUBCOMMAND
@@ -341,7 +336,7 @@ TEST_CASE("docs commands: every command in README.md and docs/*.md uses flags it
   std::vector<std::string> problems;
   for (const auto& path : files) {
     const std::string rel = fs::relative(path, FLAT_SOURCE_DIR).string();
-    for (const auto& c : extract_commands(read_text(path), tools)) {
+    for (const auto& c : extract_commands(read_file(path), tools)) {
       ++checked;
       seen_tools.insert(c.tool);
       for (auto& p : check_command(rel, c, helps, config_keys)) problems.push_back(std::move(p));

@@ -7,16 +7,13 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string read_all(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using flat::test::read_file;
 
 size_t count_files(const fs::path& dir) {
   size_t n = 0;
@@ -38,11 +35,11 @@ TEST_CASE("AtomicFile publishes only on commit", "[core][atomic_file]") {
     file.stream() << "new contents";
     file.stream().flush();
     CHECK(fs::exists(file.temp_path()));
-    CHECK(read_all(target) == "old");  // not yet
+    CHECK(read_file(target) == "old");  // not yet
     file.commit();
     CHECK(!fs::exists(file.temp_path()));
   }
-  CHECK(read_all(target) == "new contents");
+  CHECK(read_file(target) == "new contents");
   CHECK(count_files(dir) == 1);
 }
 
@@ -57,7 +54,7 @@ TEST_CASE("an abandoned AtomicFile leaves the target and removes its temp file",
     file.stream() << "half a file";
   }
   CHECK(!fs::exists(temp));
-  CHECK(read_all(target) == "good");
+  CHECK(read_file(target) == "good");
   CHECK(count_files(dir) == 1);
 
   // A writer that throws halfway: the exception passes through, nothing changes.
@@ -67,7 +64,7 @@ TEST_CASE("an abandoned AtomicFile leaves the target and removes its temp file",
                                                 flat::fail("writer broke");
                                               }),
                       FLAT_CONTAINS("writer broke"));
-  CHECK(read_all(target) == "good");
+  CHECK(read_file(target) == "good");
   CHECK(count_files(dir) == 1);
 }
 
@@ -75,7 +72,7 @@ TEST_CASE("AtomicFile creates parent folders, keeps a suffix, and names paths in
   auto dir = flat::test::scratch_dir("atomic_folders");
   const fs::path target = dir / "a" / "b" / "c.yaml";
   flat::write_file_atomic(target.string(), [](std::ostream& out) { out << "x: 1\n"; });
-  CHECK(read_all(target) == "x: 1\n");
+  CHECK(read_file(target) == "x: 1\n");
 
   flat::AtomicFile png((dir / "img.png").string(), ".png");
   CHECK(fs::path(png.temp_path()).extension() == ".png");

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "flat/core/config.h"
+#include "support/error_of.h"
 #include "test_support.h"
 
 namespace {
@@ -83,14 +84,7 @@ void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;
 }
 
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const flat::Error& e) {
-    return e.what();
-  }
-  return "<no error>";
-}
+using flat::test::error_of;
 
 struct BadCase {
   const char* name;

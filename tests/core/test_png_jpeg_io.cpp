@@ -15,9 +15,11 @@
 #include "flat/core/error.h"
 #include "flat/core/image_io.h"
 #include "flat/core/png_jpeg_io.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 
 namespace {
 
@@ -25,11 +27,6 @@ namespace {
   do {                                                                                               \
     if (!flat::png_jpeg_available()) FLAT_SKIP("built without libpng/libjpeg (libpng-dev, libjpeg62-turbo-dev)"); \
   } while (0)
-
-std::string read_bytes(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
 
 void write_bytes(const fs::path& path, const std::string& bytes) {
   std::ofstream(path, std::ios::binary) << bytes;
@@ -199,7 +196,7 @@ TEST_CASE("PNG round trip: 8 and 16 bit, gray, gray+alpha, RGB, RGBA", "[core][p
       CHECK(at::equal(back, quantised(img, bits)));
       CHECK(back[0][1][3].item<float>() == 0.0f);
       // The file is what was asked for: bit depth (IHDR byte 24) and colour type (byte 25).
-      const std::string bytes = read_bytes(path);
+      const std::string bytes = read_file(path);
       CHECK(int(bytes[24]) == bits);
       CHECK(int(bytes[25]) == (channels == 1 ? 0 : channels == 2 ? 4 : channels == 3 ? 2 : 6));
     }
@@ -237,7 +234,7 @@ TEST_CASE("JPEG round trip within tolerance: RGB, gray, RGBA drops alpha, qualit
   CHECK(max_abs(back, rgb) < 0.05f);
   CHECK((back - rgb).abs().mean().item<float>() < 0.01f);
   CHECK(at::equal(back, quantised(back, 8)));  // 8-bit codes times 1/255
-  CHECK(read_bytes(path).substr(0, 3) == std::string("\xff\xd8\xff", 3));
+  CHECK(read_file(path).substr(0, 3) == std::string("\xff\xd8\xff", 3));
 
   const auto gray = smooth_image(1, 32, 48);
   flat::write_jpeg((dir / "gray.jpeg").string(), gray);
@@ -264,7 +261,7 @@ TEST_CASE("corrupt, truncated and mislabelled PNG/JPEG files throw flat::Error n
   const std::string png = (dir / "good.png").string(), jpg = (dir / "good.jpg").string();
   flat::write_png(png, noise);
   flat::write_jpeg(jpg, noise);
-  const std::string png_bytes = read_bytes(png), jpg_bytes = read_bytes(jpg);
+  const std::string png_bytes = read_file(png), jpg_bytes = read_file(jpg);
   REQUIRE(png_bytes.size() > 4000);
   REQUIRE(jpg_bytes.size() > 4000);
 
@@ -349,7 +346,7 @@ TEST_CASE("PNG: the backend and OpenImageIO read each other's files identically"
       if (channels == 4) {
         // With a gAMA chunk (1/2.2) OpenImageIO associates with alpha^2.2: so does the backend.
         const std::string gamma = (dir / ("gamma" + stem + ".png")).string();
-        write_bytes(gamma, with_chunks_after_ihdr(read_bytes(ours), gama_chunk(45455)));
+        write_bytes(gamma, with_chunks_after_ihdr(read_file(ours), gama_chunk(45455)));
         const auto gamma_by_us = flat::read_png(gamma);
         CHECK(at::equal(gamma_by_us, flat::read_image(gamma)));
         CHECK_FALSE(at::equal(gamma_by_us, ours_by_us));  // the chunk was read and changed the colours

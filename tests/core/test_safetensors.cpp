@@ -9,9 +9,11 @@
 
 #include "flat/core/error.h"
 #include "flat/core/safetensors.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace st = flat::safetensors;
+using flat::test::read_file;
 
 namespace {
 
@@ -41,11 +43,6 @@ std::string error_of(const std::string& bytes) {
     return e.what();
   }
   return "<no error>";
-}
-
-std::string read_all(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 struct Malformed {
@@ -190,7 +187,7 @@ TEST_CASE("writer lays tensors out in the given order with a padded header", "[c
                    {"empty", st::DType::F16, {0, 5}, nullptr, 0}},
             {{"note", "hello"}});
 
-  const std::string bytes = read_all(path);
+  const std::string bytes = read_file(path);
   uint64_t n = 0;
   std::memcpy(&n, bytes.data(), 8);
   CHECK(n % 8 == 0);

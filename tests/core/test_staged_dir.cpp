@@ -3,15 +3,13 @@
 #include <fstream>
 
 #include "flat/core/staged_dir.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 
 namespace {
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
 }  // namespace
 
 TEST_CASE("StagedDir: nothing at the target until commit; a failure leaves nothing", "[core]") {
@@ -23,7 +21,7 @@ TEST_CASE("StagedDir: nothing at the target until commit; a failure leaves nothi
     CHECK(!fs::exists(target));
     s.commit();
   }
-  CHECK(read_text(target / "a.txt") == "new");
+  CHECK(read_file(target / "a.txt") == "new");
   // Exists: refused without overwrite, before any work.
   REQUIRE_THROWS_WITH(flat::StagedDir(target.string(), false), FLAT_CONTAINS("already exists"));
   // Overwrite, but the work fails: the old folder stays, the staging folder goes.
@@ -33,7 +31,7 @@ TEST_CASE("StagedDir: nothing at the target until commit; a failure leaves nothi
     throw std::runtime_error("work failed");
   } catch (const std::runtime_error&) {
   }
-  CHECK(read_text(target / "a.txt") == "new");
+  CHECK(read_file(target / "a.txt") == "new");
   int entries = 0;
   for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir)) ++entries;
   CHECK(entries == 1);
@@ -44,7 +42,7 @@ TEST_CASE("StagedDir: nothing at the target until commit; a failure leaves nothi
     s.commit();
   }
   CHECK(!fs::exists(target / "a.txt"));
-  CHECK(read_text(target / "b.txt") == "b");
+  CHECK(read_file(target / "b.txt") == "b");
   // A staging folder left by a dead process is cleared by the next run.
   fs::create_directories(dir / "x.incomplete-999999999");
   { flat::StagedDir s((dir / "x").string(), false); }

@@ -6,11 +6,13 @@
 
 #include "flat/core/error.h"
 #include "flat/core/tensor_io.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace {
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 
 // Random bit patterns (NaNs and infinities included for the float types),
 // except BOOL, which only holds 0 or 1.
@@ -25,11 +27,6 @@ at::Tensor random_tensor(at::ScalarType type, std::vector<int64_t> shape, at::Ge
 bool same_bits(const at::Tensor& a, const at::Tensor& b) {
   return a.scalar_type() == b.scalar_type() && a.sizes() == b.sizes() && a.is_contiguous() && b.is_contiguous() &&
          std::memcmp(a.data_ptr(), b.data_ptr(), a.nbytes()) == 0;
-}
-
-std::string read_all(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 std::vector<std::string> temp_files(const fs::path& dir) {
@@ -103,7 +100,7 @@ TEST_CASE("a failing write leaves the existing file untouched and no temp files"
   auto dir = flat::test::scratch_dir("tensor_io_atomic");
   const std::string path = (dir / "weights.safetensors").string();
   flat::save_safetensors(path, {{"w", at::arange(6, at::kFloat)}});
-  const std::string good = read_all(path);
+  const std::string good = read_file(path);
 
   // Duplicate names: rejected before anything is written.
   const float x[2] = {1.f, 2.f};
@@ -113,7 +110,7 @@ TEST_CASE("a failing write leaves the existing file untouched and no temp files"
   // An unsupported dtype after a good tensor: also rejected before writing.
   REQUIRE_THROWS(flat::save_safetensors(path, {{"a", at::ones({3})}, {"b", at::ones({2}, at::kComplexDouble)}}));
 
-  CHECK(read_all(path) == good);
+  CHECK(read_file(path) == good);
   CHECK(temp_files(dir).empty());
   CHECK(at::equal(flat::load_safetensors(path).at("w"), at::arange(6, at::kFloat)));
 

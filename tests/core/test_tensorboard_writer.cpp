@@ -14,6 +14,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/tensorboard_writer.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace {
@@ -118,8 +119,7 @@ uint32_t masked(const std::string& s, size_t at, size_t n) {
 
 // Splits a file into TFRecord payloads, checking both CRCs of each record.
 std::vector<std::string> read_records(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  const std::string file{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  const std::string file = flat::test::read_file(path);
   std::vector<std::string> records;
   size_t pos = 0;
   while (pos < file.size()) {

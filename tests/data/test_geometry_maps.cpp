@@ -23,9 +23,12 @@
 #include "flat/data/synthetic_scene.h"
 #include "flat/data/undistort.h"
 #include "data_test_dirs.h"
+#include "support/error_of.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 using namespace flat;
+using flat::test::error_of;
 namespace fs = std::filesystem;
 
 namespace {
@@ -113,15 +116,6 @@ data::FrameBatch load_all(const std::string& dir, bool depth = true, bool normal
   std::vector<int64_t> all;
   for (int64_t i = 0; i < kFrames; ++i) all.push_back(i);
   return data::load_frames(data::read_scene(dir), all, depth, normals);
-}
-
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
 }
 
 }  // namespace
@@ -389,9 +383,7 @@ TEST_CASE("geometry maps: every defect fails naming its file or frame", "[data][
     g.depth_dir = depth_dir("d", [&](int64_t i, const fs::path& p) { write_npy(p.string() + ".npy", s.depth[i][0]); });
     // Same bytes, header flag set: numpy.asfortranarray(...) saved.
     const fs::path file = root / "d" / (timestamp(0) + ".npy");
-    std::ifstream in(file, std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    in.close();
+    std::string bytes = test::read_file(file);
     bytes.replace(bytes.find("False"), 5, "True ");
     std::ofstream(file, std::ios::binary | std::ios::trunc) << bytes;
     CHECK_THAT(import(g), FLAT_CONTAINS(timestamp(0) + ".npy: .npy array of shape (12,16) is in Fortran"));

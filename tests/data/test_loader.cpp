@@ -16,9 +16,11 @@
 #include "flat/data/synthetic_scene.h"
 #include "flat/data/view_sampler.h"
 #include "data_test_dirs.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 using namespace flat;
+using flat::test::read_file;
 namespace fs = std::filesystem;
 
 namespace {
@@ -366,11 +368,6 @@ void add_set(const fs::path& scene_dir, int64_t h, int64_t w, int64_t frames, fl
                             {{torch::full({16, t, h / 8, w / 8}, value), torch::full({32, t, h / 8, w / 8}, value)}});
 }
 
-std::string bytes_of(const fs::path& file) {
-  std::ifstream in(file, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
 }  // namespace
 
 TEST_CASE("latent sets: a scene holds one per size and window; the loader reads the stage's own", "[data][loader]") {
@@ -378,10 +375,10 @@ TEST_CASE("latent sets: a scene holds one per size and window; the loader reads 
   for (const char* s : {"s0", "s1"}) add_set(root / s, 8, 8, 5, 1.0f);
   const auto first = root / "s0" / "latents_8x8_f5.safetensors";
   REQUIRE(fs::exists(first));
-  const std::string first_bytes = bytes_of(first);
+  const std::string first_bytes = read_file(first);
   for (const char* s : {"s0", "s1"}) add_set(root / s, 16, 16, 9, 2.0f);
   // The second set left the first's file byte-identical and both are listed.
-  CHECK(bytes_of(first) == first_bytes);
+  CHECK(read_file(first) == first_bytes);
   auto scene = data::read_scene((root / "s0").string());
   CHECK(data::latent_set_list(scene) == "8x8_f5, 16x16_f9");
   CHECK_FALSE(scene.latents.present());  // two sets: none is chosen for the reader
@@ -406,7 +403,7 @@ TEST_CASE("latent sets: a scene holds one per size and window; the loader reads 
   CHECK(b.video_latents.size(2) == 3);
   // Replacing a set keeps the other one's file.
   add_set(root / "s0", 16, 16, 9, 3.0f);
-  CHECK(bytes_of(first) == first_bytes);
+  CHECK(read_file(first) == first_bytes);
 }
 
 TEST_CASE("loader: a mixture losing a dataset's scenes is named per dataset, and fails when the key says so",

@@ -6,6 +6,7 @@
 #include "flat/core/error.h"
 #include "flat/distributed/process_group.h"
 #include "free_port.h"
+#include "support/error_of.h"
 #include "test_support.h"
 
 using namespace flat::distributed;
@@ -21,14 +22,7 @@ DistributedEnv local_env(int64_t rank, int64_t world_size) {
   return env;
 }
 
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const flat::Error& e) {
-    return e.what();
-  }
-  return "no error";
-}
+using flat::test::error_of;
 
 }  // namespace
 

@@ -35,6 +35,25 @@ std::string interop_python() {
   return python;
 }
 
+// scripts/check_interop.py `args` (plus --require-all in CI) run by `python`,
+// its log in `dir`: the report is printed, and the run must pass with no
+// MISMATCH. Returns the report.
+std::string check_interop(const std::string& python, std::vector<std::string> args, const std::filesystem::path& dir,
+                          const std::string& label) {
+  const bool require_all = interop_required();
+  args.insert(args.begin(), {python, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py"});
+  if (require_all) args.push_back("--require-all");
+  const auto log = (dir / "check_interop.txt").string();
+  const int rc = flat::test::run_program(args, log, 1200);
+  const std::string report = flat::test::read_file(log);
+  std::printf("%s (%s):\n%s", label.c_str(), require_all ? "--require-all" : "readers that are present",
+              report.c_str());
+  INFO(report);
+  CHECK(rc == 0);
+  CHECK(report.find("MISMATCH") == std::string::npos);
+  return report;
+}
+
 }  // namespace
 
 TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.interop][export]") {
@@ -58,16 +77,7 @@ TEST_CASE("interop: trimesh, assimp and Blender read our PLY and GLB", "[.intero
     glb = (dir / "scene.glb").string();
     flat::exporter::write_triangle_glb(glb, soup);
   }
-  std::vector<std::string> argv = {python, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", ply, glb,
-                                   std::to_string(n)};
-  if (require_all) argv.push_back("--require-all");
-  const auto log = (dir / "check_interop.txt").string();
-  const int rc = flat::test::run_program(argv, log, 1200);
-  const std::string report = flat::test::slurp(log);
-  std::printf("check_interop.py (%s):\n%s", require_all ? "--require-all" : "readers that are present", report.c_str());
-  INFO(report);
-  CHECK(rc == 0);
-  CHECK(report.find("MISMATCH") == std::string::npos);
+  const std::string report = check_interop(python, {ply, glb, std::to_string(n)}, dir, "check_interop.py");
   if (report.find("UNAVAILABLE") != std::string::npos)
     WARN("some interop readers are unavailable (see above); CI sets FLAT_INTEROP_REQUIRE_ALL=1 to require them");
 }
@@ -96,17 +106,8 @@ TEST_CASE("interop: trimesh, assimp and Blender read our opaque mesh GLB, PLY an
     glb = (dir / "mesh.glb").string();
     flat::exporter::write_mesh_glb(glb, mesh);
   }
-  std::vector<std::string> argv = {python, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", "--mesh", glb,
-                                   ply, obj};
-  if (require_all) argv.push_back("--require-all");
-  const auto log = (dir / "check_interop.txt").string();
-  const int rc = flat::test::run_program(argv, log, 1200);
-  const std::string report = flat::test::slurp(log);
-  std::printf("check_interop.py --mesh (%s):\n%s", require_all ? "--require-all" : "readers that are present",
-              report.c_str());
+  const std::string report = check_interop(python, {"--mesh", glb, ply, obj}, dir, "check_interop.py --mesh");
   INFO(report);
-  CHECK(rc == 0);
-  CHECK(report.find("MISMATCH") == std::string::npos);
   CHECK(report.find("reference PLY  47 vertices, 23 faces") != std::string::npos);
 }
 
@@ -134,7 +135,7 @@ TEST_CASE("interop: check_interop.py started by a python without trimesh runs it
   const auto log = (dir / "check_interop.txt").string();
   const int rc = flat::test::run_program(
       {system, std::string(FLAT_SOURCE_DIR) + "/scripts/check_interop.py", ply, "-", "5"}, log, 600);
-  const std::string report = flat::test::slurp(log);
+  const std::string report = flat::test::read_file(log);
   INFO(report);
   CHECK(rc == 0);
   CHECK(report.find("has no trimesh; running with " + venv) != std::string::npos);
@@ -153,7 +154,7 @@ TEST_CASE("interop: docs/inference.md's check_interop example runs as written on
   // The example once hard-coded one model's triangle count (7,896), so a
   // reader who copied it got a MISMATCH for any other model. It must take the
   // count from the folder's summary.json, as written in the docs.
-  const std::string docs = flat::test::slurp(std::string(FLAT_SOURCE_DIR) + "/docs/inference.md");
+  const std::string docs = flat::test::read_file(std::string(FLAT_SOURCE_DIR) + "/docs/inference.md");
   const size_t at = docs.find("python3 scripts/check_interop.py runs/tiny/infer/room0/");
   REQUIRE(at != std::string::npos);
   std::string command;
@@ -192,7 +193,7 @@ TEST_CASE("interop: docs/inference.md's check_interop example runs as written on
   const auto log = (root / "example.txt").string();
   const int rc = flat::test::run_program(
       {"/bin/bash", "-c", "cd '" + root.string() + "' && " + command}, log, 900);
-  const std::string report = flat::test::slurp(log);
+  const std::string report = flat::test::read_file(log);
   INFO(report);
   if (rc != 0 && !interop_required() && report.find("UNAVAILABLE") != std::string::npos)
     FLAT_SKIP("a reader is missing here (--require-all); CI has them all");

@@ -10,17 +10,14 @@
 #include "flat/export/mesh_files.h"
 #include "flat/export/srgb.h"
 #include "flat/export/triangle_glb.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 using namespace flat;
 
 namespace {
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
 
 // A square of two triangles sharing an edge, with distinct vertex colours.
 primitives::IndexedMesh square() {
@@ -35,7 +32,7 @@ TEST_CASE("mesh PLY: shared vertices with byte colours, faces as int lists", "[e
   const auto dir = test::scratch_dir("mesh_ply");
   const auto path = dir / "mesh.ply";
   exporter::write_mesh_ply(path.string(), square());
-  const std::string bytes = slurp(path);
+  const std::string bytes = read_file(path);
   const auto end = bytes.find("end_header\n");
   REQUIRE(end != std::string::npos);
   const std::string header = bytes.substr(0, end);
@@ -64,7 +61,7 @@ TEST_CASE("mesh OBJ: v x y z r g b lines and 1-based faces", "[export]") {
   const auto dir = test::scratch_dir("mesh_obj");
   const auto path = dir / "mesh.obj";
   exporter::write_mesh_obj(path.string(), square());
-  std::istringstream in(slurp(path));
+  std::istringstream in(read_file(path));
   std::string line;
   int vertices = 0, faces = 0;
   std::vector<std::string> face_lines;
@@ -91,7 +88,7 @@ TEST_CASE("mesh GLB: indexed, opaque, linear VEC3 colours; bad meshes are refuse
   const auto dir = test::scratch_dir("mesh_glb");
   const auto path = dir / "mesh.glb";
   exporter::write_mesh_glb(path.string(), square());
-  const std::string bytes = slurp(path);
+  const std::string bytes = read_file(path);
   REQUIRE(bytes.compare(0, 4, "glTF") == 0);
   uint32_t json_len = 0;
   std::memcpy(&json_len, bytes.data() + 12, 4);

@@ -102,7 +102,7 @@ TEST_CASE("triangle glb: the file holds the documented layout", "[export][glb]")
   auto s = flat::test::random_soup(n, torch::kFloat, 9);
   const auto path = (dir / "soup.glb").string();
   write_triangle_glb(path, soup_of(s));
-  const Glb g = split_glb(flat::test::slurp(path));
+  const Glb g = split_glb(flat::test::read_file(path));
   const auto& j = g.json;
   CHECK(j["asset"]["version"] == "2.0");
   CHECK(j["asset"]["generator"] == "FLAT-C++");
@@ -163,7 +163,7 @@ TEST_CASE("triangle glb: the reader applies the node transform of other files", 
   write_triangle_glb(ours, soup_of(s));
   // Same file with an identity rotation: its positions are then y-up world
   // coordinates, which read back flipped into our y-down world.
-  std::string bytes = flat::test::slurp(ours);
+  std::string bytes = flat::test::read_file(ours);
   const std::string from = "\"rotation\":[1.0,0.0,0.0,0.0]", to = "\"rotation\":[0.0,0.0,0.0,1.0]";
   const size_t at = bytes.find(from);
   REQUIRE(at != std::string::npos);
@@ -201,7 +201,7 @@ TEST_CASE("triangle glb: bad input is reported", "[export][glb]") {
   REQUIRE_THROWS_WITH(read_triangle_glb((dir / "missing.glb").string()), FLAT_CONTAINS("missing.glb"));
   const auto good = (dir / "good.glb").string();
   write_triangle_glb(good, soup_of(s));
-  const std::string bytes = flat::test::slurp(good);
+  const std::string bytes = flat::test::read_file(good);
   const auto cut = (dir / "truncated.glb").string();
   std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() - 40);
   REQUIRE_THROWS_WITH(read_triangle_glb(cut), FLAT_CONTAINS("truncated.glb"));

@@ -9,9 +9,11 @@
 #include "flat/core/error.h"
 #include "flat/export/triangle_ply.h"
 #include "render/render_scenes.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 using flat::exporter::read_triangle_ply;
+using flat::test::read_file;
 using flat::exporter::write_triangle_ply;
 
 TEST_CASE("triangle ply: write then read gives the same soup", "[export][ply]") {
@@ -33,8 +35,7 @@ TEST_CASE("triangle ply: malformed files are reported with file and element", "[
   auto s = flat::test::random_soup(3, torch::kFloat, 4);
   const auto good = (dir / "good.ply").string();
   write_triangle_ply(good, {s.vertices, s.colors, s.opacities, s.sigmas});
-  std::ifstream in(good, std::ios::binary);
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string bytes = read_file(good);
   const auto truncated = (dir / "truncated.ply").string();
   std::ofstream(truncated, std::ios::binary) << bytes.substr(0, bytes.size() - 10);
   REQUIRE_THROWS_WITH(read_triangle_ply(truncated), FLAT_CONTAINS("truncated.ply: element 'face'"));
@@ -57,11 +58,6 @@ TEST_CASE("triangle ply: malformed files are reported with file and element", "[
 
 namespace {
 
-std::string file_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 template <class T>
 void put(std::string& out, T value) {
   out.append(reinterpret_cast<const char*>(&value), sizeof(T));
@@ -79,7 +75,7 @@ TEST_CASE("triangle ply: vertex colours are the face colours and opacity, quanti
   s.opacities[1] = 0.0f;
   const auto path = (dir / "soup.ply").string();
   write_triangle_ply(path, {s.vertices, s.colors, s.opacities, s.sigmas});
-  const std::string bytes = file_bytes(path);
+  const std::string bytes = read_file(path);
   const std::string header_end = "end_header\n";
   const size_t body = bytes.find(header_end);
   REQUIRE(body != std::string::npos);

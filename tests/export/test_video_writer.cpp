@@ -57,7 +57,7 @@ TEST_CASE("mp4: frames, padded size and colours survive the encoder", "[export][
                                    "default=noprint_wrappers=1", path},
                                   log, 60) == 0);
   std::map<std::string, std::string> info;
-  std::istringstream lines(flat::test::slurp(log));
+  std::istringstream lines(flat::test::read_file(log));
   for (std::string line; std::getline(lines, line);) {
     const auto eq = line.find('=');
     if (eq != std::string::npos) info[line.substr(0, eq)] = line.substr(eq + 1);
@@ -74,7 +74,7 @@ TEST_CASE("mp4: frames, padded size and colours survive the encoder", "[export][
   const auto raw = (dir / "decoded.rgb").string();
   REQUIRE(flat::test::run_program({ffmpeg, "-v", "error", "-i", path, "-f", "rawvideo", "-pix_fmt", "rgb24", raw},
                                   (dir / "decode.txt").string(), 60) == 0);
-  const std::string bytes = flat::test::slurp(raw);
+  const std::string bytes = flat::test::read_file(raw);
   REQUIRE(bytes.size() == size_t(k * 34 * 48 * 3));
   auto decoded = torch::from_blob(const_cast<char*>(bytes.data()), {k, 34, 48, 3}, torch::kUInt8)
                      .to(torch::kFloat)

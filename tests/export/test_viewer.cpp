@@ -101,9 +101,9 @@ TEST_CASE("viewer: folder holds the page, three.js, the GLB and the cameras", "[
   write_viewer(folder, glb_path, cams, three);
   for (const char* f : {"index.html", "three.min.js", "OrbitControls.js", "GLTFLoader.js", "scene_glb.js", "cameras.js"})
     CHECK(fs::is_regular_file(fs::path(folder) / f));
-  CHECK(flat::test::slurp(folder + "/three.min.js") == flat::test::slurp(three + "/three.min.js"));
-  CHECK(decode_base64(script_string(flat::test::slurp(folder + "/scene_glb.js"), "FLAT_SCENE_GLB")) == glb);
-  std::string cams_js = flat::test::slurp(folder + "/cameras.js");
+  CHECK(flat::test::read_file(folder + "/three.min.js") == flat::test::read_file(three + "/three.min.js"));
+  CHECK(decode_base64(script_string(flat::test::read_file(folder + "/scene_glb.js"), "FLAT_SCENE_GLB")) == glb);
+  std::string cams_js = flat::test::read_file(folder + "/cameras.js");
   const size_t eq = cams_js.find("window.FLAT_CAMERAS = ");
   REQUIRE(eq != std::string::npos);
   cams_js = cams_js.substr(eq + 22);
@@ -113,7 +113,7 @@ TEST_CASE("viewer: folder holds the page, three.js, the GLB and the cameras", "[
   CHECK(doc["cameras"][0]["width"] == 64);
   CHECK(doc["cameras"][0]["intrinsics"][2].get<double>() == Approx(0.45));
   CHECK(doc["cameras"][0]["c2w"][2][3].get<double>() == Approx(3.0));
-  const std::string page = flat::test::slurp(folder + "/index.html");
+  const std::string page = flat::test::read_file(folder + "/index.html");
   for (const char* s : {"three.min.js", "OrbitControls.js", "GLTFLoader.js", "scene_glb.js", "cameras.js"})
     CHECK(page.find(std::string("<script src=\"") + s + "\"></script>") != std::string::npos);
 
@@ -197,7 +197,7 @@ torch::Tensor screenshot(const std::string& chromium, const fs::path& dir, const
        "--window-size=" + std::to_string(win_w) + "," + std::to_string(win_h), "--virtual-time-budget=20000",
        "--screenshot=" + png, url},
       log, 180);
-  INFO("chromium log: " << flat::test::slurp(log));
+  INFO("chromium log: " << flat::test::read_file(log));
   REQUIRE(rc == 0);
   REQUIRE(fs::exists(png));
   const auto img = flat::read_image(png);
@@ -296,8 +296,8 @@ TEST_CASE("viewer: with a mesh GLB the page toggles to the opaque mesh (show=mes
   sc.folder = (dir / "viewer_mesh").string();
   write_viewer(sc.folder, (dir / "scene.glb").string(), one_camera(sc.intrinsics, sc.c2w, width, height), three,
                mesh_glb);
-  CHECK(decode_base64(script_string(flat::test::slurp(sc.folder + "/mesh_glb.js"), "FLAT_MESH_GLB")) ==
-        flat::test::slurp(mesh_glb));
+  CHECK(decode_base64(script_string(flat::test::read_file(sc.folder + "/mesh_glb.js"), "FLAT_MESH_GLB")) ==
+        flat::test::read_file(mesh_glb));
   const auto soup_view = raster_view(sc, width, height);
   auto cyan = sc;
   cyan.colors = torch::tensor({0.1f, 0.9f, 0.9f}).expand({sc.vertices.size(0), 3}).contiguous();

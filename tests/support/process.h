@@ -20,6 +20,8 @@
 #include <thread>
 #include <vector>
 
+#include "support/read_file.h"
+
 extern char** environ;
 
 namespace flat::test {
@@ -91,13 +93,6 @@ inline int run(const std::vector<std::string>& argv, const std::string& log,
   return wait_for(spawn(argv, log, extra_env));
 }
 
-inline std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 inline int64_t count_lines(const std::string& path) {
   std::ifstream in(path);
   int64_t n = 0;
@@ -138,11 +133,6 @@ inline std::string find_program(const std::string& name) {
     if (::stat(p.c_str(), &st) == 0 && S_ISREG(st.st_mode) && ::access(p.c_str(), X_OK) == 0) return p;
   }
   return {};
-}
-
-inline std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
 // Runs an external program (argv[0] a path) in a group of its own; returns the
