@@ -33,16 +33,21 @@ inline ToolResult tool(const std::string& name, const std::vector<std::string>& 
   return r;
 }
 
+// flat_latents over the scenes under `scenes` with a random-weight VAE of
+// width 4 and 5-frame windows (the tool tests' latents), then `extra`.
+inline ToolResult random_latents(const std::string& scenes, const std::string& log_dir, const std::string& tag,
+                                 const std::vector<std::string>& extra = {}) {
+  std::vector<std::string> args = {"--scenes", scenes, "--random-weights", "--dim", "4", "--window", "5"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  return tool("flat_latents", args, log_dir, tag);
+}
+
 // Every regular file under `dir` (relative path -> bytes).
 inline std::map<std::string, std::string> snapshot(const std::string& dir) {
   std::map<std::string, std::string> files;
   if (!std::filesystem::exists(dir)) return files;
   for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
-    if (e.is_regular_file()) {
-      std::ifstream in(e.path(), std::ios::binary);
-      files[std::filesystem::relative(e.path(), dir).string()] =
-          std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    }
+    if (e.is_regular_file()) files[std::filesystem::relative(e.path(), dir).string()] = read_file(e.path());
   return files;
 }
 

@@ -31,9 +31,7 @@ const Trained& trained() {
     x.synth = x.dir + "/synth";
     REQUIRE(tool("flat_synth", {"--out", x.synth, "--count", "1", "--frames", "9", "--size", "16x24"}, x.dir, "synth")
                 .rc == 0);
-    REQUIRE(tool("flat_latents", {"--scenes", x.synth, "--random-weights", "--dim", "4", "--window", "5"}, x.dir,
-                 "latents")
-                .rc == 0);
+    REQUIRE(random_latents(x.synth, x.dir, "latents").rc == 0);
     x.run = x.dir + "/run";
     x.config = x.dir + "/stage.yaml";
     write_text(x.config, "run_dir: " + x.run +

@@ -336,8 +336,7 @@ TEST_CASE("flat_synth: a second batch never replaces the first one's scenes", "[
   const std::vector<std::string> batch = {"--out", out, "--count", "1", "--frames", "5", "--size", "16x24"};
   REQUIRE(tool("flat_synth", batch, d, "first").rc == 0);
   // Latents of the first batch, which a replaced scene would orphan.
-  REQUIRE(tool("flat_latents", {"--scenes", out, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents")
-              .rc == 0);
+  REQUIRE(random_latents(out, d, "latents").rc == 0);
   const auto before = snapshot(out + "/room_000000");
   REQUIRE(before.count("latents_16x24_f5.safetensors"));
   auto again = tool("flat_synth", batch, d, "second");
@@ -484,8 +483,7 @@ TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, repo
   const std::string good_json = read_file(scene_json);
   fs::resize_file(scene_json, fs::file_size(scene_json) / 2);  // a scene.json cut short
   const auto before = snapshot(data + "/room_000000");
-  auto latents = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
-                      "latents_bad");
+  auto latents = random_latents(data, d, "latents_bad");
   INFO(latents.output);
   CHECK(latents.rc == 1);
   CHECK_THAT(latents.output, FLAT_CONTAINS("scene.json"));
@@ -506,8 +504,7 @@ TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, repo
     REQUIRE_FALSE(png.empty());
     fs::resize_file(png, 40);
     const auto before_frames = snapshot(data + "/room_000000");
-    auto mid = tool("flat_latents", {"--scenes", data, "--random-weights", "--dim", "4", "--window", "5"}, d,
-                    "latents_bad_frame");
+    auto mid = random_latents(data, d, "latents_bad_frame");
     INFO(mid.output);
     CHECK(mid.rc == 1);
     CHECK(snapshot(data + "/room_000000") == before_frames);
@@ -519,8 +516,7 @@ TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, repo
     fs::copy(data + "/room_000000", two + "/room_a", fs::copy_options::recursive);  // the bad frame
     fs::copy(f.synth + "/room_000000", two + "/room_b", fs::copy_options::recursive);
     const auto before_a = snapshot(two + "/room_a");
-    auto second = tool("flat_latents", {"--scenes", two, "--random-weights", "--dim", "4", "--window", "5"}, d,
-                       "latents_first_bad");
+    auto second = random_latents(two, d, "latents_first_bad");
     INFO(second.output);
     CHECK(second.rc == 1);
     CHECK_THAT(second.output, FLAT_CONTAINS("room_a"));
@@ -534,7 +530,7 @@ TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, repo
   // A run that succeeds leaves its log there, as docs/cli.md says.
   const std::string good = d + "/good";
   fs::copy(f.synth, good, fs::copy_options::recursive);
-  auto ok = tool("flat_latents", {"--scenes", good, "--random-weights", "--dim", "4", "--window", "5"}, d, "latents_ok");
+  auto ok = random_latents(good, d, "latents_ok");
   INFO(ok.output);
   CHECK(ok.rc == 0);
   CHECK_THAT(read_file(good + "/flat_latents.log"), FLAT_CONTAINS("1 set(s) encoded"));
@@ -542,8 +538,7 @@ TEST_CASE("flat_latents, flat_pack: a failing scene is left byte-identical, repo
   const std::string blocked = d + "/blocked";
   fs::copy(f.synth, blocked, fs::copy_options::recursive);
   fs::create_directories(blocked + "/flat_latents.log");
-  auto warned = tool("flat_latents", {"--scenes", blocked, "--random-weights", "--dim", "4", "--window", "5"}, d,
-                     "latents_blocked_log");
+  auto warned = random_latents(blocked, d, "latents_blocked_log");
   INFO(warned.output);
   CHECK(warned.rc == 0);
   CHECK_THAT(warned.output, FLAT_CONTAINS("cannot append the log there"));
@@ -605,18 +600,14 @@ TEST_CASE("flat_latents: latent sets by size and window; a new set leaves the ot
   fs::create_directories(sharded);
   REQUIRE(tool("flat_synth", {"--out", sharded, "--count", "3", "--frames", "5", "--size", "16x24"}, d, "synth2").rc ==
           0);
-  auto s0 = tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--window", "5", "--shard",
-                                  "0/2"},
-                 d, "shard0");
+  auto s0 = random_latents(sharded, d, "shard0", {"--shard", "0/2"});
   INFO(s0.output);
   CHECK(s0.rc == 0);
   CHECK(fs::exists(sharded + "/room_000000/latents_16x24_f5.safetensors"));
   CHECK_FALSE(fs::exists(sharded + "/room_000001/latents_16x24_f5.safetensors"));
   CHECK(fs::exists(sharded + "/room_000002/latents_16x24_f5.safetensors"));
   CHECK(fs::exists(sharded + "/flat_latents_report.shard-0-of-2.json"));
-  auto s1 = tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--window", "5", "--shard",
-                                  "1/2"},
-                 d, "shard1");
+  auto s1 = random_latents(sharded, d, "shard1", {"--shard", "1/2"});
   CHECK(s1.rc == 0);
   CHECK(fs::exists(sharded + "/room_000001/latents_16x24_f5.safetensors"));
   CHECK(tool("flat_latents", {"--scenes", sharded, "--random-weights", "--dim", "4", "--shard", "2/2"}, d, "shard_bad")

@@ -6,6 +6,8 @@
 
 #include "flat/core/error.h"
 #include "flat/core/npy.h"
+#include "support/error_of.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 using namespace flat;
@@ -34,6 +36,14 @@ std::string npy_bytes(int major, const std::string& dict, const std::string& dat
   return out + header + data;
 }
 
+// A version-1 file whose header dict holds these descr, shape and fortran_order texts, then `extra` keys.
+std::string npy_v1(const std::string& descr, const std::string& shape, const std::string& data,
+                   const std::string& fortran = "False", const std::string& extra = "") {
+  const std::string dict =
+      "{'descr': " + descr + ", 'fortran_order': " + fortran + ", 'shape': " + shape + ", " + extra + "}";
+  return npy_bytes(1, dict, data);
+}
+
 // The same file with the header's final '\n' turned into a space.
 std::string without_newline(std::string bytes) {
   const size_t len = size_t(static_cast<unsigned char>(bytes[8])) | size_t(static_cast<unsigned char>(bytes[9])) << 8;
@@ -51,12 +61,7 @@ fs::path put(const fs::path& dir, const std::string& name, const std::string& by
 }
 
 std::string read_error(const fs::path& file) {
-  try {
-    read_npy(file.string());
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
+  return test::error_of([&] { read_npy(file.string()); });
 }
 
 }  // namespace
@@ -75,9 +80,7 @@ TEST_CASE("npy: files written by numpy read back with their values", "[npy]") {
   CHECK(at::equal(b, at::arange(6, at::kFloat).view({3, 2, 1})));
   // Our writer produces numpy's bytes exactly (same header text and padding).
   write_npy((dir / "w.npy").string(), a);
-  std::ifstream in(dir / "w.npy", std::ios::binary);
-  std::string written((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  CHECK(written == kNumpyF2V1);
+  CHECK(test::read_file(dir / "w.npy") == kNumpyF2V1);
 }
 
 TEST_CASE("npy: versions 1, 2 and 3, every supported dtype, round trips", "[npy]") {
@@ -124,39 +127,24 @@ TEST_CASE("npy: every defect is refused with its own message naming the file", "
   };
   const std::vector<Case> cases = {
       {"magic.npy", "NUMPY\x01\x00 not numpy at all", "not a .npy file"},
-      {"version.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2), }", ok_data).replace(6, 1, "\x04"),
-       "format version 4.0 is not supported"},
-      {"fortran.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 2), }", ok_data),
-       "Fortran (column-major) order"},
-      {"bigendian.npy", npy_bytes(1, "{'descr': '>f4', 'fortran_order': False, 'shape': (2, 2), }", ok_data),
-       "big-endian"},
-      {"complex.npy", npy_bytes(1, "{'descr': '<c8', 'fortran_order': False, 'shape': (2,), }", ok_data),
-       "dtype '<c8' is not supported"},
-      {"struct.npy", npy_bytes(1, "{'descr': [('x', '<f4')], 'fortran_order': False, 'shape': (2,), }", ok_data),
-       "expected a quoted string"},
-      {"extra_key.npy",
-       npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2), 'extra': 1, }", ok_data),
-       "unexpected key 'extra'"},
+      {"version.npy", npy_v1("'<f4'", "(2, 2)", ok_data).replace(6, 1, "\x04"), "format version 4.0 is not supported"},
+      {"fortran.npy", npy_v1("'<f4'", "(2, 2)", ok_data, "True"), "Fortran (column-major) order"},
+      {"bigendian.npy", npy_v1("'>f4'", "(2, 2)", ok_data), "big-endian"},
+      {"complex.npy", npy_v1("'<c8'", "(2,)", ok_data), "dtype '<c8' is not supported"},
+      {"struct.npy", npy_v1("[('x', '<f4')]", "(2,)", ok_data), "expected a quoted string"},
+      {"extra_key.npy", npy_v1("'<f4'", "(2, 2)", ok_data, "False", "'extra': 1, "), "unexpected key 'extra'"},
       {"twice.npy", npy_bytes(1, "{'descr': '<f4', 'descr': '<f4', 'fortran_order': False, 'shape': (4,), }", ok_data),
        "key 'descr' given twice"},
       {"no_shape.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, }", ok_data), "missing key 'shape'"},
-      {"not_tuple.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (4), }", ok_data),
-       "is not a tuple"},
-      {"negative.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (-4,), }", ok_data),
-       "tuple of non-negative integers"},
-      {"truncated.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", ok_data),
+      {"not_tuple.npy", npy_v1("'<f4'", "(4)", ok_data), "is not a tuple"},
+      {"negative.npy", npy_v1("'<f4'", "(-4,)", ok_data), "tuple of non-negative integers"},
+      {"truncated.npy", npy_v1("'<f4'", "(2, 3)", ok_data),
        "truncated: shape (2,3) of '<f4' needs 24 data bytes, the file holds 16"},
-      {"long.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (3,), }", ok_data),
-       "4 bytes after the array"},
-      {"header_cut.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2), }", "").substr(0, 40),
-       "truncated in its header"},
-      {"no_newline.npy", without_newline(npy_bytes(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (1,), }", floats({1}))),
-       "does not end with a newline"},
-      {"bool.npy", npy_bytes(1, "{'descr': '|b1', 'fortran_order': False, 'shape': (2,), }", "\x01\x02"),
-       "bool array holds a byte other than 0 or 1"},
-      {"huge.npy",
-       npy_bytes(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296), }", ok_data),
-       "is too large"},
+      {"long.npy", npy_v1("'<f4'", "(3,)", ok_data), "4 bytes after the array"},
+      {"header_cut.npy", npy_v1("'<f4'", "(2, 2)", "").substr(0, 40), "truncated in its header"},
+      {"no_newline.npy", without_newline(npy_v1("'<f4'", "(1,)", floats({1}))), "does not end with a newline"},
+      {"bool.npy", npy_v1("'|b1'", "(2,)", "\x01\x02"), "bool array holds a byte other than 0 or 1"},
+      {"huge.npy", npy_v1("'<f8'", "(4294967296, 4294967296)", ok_data), "is too large"},
   };
   for (const auto& c : cases) {
     INFO(c.name);
@@ -165,7 +153,7 @@ TEST_CASE("npy: every defect is refused with its own message naming the file", "
     CHECK_THAT(msg, FLAT_CONTAINS(c.name));
   }
   // A 1-D array marked Fortran order is the same bytes: accepted.
-  auto one_d = read_npy(put(dir, "f1d.npy", npy_bytes(1, "{'descr': '<f4', 'fortran_order': True, 'shape': (4,), }", ok_data)).string());
+  auto one_d = read_npy(put(dir, "f1d.npy", npy_v1("'<f4'", "(4,)", ok_data, "True")).string());
   CHECK(at::equal(one_d, at::tensor({1.f, 2.f, 3.f, 4.f})));
   CHECK_THAT(read_error(dir / "missing.npy"), FLAT_CONTAINS("missing.npy: cannot open .npy file"));
 }

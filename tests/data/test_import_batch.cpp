@@ -15,9 +15,11 @@
 #include "flat/data/scene.h"
 #include "flat/data/scene_frames.h"
 #include "flat/data/synthetic_export.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 using namespace flat;
+using flat::test::read_file;
 namespace fs = std::filesystem;
 
 namespace {
@@ -25,11 +27,6 @@ namespace {
 const bool kSingleThread = (at::set_num_threads(1), true);
 
 constexpr int kFrames = 3;
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
 
 // A RealEstate10K clip: <cams>/<name>.txt (URL line, then per frame
 // "timestamp fx fy cx cy 0 0" and a row-major world-to-camera [I | t] with
@@ -70,7 +67,30 @@ std::vector<std::string> staging_leftovers(const fs::path& dir) {
   return out;
 }
 
-nlohmann::json read_summary(const fs::path& out) { return nlohmann::json::parse(slurp(out / "import_summary.json")); }
+nlohmann::json read_summary(const fs::path& out) {
+  return nlohmann::json::parse(read_file(out / "import_summary.json"));
+}
+
+// Options for a batch of RealEstate10K clips: camera files in `cams`, frames under `frames`.
+data::BatchImportOptions re10k_batch(const fs::path& cams, const fs::path& frames, const fs::path& out, int jobs) {
+  data::BatchImportOptions o;
+  o.format = data::BatchFormat::re10k;
+  o.in = cams.string();
+  o.frames_root = frames.string();
+  o.out_root = out.string();
+  o.jobs = jobs;
+  return o;
+}
+
+// Options for a batch of nerfstudio scene folders under `in`.
+data::BatchImportOptions transforms_batch(const fs::path& in, const fs::path& out, int jobs) {
+  data::BatchImportOptions o;
+  o.format = data::BatchFormat::transforms;
+  o.in = in.string();
+  o.out_root = out.string();
+  o.jobs = jobs;
+  return o;
+}
 
 }  // namespace
 
@@ -83,7 +103,7 @@ TEST_CASE("batch re10k: good clips land, bad ones are reported and skipped, reru
   // A camera file cut short on its third line (its second frame line).
   write_re10k_clip(cams, frames, "bad_truncated", 7);
   {
-    std::string text = slurp(cams / "bad_truncated.txt");
+    std::string text = read_file(cams / "bad_truncated.txt");
     std::istringstream lines(text);
     std::string a, b, c, d;
     std::getline(lines, a), std::getline(lines, b), std::getline(lines, c), std::getline(lines, d);
@@ -96,12 +116,7 @@ TEST_CASE("batch re10k: good clips land, bad ones are reported and skipped, reru
   std::ofstream(cams / ".hidden.txt") << "x";
   std::ofstream(cams / "README.md") << "x";
 
-  data::BatchImportOptions o;
-  o.format = data::BatchFormat::re10k;
-  o.in = cams.string();
-  o.frames_root = frames.string();
-  o.out_root = out.string();
-  o.jobs = 3;
+  data::BatchImportOptions o = re10k_batch(cams, frames, out, 3);
   CHECK(data::is_batch_input(data::BatchFormat::re10k, cams.string()));
   CHECK_FALSE(data::is_batch_input(data::BatchFormat::re10k, (cams / "clip_a.txt").string()));
   const auto clips = data::list_batch_clips(o);
@@ -155,7 +170,7 @@ TEST_CASE("batch re10k: good clips land, bad ones are reported and skipped, reru
   CHECK(r.imported == 0);
   CHECK(r.present == 6);
   CHECK(r.failed == 2);
-  CHECK(slurp(out / "clip_a" / "marker.txt") == "kept");
+  CHECK(read_file(out / "clip_a" / "marker.txt") == "kept");
   summary = read_summary(out);
   CHECK(summary["imported"] == 0);
   CHECK(summary["already_present"] == 6);
@@ -198,19 +213,14 @@ TEST_CASE("batch import: an output folder that is not a scene is reported and ke
   write_re10k_clip(cams, frames, "two", 1);
   fs::create_directories(out / "two");
   std::ofstream(out / "two" / "notes.txt") << "the user's own file";
-  data::BatchImportOptions o;
-  o.format = data::BatchFormat::re10k;
-  o.in = cams.string();
-  o.frames_root = frames.string();
-  o.out_root = out.string();
-  o.jobs = 2;
+  data::BatchImportOptions o = re10k_batch(cams, frames, out, 2);
   auto r = data::import_batch(o);
   CHECK(r.imported == 1);
   CHECK(r.failed == 1);
   REQUIRE(r.failures.size() == 1);
   CHECK(r.failures[0].name == "two");
   CHECK_THAT(r.failures[0].reason, FLAT_CONTAINS((out / "two").string() + ": exists but is not a readable scene"));
-  CHECK(slurp(out / "two" / "notes.txt") == "the user's own file");
+  CHECK(read_file(out / "two" / "notes.txt") == "the user's own file");
   // --overwrite: every clip again, each replaced whole once its new scene is complete.
   std::ofstream(out / "one" / "marker.txt") << "old";
   o.import.overwrite = true;
@@ -254,11 +264,7 @@ TEST_CASE("batch transforms: a root of nerfstudio scene folders, one with an inv
   CHECK_FALSE(data::is_batch_input(data::BatchFormat::transforms, (in / "s1").string()));  // one scene
   CHECK_FALSE(data::is_batch_input(data::BatchFormat::transforms, (in / "s1" / "transforms.json").string()));
 
-  data::BatchImportOptions o;
-  o.format = data::BatchFormat::transforms;
-  o.in = in.string();
-  o.out_root = out.string();
-  o.jobs = 2;
+  data::BatchImportOptions o = transforms_batch(in, out, 2);
   auto r = data::import_batch(o);
   CHECK(r.clips == 4);
   CHECK(r.imported == 3);
@@ -326,12 +332,7 @@ TEST_CASE("batch import with depth maps: the depth option is a root of per-clip 
     for (int f = 0; f < kFrames; ++f)
       data::write_depth((depth / name / (std::to_string(1000000 + 33366 * f) + ".exr")).string(),
                         torch::full({1, 8, 10}, metres));
-  data::BatchImportOptions o;
-  o.format = data::BatchFormat::re10k;
-  o.in = cams.string();
-  o.frames_root = frames.string();
-  o.out_root = out.string();
-  o.jobs = 2;
+  data::BatchImportOptions o = re10k_batch(cams, frames, out, 2);
   o.import.geometry.depth_dir = depth.string();
   auto r = data::import_batch(o);
   CHECK(r.imported == 2);
@@ -371,7 +372,7 @@ TEST_CASE("batch import: {clip} in --depth / --normals finds maps inside each DL
   e.synth.width = 24;
   const auto exported = data::export_synthetic(e, in.string());
   REQUIRE(exported.size() == 3);
-  const auto manifest = nlohmann::json::parse(slurp(in / "manifest.json"));
+  const auto manifest = nlohmann::json::parse(read_file(in / "manifest.json"));
   const std::string batch_line = manifest["import"]["batch"];
   CHECK_THAT(batch_line, FLAT_CONTAINS("--depth 'ROOT/{clip}/depth' --depth-png-scale 0.001"));
   CHECK_THAT(batch_line, FLAT_CONTAINS("--normals 'ROOT/{clip}/normals' --normals-convention opengl"));
@@ -379,11 +380,7 @@ TEST_CASE("batch import: {clip} in --depth / --normals finds maps inside each DL
   const std::string lost = exported[2].name;
   fs::rename(in / lost / "normals", root / "normals_moved_away");
 
-  data::BatchImportOptions o;
-  o.format = data::BatchFormat::transforms;
-  o.in = in.string();
-  o.out_root = out.string();
-  o.jobs = 2;
+  data::BatchImportOptions o = transforms_batch(in, out, 2);
   o.import.metric_scale = e.unit;
   o.import.geometry.depth_dir = (in / "{clip}" / "depth").string();
   o.import.geometry.depth_png_scale = 0.001;

@@ -2,6 +2,8 @@
 // a whole resumable run over synthetic scenes with a failing one.
 #include <filesystem>
 #include <fstream>
+#include <utility>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -10,16 +12,24 @@
 #include "flat/eval/evaluation_run.h"
 #include "flat/eval/image_metrics.h"
 #include "model_fixtures.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 using namespace flat;
 
 namespace {
 
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
+// flat_eval of `model` over `datasets` (NAME=FOLDER) into `out`, on the CPU, logging warnings only.
+eval::EvalRunOptions eval_options(const std::string& model, std::vector<std::string> datasets, const fs::path& out) {
+  eval::EvalRunOptions o;
+  o.model = model;
+  o.datasets = std::move(datasets);
+  o.out_dir = out.string();
+  o.device = "cpu";
+  o.log_level = "warn";
+  return o;
 }
 
 eval::SceneScore score(const std::string& dataset, const std::string& scene, double psnr, double cosine,
@@ -178,14 +188,9 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   test::write_scene_with_latents((dir / "setB/room_broken").string(), 4);
   fs::remove(dir / "setB/room_broken/latents_48x80_f9.safetensors");
 
-  eval::EvalRunOptions o;
-  o.model = model;
-  o.datasets = {"A=" + (dir / "setA").string(), "B=" + (dir / "setB").string()};
-  o.out_dir = (dir / "out").string();
-  o.device = "cpu";
+  auto o = eval_options(model, {"A=" + (dir / "setA").string(), "B=" + (dir / "setB").string()}, dir / "out");
   o.name = "tiny";
   o.settings.max_views = 4;
-  o.log_level = "warn";
   auto s = eval::run_evaluation(o);
   CHECK(s.scenes == 4);
   CHECK(s.scored == 3);
@@ -216,11 +221,11 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   CHECK(fs::exists(fs::path(o.out_dir) / "table.md"));
 
   // Resume: the scored scenes are reused (their files untouched), the failed one is tried again.
-  const std::string a_score = read_text(fs::path(o.out_dir) / "scores/A/room_a.json");
+  const std::string a_score = read_file(fs::path(o.out_dir) / "scores/A/room_a.json");
   auto again = eval::run_evaluation(o);
   CHECK(again.reused == 3);
   CHECK(again.failed == 1);
-  CHECK(read_text(fs::path(o.out_dir) / "scores/A/room_a.json") == a_score);
+  CHECK(read_file(fs::path(o.out_dir) / "scores/A/room_a.json") == a_score);
   // The same model file spelled another way is the same model.
   auto spelled = o;
   spelled.model = (dir / "." / "model.safetensors").string();
@@ -281,14 +286,9 @@ TEST_CASE("flat_eval baselines: a constant model's swap score equals its own; pr
   test::write_tiny_model(varying, 8, 7);
 
   auto evaluate = [&](const std::string& model, const std::string& out) {
-    eval::EvalRunOptions o;
-    o.model = model;
+    auto o = eval_options(model, {"synth=" + (dir / "set").string()}, dir / out);
     o.overrides = {"raster.background=[0.5, 0.5, 0.5]"};
-    o.datasets = {"synth=" + (dir / "set").string()};
-    o.out_dir = (dir / out).string();
-    o.device = "cpu";
     o.settings.max_views = 5;
-    o.log_level = "warn";
     auto s = eval::run_evaluation(o);
     REQUIRE(s.scored == 3);
     return eval::dataset_means(eval::read_results_json(o.out_dir + "/results.json").scores).back();
@@ -306,10 +306,10 @@ TEST_CASE("flat_eval baselines: a constant model's swap score equals its own; pr
 
   // Provenance: the fixtures' latents are random, and every output says so.
   CHECK(c.random_latent_scenes == 3);
-  const std::string table = read_text(dir / "out_constant/table.md");
+  const std::string table = read_file(dir / "out_constant/table.md");
   CHECK(table.find("RANDOM-ENCODER LATENTS") != std::string::npos);
   CHECK(table.find("↳ swap") != std::string::npos);
-  const auto json = nlohmann::json::parse(read_text(dir / "out_constant/results.json"));
+  const auto json = nlohmann::json::parse(read_file(dir / "out_constant/results.json"));
   CHECK(json.at("latent_encoder") == "random");
   CHECK(json.at("scenes")[0].at("swap_scene") == "room_1");
 }
@@ -326,12 +326,7 @@ TEST_CASE("flat_eval: a model with a NaN weight is named at load, not blamed on 
   t.view(-1)[0] = NAN;
   tensors[key] = t;
   save_safetensors(model, tensors, meta);
-  eval::EvalRunOptions o;
-  o.model = model;
-  o.datasets = {"S=" + (dir / "set").string()};
-  o.out_dir = (dir / "out").string();
-  o.device = "cpu";
-  o.log_level = "warn";
+  auto o = eval_options(model, {"S=" + (dir / "set").string()}, dir / "out");
   REQUIRE_THROWS_WITH(eval::run_evaluation(o), FLAT_CONTAINS(model + ": weight '" + key + "'") &&
                                                    FLAT_CONTAINS("non-finite"));
   CHECK(!fs::exists(o.out_dir));
@@ -342,11 +337,7 @@ TEST_CASE("flat_eval's progress line shows the running mean PSNR, not the last s
   const std::string model = (dir / "model.safetensors").string();
   test::write_tiny_model(model);
   for (int i = 0; i < 3; ++i) test::write_scene_with_latents((dir / ("set/room_" + std::to_string(i))).string(), 10 + i);
-  eval::EvalRunOptions o;
-  o.model = model;
-  o.datasets = {"S=" + (dir / "set").string()};
-  o.out_dir = (dir / "out").string();
-  o.device = "cpu";
+  auto o = eval_options(model, {"S=" + (dir / "set").string()}, dir / "out");
   o.name = "tiny";
   o.settings.max_views = 4;
   o.log_level = "info";  // the progress lines go to eval.log (not a terminal here)

@@ -13,9 +13,11 @@
 #include "flat/infer/inference.h"
 #include "flat/infer/trajectory_renders.h"
 #include "model_fixtures.h"
+#include "support/read_file.h"
 #include "test_support.h"
 
 namespace fs = std::filesystem;
+using flat::test::read_file;
 using namespace flat;
 
 namespace {
@@ -49,9 +51,13 @@ infer::InferOptions options(const Setup& s, const std::string& out) {
   return o;
 }
 
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
+// The same options with the scene PLY as the only output (no renders, novel views nor GLB).
+infer::InferOptions ply_only_options(const Setup& s, const std::string& out) {
+  infer::InferOptions o = options(s, out);
+  o.renders = false;
+  o.novel.preset = "none";
+  o.glb = false;
+  return o;
 }
 
 bool no_staging_left(const fs::path& dir) {
@@ -89,7 +95,7 @@ TEST_CASE("flat_infer decodes a scene window and writes PLY, cameras, renders an
   } else {
     CHECK(fs::exists(out / "renders/input/000008.safetensors"));
   }
-  auto j = nlohmann::json::parse(read_text(out / "summary.json"));
+  auto j = nlohmann::json::parse(read_file(out / "summary.json"));
   CHECK(j.at("triangles_kept").get<int64_t>() == summary.triangles_kept);
   CHECK(j.at("novel_trajectory").get<std::string>() == "orbit");  // which novel views these are
   CHECK(infer::format_summary(summary).find("kept (100.0%, opacity >= 0)") != std::string::npos);
@@ -108,7 +114,7 @@ TEST_CASE("flat_infer: novel views that look past the scene are reported, not pa
   bool noted = false;
   for (const auto& n : summary.notes) noted |= n.find("uncovered") != std::string::npos;
   CHECK(noted);
-  const auto j = nlohmann::json::parse(read_text(fs::path(o.out_dir) / "summary.json"));
+  const auto j = nlohmann::json::parse(read_file(fs::path(o.out_dir) / "summary.json"));
   CHECK(j["uncovered_pixels"]["novel"].get<double>() == Approx(summary.novel_uncovered));
   // The input views themselves are covered.
   CHECK(summary.input_uncovered < 0.05);
@@ -116,17 +122,11 @@ TEST_CASE("flat_infer: novel views that look past the scene are reported, not pa
 
 TEST_CASE("flat_infer: pruning keeps exactly the triangles at or above the threshold", "[infer]") {
   auto s = setup("infer_prune");
-  auto o = options(s, "all");
-  o.renders = false;
-  o.novel.preset = "none";
-  o.glb = false;
+  auto o = ply_only_options(s, "all");
   infer::run_inference(o);
   auto all = exporter::read_triangle_ply(o.out_dir + "/scene.ply");
   const double threshold = all.opacities.median().item<double>();
-  auto o2 = options(s, "pruned");
-  o2.renders = false;
-  o2.novel.preset = "none";
-  o2.glb = false;
+  auto o2 = ply_only_options(s, "pruned");
   o2.prune_opacity = threshold;
   auto summary = infer::run_inference(o2);
   auto kept = exporter::read_triangle_ply(o2.out_dir + "/scene.ply");
@@ -137,10 +137,7 @@ TEST_CASE("flat_infer: pruning keeps exactly the triangles at or above the thres
 
 TEST_CASE("flat_infer: streaming and full-sequence decoding export the same triangles", "[infer]") {
   auto s = setup("infer_streaming");
-  auto a = options(s, "streaming");
-  a.renders = false;
-  a.glb = false;
-  a.novel.preset = "none";
+  auto a = ply_only_options(s, "streaming");
   auto b = a;
   b.out_dir = (s.dir / "full").string();
   b.streaming = false;
@@ -194,23 +191,20 @@ TEST_CASE("flat_infer: a latent file with a trajectory, and latents that do not 
 
 TEST_CASE("flat_infer: bad model, output folder and input fail before anything is written", "[infer]") {
   auto s = setup("infer_bad");
-  auto good = options(s, "out");
-  good.renders = false;
-  good.glb = false;
-  good.novel.preset = "none";
+  auto good = ply_only_options(s, "out");
   infer::run_inference(good);
-  const std::string before = read_text(fs::path(good.out_dir) / "scene.ply");
+  const std::string before = read_file(fs::path(good.out_dir) / "scene.ply");
 
   SECTION("an existing output folder is refused without --overwrite, and kept") {
     REQUIRE_THROWS_WITH(infer::run_inference(good), FLAT_CONTAINS("already exists") && FLAT_CONTAINS("--overwrite"));
-    CHECK(read_text(fs::path(good.out_dir) / "scene.ply") == before);
+    CHECK(read_file(fs::path(good.out_dir) / "scene.ply") == before);
   }
   SECTION("a run that fails midway with --overwrite leaves the old output as it was") {
     auto o = good;
     o.overwrite = true;
     o.input.window = 5;  // the scene has one window
     REQUIRE_THROWS_WITH(infer::run_inference(o), FLAT_CONTAINS("--window-index 5") && FLAT_CONTAINS("scene.json"));
-    CHECK(read_text(fs::path(good.out_dir) / "scene.ply") == before);
+    CHECK(read_file(fs::path(good.out_dir) / "scene.ply") == before);
     CHECK(no_staging_left(s.dir));
   }
   SECTION("an unwritable output folder") {
@@ -234,7 +228,7 @@ TEST_CASE("flat_infer: bad model, output folder and input fail before anything i
   }
   SECTION("a truncated model file") {
     const std::string cut = (s.dir / "cut.safetensors").string();
-    const std::string bytes = read_text(s.model);
+    const std::string bytes = read_file(s.model);
     std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
     auto o = good;
     o.model = cut;
@@ -319,7 +313,7 @@ TEST_CASE("flat_infer: a dolly's novel views get their own depth range (they com
   // The dolly's closest views see the scene nearer than any input view did:
   // with the input views' range their depth would saturate (all bright).
   CHECK(summary.novel_depth_range.first < summary.input_depth_range.first - 0.01);
-  auto j = nlohmann::json::parse(read_text(fs::path(o.out_dir) / "summary.json"));
+  auto j = nlohmann::json::parse(read_file(fs::path(o.out_dir) / "summary.json"));
   CHECK(j.at("depth_display_range_m").at("novel").at(0).get<double>() == Approx(summary.novel_depth_range.first));
 }
 

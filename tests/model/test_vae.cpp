@@ -1,6 +1,8 @@
 // Wan VAE: parameter counts of the pretrained architecture (../shared/docs/wan_vae.md),
 // streaming == full-sequence for encoder and decoder, frame arithmetic.
+#include <functional>
 #include <iostream>
+#include <vector>
 
 #include "flat/core/error.h"
 #include "flat/core/tensor_io.h"
@@ -15,6 +17,22 @@ WanVAEConfig tiny_config() {
   WanVAEConfig c;
   c.dim = 8;  // widths 8, 16, 32, 32: same structure as dim 96
   return c;
+}
+
+// For T' = 1, 2 and 5 latent frames: `run` on `input(t)` streamed equals the
+// full-sequence result, which has the shape `shape(t)`.
+void check_streaming_equals_full(const std::function<at::Tensor(int64_t)>& input,
+                                 const std::function<at::Tensor(const at::Tensor&, bool)>& run,
+                                 const std::function<std::vector<int64_t>(int64_t)>& shape) {
+  torch::NoGradGuard no_grad;
+  for (int64_t t : {1, 2, 5}) {
+    auto x = input(t);
+    auto full = run(x, /*streaming=*/false);
+    auto stream = run(x, /*streaming=*/true);
+    REQUIRE(full.sizes() == at::IntArrayRef(shape(t)));
+    INFO("T' = " << t);
+    CHECK(flat::test::rel_error(stream, full) < 1e-5);
+  }
 }
 }  // namespace
 
@@ -63,29 +81,18 @@ TEST_CASE("Frame arithmetic: 1+4k frames, clear errors otherwise", "[model][vae]
 TEST_CASE("Encoder: streaming equals full sequence (fp32)", "[model][vae]") {
   torch::manual_seed(1);
   WanVAE vae(tiny_config());
-  torch::NoGradGuard no_grad;
-  for (int64_t t : {1, 2, 5}) {
-    auto video = torch::rand({1, 3, video_frames(t), 8, 16}) * 2 - 1;
-    auto full = vae->encode(video, /*streaming=*/false);
-    auto stream = vae->encode(video, /*streaming=*/true);
-    REQUIRE(full.sizes() == at::IntArrayRef({1, 16, t, 1, 2}));
-    INFO("T' = " << t);
-    CHECK(flat::test::rel_error(stream, full) < 1e-5);
-  }
+  check_streaming_equals_full([](int64_t t) { return torch::rand({1, 3, video_frames(t), 8, 16}) * 2 - 1; },
+                              [&](const at::Tensor& video, bool streaming) { return vae->encode(video, streaming); },
+                              [](int64_t t) { return std::vector<int64_t>{1, 16, t, 1, 2}; });
 }
 
 TEST_CASE("Decoder: streaming equals full sequence (fp32)", "[model][vae]") {
   torch::manual_seed(2);
   WanVAE vae(tiny_config());
-  torch::NoGradGuard no_grad;
-  for (int64_t t : {1, 2, 5}) {
-    auto latent = torch::randn({1, 16, t, 3, 2});
-    auto full = vae->decode(latent, /*streaming=*/false, /*clamp=*/false);
-    auto stream = vae->decode(latent, /*streaming=*/true, /*clamp=*/false);
-    REQUIRE(full.sizes() == at::IntArrayRef({1, 3, video_frames(t), 24, 16}));
-    INFO("T' = " << t);
-    CHECK(flat::test::rel_error(stream, full) < 1e-5);
-  }
+  check_streaming_equals_full(
+      [](int64_t t) { return torch::randn({1, 16, t, 3, 2}); },
+      [&](const at::Tensor& latent, bool streaming) { return vae->decode(latent, streaming, /*clamp=*/false); },
+      [](int64_t t) { return std::vector<int64_t>{1, 3, video_frames(t), 24, 16}; });
 }
 
 TEST_CASE("Decoder is causal: later latent frames do not change earlier outputs", "[model][vae]") {

@@ -59,6 +59,18 @@ const std::string& reference_run() {
   return run_dir;
 }
 
+// An 8-step run in `d` with `env` (a hook that raises `sig`) stops with 128 + sig
+// after one checkpointed step, and its resume ends with the reference run's losses.
+void check_one_step_then_resume(const std::string& d, const std::string& env, int sig) {
+  const int rc = train({"--config", write_config(d, 8)}, d + "/log1.txt", {env});
+  INFO(read_file(d + "/log1.txt"));
+  CHECK(rc == 128 + sig);
+  CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
+  CHECK(rows(d + "/run").size() == 1);
+  REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
+  CHECK(losses(d + "/run") == losses(reference_run()));
+}
+
 }  // namespace
 
 TEST_CASE("flat_train: a tiny run lowers its loss and writes a complete run folder", "[train]") {
@@ -69,9 +81,7 @@ TEST_CASE("flat_train: a tiny run lowers its loss and writes a complete run fold
   REQUIRE(rc == 0);
   auto r = rows(d + "/run");
   REQUIRE(r.size() == 40);
-  double first = 0, last = 0;
-  for (int i = 0; i < 5; ++i) first += r[size_t(i)].at("rgb").get<double>() / 5;
-  for (int i = 35; i < 40; ++i) last += r[size_t(i)].at("rgb").get<double>() / 5;
+  const double first = mean_over(r, "rgb", 0, 5), last = mean_over(r, "rgb", 35, 5);
   INFO("mean rgb loss, first 5 steps " << first << ", last 5 " << last);
   CHECK(last < 0.6 * first);
   for (const char* f : {"config.yaml", "logs/train.log", "metrics/val.jsonl", "model.safetensors",
@@ -211,28 +221,14 @@ TEST_CASE("flat_train: SIGTERM or SIGHUP during start-up is honoured after one s
   for (int sig : {SIGTERM, SIGHUP}) {
     INFO("signal " << sig);
     const std::string d = fresh_dir("train_signal_startup").string();
-    const int rc = train({"--config", write_config(d, 8)}, d + "/log1.txt",
-                         {"FLAT_TEST_SIGNAL_IN_STARTUP=" + std::to_string(sig)});
-    INFO(read_file(d + "/log1.txt"));
-    CHECK(rc == 128 + sig);
-    CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
-    CHECK(rows(d + "/run").size() == 1);
-    REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
-    CHECK(losses(d + "/run") == losses(reference_run()));
+    check_one_step_then_resume(d, "FLAT_TEST_SIGNAL_IN_STARTUP=" + std::to_string(sig), sig);
   }
 }
 
 TEST_CASE("flat_train: SIGTERM during the step-0 validation is honoured after one step; resume finishes",
           "[train]") {
   const std::string d = fresh_dir("train_sigterm_validation").string();
-  const int rc = train({"--config", write_config(d, 8)}, d + "/log1.txt",
-                       {"FLAT_TEST_SIGNAL_IN_VALIDATION=0:" + std::to_string(SIGTERM)});
-  INFO(read_file(d + "/log1.txt"));
-  CHECK(rc == 128 + SIGTERM);
-  CHECK(fs::exists(d + "/run/checkpoints/step_00000001/trainer.json"));
-  CHECK(rows(d + "/run").size() == 1);
-  REQUIRE(train({"--resume", d + "/run"}, d + "/log2.txt") == 0);
-  CHECK(losses(d + "/run") == losses(reference_run()));
+  check_one_step_then_resume(d, "FLAT_TEST_SIGNAL_IN_VALIDATION=0:" + std::to_string(SIGTERM), SIGTERM);
 }
 
 TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cleanly", "[train]") {

@@ -27,11 +27,7 @@ namespace {
 std::string write_vae_config(const std::string& dir, int steps, int val_samples = 1) {
   const std::string& data = tiny_data();
   const std::string path = dir + "/config.yaml";
-  std::ofstream(path) << "run_dir: " << dir << "/run\n"
-                      << "stage: tiny-vae\ntask: vae\nsteps: " << steps
-                      << "\ndevice: cpu\nprecision: fp32\nseed: 0\nthreads: 1\n"
-                      << "optim: {lr: 0.003, warmup_steps: 0, schedule: constant, weight_decay: 0}\n"
-                      << "checkpoint: {every: 2, keep: 2}\n"
+  std::ofstream(path) << tiny_run_yaml(dir, "stage: tiny-vae\ntask: vae", steps)
                       << "validation: {datasets: [{root: " << data << "/val}], every: " << steps
                       << ", scenes: " << val_samples << ", grid_views: 2}\n"
                       << "log: {progress_seconds: 1}\n"
@@ -53,9 +49,7 @@ TEST_CASE("VAE stage: it learns to reconstruct, and its file round-trips through
   REQUIRE(rc == 0);
   auto r = rows(d + "/run");
   REQUIRE(r.size() == 60);
-  double first = 0, last = 0;
-  for (int i = 0; i < 5; ++i) first += r[size_t(i)].at("l1").get<double>() / 5;
-  for (int i = 55; i < 60; ++i) last += r[size_t(i)].at("l1").get<double>() / 5;
+  const double first = mean_over(r, "l1", 0, 5), last = mean_over(r, "l1", 55, 5);
   INFO("mean L1, first 5 steps " << first << ", last 5 " << last);
   CHECK(last < 0.6 * first);
   auto val = rows(d + "/run", "val");

@@ -36,15 +36,21 @@ inline const std::string& tiny_data() {
   return dir;
 }
 
+// The head of every tiny CPU config: the run folder under `dir`, the
+// `stage` lines, fp32 on one thread, a constant LR, a checkpoint every 2 steps.
+inline std::string tiny_run_yaml(const std::string& dir, const std::string& stage, int steps) {
+  return "run_dir: " + dir + "/run\n" + stage + "\nsteps: " + std::to_string(steps) +
+         "\ndevice: cpu\nprecision: fp32\nseed: 0\nthreads: 1\n" +
+         "optim: {lr: 0.003, warmup_steps: 0, schedule: constant, weight_decay: 0}\n" +
+         "checkpoint: {every: 2, keep: 2}\n";
+}
+
 // A tiny CPU config in `dir`/config.yaml; `extra` is appended (YAML keys at
 // the top level override nothing: use --set for overrides).
 inline std::string write_config(const std::string& dir, int steps, const std::string& extra = "") {
   const std::string& data = tiny_data();
   const std::string path = dir + "/config.yaml";
-  std::ofstream(path) << "run_dir: " << dir << "/run\n"
-                      << "stage: tiny\nsteps: " << steps << "\ndevice: cpu\nprecision: fp32\nseed: 0\nthreads: 1\n"
-                      << "optim: {lr: 0.003, warmup_steps: 0, schedule: constant, weight_decay: 0}\n"
-                      << "checkpoint: {every: 2, keep: 2}\n"
+  std::ofstream(path) << tiny_run_yaml(dir, "stage: tiny", steps)
                       << "validation: {datasets: [{root: " << data << "/val}], every: 4, scenes: 1, grid_views: 2}\n"
                       << "log: {progress_seconds: 1}\n"
                       << "data: {datasets: [{root: " << data << "/train}], height: 32, width: 48, input_frames: 5, "
@@ -68,6 +74,13 @@ inline std::vector<std::string> losses(const std::string& run_dir) {
   std::vector<std::string> out;
   for (const auto& r : rows(run_dir)) out.push_back(r.at("loss").dump());
   return out;
+}
+
+// The mean of `key` over the rows [from, from + count) of a run's metrics.
+inline double mean_over(const std::vector<nlohmann::json>& r, const char* key, size_t from, size_t count) {
+  double sum = 0;
+  for (size_t i = from; i < from + count; ++i) sum += r.at(i).at(key).get<double>();
+  return sum / double(count);
 }
 
 inline int train(const std::vector<std::string>& args, const std::string& log, const std::vector<std::string>& env = {}) {
