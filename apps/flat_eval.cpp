@@ -13,6 +13,7 @@
 
 #include "flat/core/atomic_file.h"
 #include "flat/core/cli.h"
+#include "flat/core/cli_model_options.h"
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
@@ -50,13 +51,9 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"skimage", "3dgs"}))
       ->capture_default_str();
   app.add_option("--lpips-weights", o.lpips_weights, "LPIPS VGG weights (.safetensors, docs/losses.md)");
-  app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
-  flat::cli::add_set(app, o.overrides, "pipeline.prune_opacity=0.4");
-  flat::cli::add_device(app, o.device);
   int threads = 0;
-  flat::cli::add_threads(app, threads);
-  flat::cli::add_precision(app, o.precision)
-      ->description("compute dtype: fp32 | bf16 (bf16 applies on CUDA; on the CPU the run is fp32 whatever this says)");
+  flat::cli::add_model_options(app, o.config, o.overrides, "pipeline.prune_opacity=0.4", o.device, threads,
+                               o.precision);
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming)");
   app.add_flag("--redo", o.redo, "score every scene again (also needed to reuse --out with other settings)");
   app.add_option("--compare", compare, "flat_eval output folders to put side by side (no --model)")->take_all();

@@ -12,6 +12,7 @@
 #include <CLI/CLI.hpp>
 
 #include "flat/core/cli.h"
+#include "flat/core/cli_model_options.h"
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
@@ -43,13 +44,9 @@ int main(int argc, char** argv) {
                  "run leaves and the next run on the same --out removes")
       ->required();
   app.add_flag("--overwrite", o.overwrite, "replace an existing output folder (only once the new one is complete)");
-  app.add_option("--config", o.config, "pipeline keys (YAML) layered over the config the model carries");
-  flat::cli::add_set(app, o.overrides, "pipeline.raster.window=ts");
-  flat::cli::add_device(app, o.device);
   int threads = 0;
-  flat::cli::add_threads(app, threads);
-  flat::cli::add_precision(app, o.precision)
-      ->description("compute dtype: fp32 | bf16 (bf16 applies on CUDA; on the CPU the run is fp32 whatever this says)");
+  flat::cli::add_model_options(app, o.config, o.overrides, "pipeline.raster.window=ts", o.device, threads,
+                               o.precision);
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
   app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
   app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON file")->capture_default_str();
