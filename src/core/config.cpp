@@ -78,28 +78,24 @@ bool plain_scalar(const YAML::Node& n, std::string& text) {
   return true;
 }
 
-// Decimal integer with optional sign; the whole text must be consumed.
-bool parse_int64(std::string text, int64_t& out) {
-  if (!text.empty() && text[0] == '+') {
-    text.erase(0, 1);
-    if (!text.empty() && text[0] == '-') return false;  // "+-1"
-  }
-  if (text.empty()) return false;
+// Decimal number with an optional sign (from_chars takes '-' only; "+-1" is
+// refused); the whole text must be consumed.
+template <class T, class... Format>
+bool parse_number(const std::string& text, T& out, Format... format) {
+  const size_t start = !text.empty() && text[0] == '+' ? 1 : 0;
+  if (start == text.size()) return false;
+  if (start == 1 && text[1] == '-') return false;  // "+-1"
   const char* end = text.data() + text.size();
-  auto [ptr, ec] = std::from_chars(text.data(), end, out);
+  auto [ptr, ec] = std::from_chars(text.data() + start, end, out, format...);
   return ec == std::errc() && ptr == end;
 }
 
+// Decimal integer with optional sign.
+bool parse_int64(const std::string& text, int64_t& out) { return parse_number(text, out); }
+
 // Finite decimal number; YAML's .nan/.inf and C's nan/inf are refused.
-bool parse_double(std::string text, double& out) {
-  if (!text.empty() && text[0] == '+') {
-    text.erase(0, 1);
-    if (!text.empty() && text[0] == '-') return false;  // "+-1"
-  }
-  if (text.empty()) return false;
-  const char* end = text.data() + text.size();
-  auto [ptr, ec] = std::from_chars(text.data(), end, out, std::chars_format::general);
-  return ec == std::errc() && ptr == end && std::isfinite(out);
+bool parse_double(const std::string& text, double& out) {
+  return parse_number(text, out, std::chars_format::general) && std::isfinite(out);
 }
 
 // Optimal string alignment distance (edits, with a swap of neighbours as one
