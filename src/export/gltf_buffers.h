@@ -1,12 +1,25 @@
-// Buffer, bufferView and accessor appends shared by our two GLB writers
-// (triangle_glb.cpp, mesh_glb.cpp). Only for builds with tinygltf.
+// What our two GLB writers (triangle_glb.cpp, mesh_glb.cpp) share: the
+// model of one buffer, buffer/bufferView/accessor appends, the unlit scene and
+// the atomic write. Only for builds with tinygltf.
 #pragma once
 #if FLAT_WITH_GLTF
 #include <string>
 
 #include <tiny_gltf.h>
 
+#include "flat/core/atomic_file.h"
+#include "flat/core/error.h"
+
 namespace flat::exporter {
+
+// An empty glTF 2.0 model with the one buffer that add_view appends to.
+inline tinygltf::Model new_glb_model() {
+  tinygltf::Model m;
+  m.asset.version = "2.0";
+  m.asset.generator = "FLAT-C++";
+  m.buffers.resize(1);
+  return m;
+}
 
 // Appends `bytes` to the buffer and a bufferView over them; returns the view.
 inline int add_view(tinygltf::Model& m, const void* bytes, size_t size, int target) {
@@ -31,7 +44,6 @@ inline int add_accessor(tinygltf::Model& m, int view, int component, int type, s
   m.accessors.push_back(a);
   return int(m.accessors.size()) - 1;
 }
-
 
 // One mesh of one primitive (material 0), an unlit double-sided material with
 // `alpha_mode` ("BLEND" | "OPAQUE"), and one root node rotated 180 degrees
@@ -62,6 +74,15 @@ inline void add_unlit_scene(tinygltf::Model& m, tinygltf::Primitive prim, const 
   scene.nodes = {0};
   m.scenes.push_back(scene);
   m.defaultScene = 0;
+}
+
+// Writes `m` as binary glTF (GLB) to `path`, all or nothing (AtomicFile).
+inline void write_glb_file(const std::string& path, tinygltf::Model& m) {
+  AtomicFile file(path);
+  tinygltf::TinyGLTF writer;
+  if (!writer.WriteGltfSceneToStream(&m, file.stream(), /*prettyPrint=*/false, /*writeBinary=*/true))
+    fail(path + ": tinygltf could not write the GLB");
+  file.commit();
 }
 
 }  // namespace flat::exporter

@@ -2,7 +2,6 @@
 #include <cstdint>
 #include <vector>
 
-#include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
 #include "flat/export/mesh_files.h"
 #include "flat/export/srgb.h"
@@ -31,10 +30,7 @@ void write_mesh_glb(const std::string& path, const primitives::IndexedMesh& mesh
   for (size_t i = 0; i < linear.size(); ++i) linear[i] = srgb_to_linear(cp[i]);
   const auto lo = v.amin(0).to(at::kDouble), hi = v.amax(0).to(at::kDouble);
 
-  tinygltf::Model m;
-  m.asset.version = "2.0";
-  m.asset.generator = "FLAT-C++";
-  m.buffers.resize(1);
+  tinygltf::Model m = new_glb_model();
   constexpr int kArray = TINYGLTF_TARGET_ARRAY_BUFFER, kElements = TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER;
   constexpr int kFloat = TINYGLTF_COMPONENT_TYPE_FLOAT;
   const int pos = add_accessor(m, add_view(m, v.data_ptr<float>(), size_t(nv) * 12, kArray), kFloat,
@@ -51,11 +47,7 @@ void write_mesh_glb(const std::string& path, const primitives::IndexedMesh& mesh
   prim.indices = idx;
   add_unlit_scene(m, prim, "flat_mesh", "OPAQUE");
 
-  AtomicFile file(path);
-  tinygltf::TinyGLTF writer;
-  if (!writer.WriteGltfSceneToStream(&m, file.stream(), /*prettyPrint=*/false, /*writeBinary=*/true))
-    fail(path + ": tinygltf could not write the GLB");
-  file.commit();
+  write_glb_file(path, m);
 }
 
 #endif  // FLAT_WITH_GLTF

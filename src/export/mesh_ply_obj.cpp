@@ -45,24 +45,21 @@ uint8_t to_byte(float x) { return uint8_t(std::lround(255.f * x)); }
 
 void write_mesh_ply(const std::string& path, const primitives::IndexedMesh& mesh) {
   const auto a = mesh_arrays(path, mesh);
-  const int64_t nv = a.nv, nf = a.nf;
-  const float *v = a.v, *c = a.c;
-  const int32_t* f = a.f;
   write_file_atomic(path, [&](std::ostream& out) {
     out << "ply\nformat binary_little_endian 1.0\ncomment FLAT opaque mesh (docs/formats.md)\n"
-        << "element vertex " << nv << "\nproperty float x\nproperty float y\nproperty float z\n"
+        << "element vertex " << a.nv << "\nproperty float x\nproperty float y\nproperty float z\n"
         << "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        << "element face " << nf << "\nproperty list uchar int vertex_indices\nend_header\n";
+        << "element face " << a.nf << "\nproperty list uchar int vertex_indices\nend_header\n";
     char vertex[15];
-    for (int64_t i = 0; i < nv; ++i) {
-      std::memcpy(vertex, v + 3 * i, 12);
-      for (int k = 0; k < 3; ++k) vertex[12 + k] = char(to_byte(c[3 * i + k]));
+    for (int64_t i = 0; i < a.nv; ++i) {
+      std::memcpy(vertex, a.v + 3 * i, 12);
+      for (int k = 0; k < 3; ++k) vertex[12 + k] = char(to_byte(a.c[3 * i + k]));
       out.write(vertex, sizeof(vertex));
     }
     char face[13];
     face[0] = 3;
-    for (int64_t i = 0; i < nf; ++i) {
-      std::memcpy(face + 1, f + 3 * i, 12);
+    for (int64_t i = 0; i < a.nf; ++i) {
+      std::memcpy(face + 1, a.f + 3 * i, 12);
       out.write(face, sizeof(face));
     }
   });
@@ -70,17 +67,14 @@ void write_mesh_ply(const std::string& path, const primitives::IndexedMesh& mesh
 
 void write_mesh_obj(const std::string& path, const primitives::IndexedMesh& mesh) {
   const auto a = mesh_arrays(path, mesh);
-  const int64_t nv = a.nv, nf = a.nf;
-  const float *v = a.v, *c = a.c;
-  const int32_t* f = a.f;
   write_file_atomic(path, [&](std::ostream& out) {
-    out << "# FLAT opaque mesh (docs/formats.md): " << nv << " vertices, " << nf << " faces\n";
+    out << "# FLAT opaque mesh (docs/formats.md): " << a.nv << " vertices, " << a.nf << " faces\n";
     fmt::memory_buffer b;
-    for (int64_t i = 0; i < nv; ++i)
-      fmt::format_to(std::back_inserter(b), "v {} {} {} {:.4f} {:.4f} {:.4f}\n", v[3 * i], v[3 * i + 1], v[3 * i + 2],
-                     c[3 * i], c[3 * i + 1], c[3 * i + 2]);
-    for (int64_t i = 0; i < nf; ++i)
-      fmt::format_to(std::back_inserter(b), "f {} {} {}\n", f[3 * i] + 1, f[3 * i + 1] + 1, f[3 * i + 2] + 1);
+    for (int64_t i = 0; i < a.nv; ++i)
+      fmt::format_to(std::back_inserter(b), "v {} {} {} {:.4f} {:.4f} {:.4f}\n", a.v[3 * i], a.v[3 * i + 1],
+                     a.v[3 * i + 2], a.c[3 * i], a.c[3 * i + 1], a.c[3 * i + 2]);
+    for (int64_t i = 0; i < a.nf; ++i)
+      fmt::format_to(std::back_inserter(b), "f {} {} {}\n", a.f[3 * i] + 1, a.f[3 * i + 1] + 1, a.f[3 * i + 2] + 1);
     out.write(b.data(), std::streamsize(b.size()));
   });
 }

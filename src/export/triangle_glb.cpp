@@ -5,7 +5,6 @@
 #include <cstring>
 #include <vector>
 
-#include "flat/core/atomic_file.h"
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "flat/export/srgb.h"
@@ -183,10 +182,7 @@ void write_triangle_glb(const std::string& path, const primitives::TriangleSoup&
     }
   }
 
-  tinygltf::Model m;
-  m.asset.version = "2.0";
-  m.asset.generator = "FLAT-C++";
-  m.buffers.resize(1);
+  tinygltf::Model m = new_glb_model();
   m.buffers[0].data.reserve(nv * (12 + 16 + 4 + 4));
   constexpr int kArray = TINYGLTF_TARGET_ARRAY_BUFFER, kElements = TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER;
   constexpr int kFloat = TINYGLTF_COMPONENT_TYPE_FLOAT;
@@ -205,11 +201,7 @@ void write_triangle_glb(const std::string& path, const primitives::TriangleSoup&
   // Baked radiance, blended by opacity.
   add_unlit_scene(m, prim, "flat_triangles", "BLEND");
 
-  AtomicFile file(path);
-  tinygltf::TinyGLTF writer;
-  if (!writer.WriteGltfSceneToStream(&m, file.stream(), /*prettyPrint=*/false, /*writeBinary=*/true))
-    fail(path + ": tinygltf could not write the GLB");
-  file.commit();
+  write_glb_file(path, m);
 }
 
 primitives::TriangleSoup read_triangle_glb(const std::string& path) {
