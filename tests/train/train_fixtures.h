@@ -83,6 +83,15 @@ inline double mean_over(const std::vector<nlohmann::json>& r, const char* key, s
   return sum / double(count);
 }
 
+// The run learned: its mean `key` loss over the last 5 steps is below 0.6
+// times its mean over the first 5.
+inline void check_loss_fell(const std::vector<nlohmann::json>& r, const char* key) {
+  REQUIRE(r.size() >= 10);
+  const double first = mean_over(r, key, 0, 5), last = mean_over(r, key, r.size() - 5, 5);
+  INFO("mean " << key << " loss, first 5 steps " << first << ", last 5 " << last);
+  CHECK(last < 0.6 * first);
+}
+
 inline int train(const std::vector<std::string>& args, const std::string& log, const std::vector<std::string>& env = {}) {
   std::vector<std::string> argv = {binary("flat_train")};
   argv.insert(argv.end(), args.begin(), args.end());
