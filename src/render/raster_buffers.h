@@ -3,6 +3,7 @@
 #pragma once
 #include <ATen/ATen.h>
 
+#include "flat/render/shared/raster_dispatch.h"  // RenderOutput, empty_images
 #include "flat/render/shared/triangle_math.h"
 
 namespace flat::render {
@@ -26,24 +27,15 @@ struct RasterInputs {
 // positive, from in.value_stats (rasterize.cpp).
 void check_input_values(const RasterInputs& in);
 
-struct RasterOutputs {
-  at::Tensor rgb, alpha, depth, normal, median_depth;  // (V,C,H,W)
-  at::Tensor max_weight;                               // (N)
+// rgb, alpha, depth, normal, median_depth (V,C,H,W) and max_weight (N).
+using RasterOutputs = RenderOutput;
 
-  // The per-view images of `in`, uninitialised (every pixel gets written);
-  // max_weight is left to the back end (its accumulation type differs).
-  static RasterOutputs images_for(const RasterInputs& in) {
-    const int64_t V = in.w2c.size(0), H = in.height, W = in.width;
-    const auto f = in.vertices.options();
-    RasterOutputs out;
-    out.rgb = at::empty({V, 3, H, W}, f);
-    out.alpha = at::empty({V, 1, H, W}, f);
-    out.depth = at::empty({V, 1, H, W}, f);
-    out.normal = at::empty({V, 3, H, W}, f);
-    out.median_depth = at::empty({V, 1, H, W}, f);
-    return out;
-  }
-};
+// The per-view images of `in`, uninitialised (every pixel gets written);
+// max_weight is left to the back end.
+inline RasterOutputs images_for(const RasterInputs& in) {
+  return empty_images(in.w2c.size(0), in.height, in.width, in.vertices.options(), /*normal=*/true,
+                      /*distortion=*/false);
+}
 
 struct RasterGrads {
   at::Tensor vertices, colors, opacities, sigmas;  // shapes of the inputs

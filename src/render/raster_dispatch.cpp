@@ -13,6 +13,19 @@ at::Tensor grad_or_zero(const at::Tensor& grad, const at::TensorOptions& opts, i
   return grad.defined() ? grad.to(opts).contiguous() : at::zeros({V, C, H, W}, opts);
 }
 
+RenderOutput empty_images(int64_t views, int64_t height, int64_t width, const at::TensorOptions& opts, bool normal,
+                          bool distortion) {
+  auto image = [&](int64_t channels) { return at::empty({views, channels, height, width}, opts); };
+  RenderOutput out;
+  out.rgb = image(3);
+  out.alpha = image(1);
+  out.depth = image(1);
+  if (normal) out.normal = image(3);
+  out.median_depth = image(1);
+  if (distortion) out.distortion = image(1);
+  return out;
+}
+
 void check_common_inputs(const std::string& fn, const std::vector<at::Tensor>& inputs, const std::string& names,
                          const camera::Cameras& cams, int64_t height, int64_t width) {
   cams.check(fn + ": cameras");

@@ -241,7 +241,7 @@ TEST_CASE("rasterize_surfels cpu: bad inputs are reported with their name and sh
     return x;
   };
   REQUIRE_THROWS_WITH(call(with(0, s.means.view({3, 4}))), FLAT_CONTAINS("means") && FLAT_CONTAINS("(N,3)"));
-  REQUIRE_THROWS_WITH(call(with(1, torch::ones({4, 3}))), FLAT_CONTAINS("scales must be (N,2)"));
+  REQUIRE_THROWS_WITH(call(with(1, torch::ones({4, 3}))), FLAT_CONTAINS("scales") && FLAT_CONTAINS("(N,2)"));
   REQUIRE_THROWS_WITH(call(with(2, torch::ones({4, 3}))), FLAT_CONTAINS("rotations") && FLAT_CONTAINS("(N,4)"));
   REQUIRE_THROWS_WITH(call(with(3, s.colors.narrow(0, 0, 3))), FLAT_CONTAINS("colors") && FLAT_CONTAINS("(N,3)"));
   REQUIRE_THROWS_WITH(call(with(4, s.opacities.view({4, 1}))), FLAT_CONTAINS("opacities") && FLAT_CONTAINS("(N)"));

@@ -87,7 +87,7 @@ struct GaussianView {
 template <class T>
 GaussianOutputs forward_impl(const GaussianInputs& in) {
   const int64_t HW = in.height * in.width;
-  GaussianOutputs out = GaussianOutputs::images_for(in);
+  GaussianOutputs out = images_for(in);
   out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     GaussianView<T> gv(in, v);
@@ -99,8 +99,7 @@ GaussianOutputs forward_impl(const GaussianInputs& in) {
 }
 
 template <class T>
-GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, const at::Tensor& g_alpha,
-                            const at::Tensor& g_depth) {
+GaussianGrads backward_impl(const GaussianInputs& in, const GaussianOutputGrads& grads) {
   const int64_t HW = in.height * in.width;
   GaussianGrads g = GaussianGrads::zeros_for(in);
   std::vector<T> scratch_max(in.means.size(0), T(0));
@@ -109,7 +108,7 @@ GaussianGrads backward_impl(const GaussianInputs& in, const at::Tensor& g_rgb, c
     gv.grads = &g;
     const ViewSums<T> fwd = composite_forward<T>(gv, in.width, HW, in.k, scratch_max.data());
     // Upstream gradient per pixel and channel (r, g, b, depth, alpha).
-    const std::vector<T> G = render::cpu::interleave_grads<T>({g_rgb, g_depth, g_alpha}, view, HW);
+    const std::vector<T> G = render::cpu::interleave_grads<T>({grads.rgb, grads.depth, grads.alpha}, view, HW);
     composite_backward<T>(gv, fwd, in.width, G, in.background.data_ptr<T>());
   }
   return g;
@@ -123,10 +122,9 @@ GaussianOutputs forward(const GaussianInputs& in) {
   return forward_impl<float>(in);
 }
 
-GaussianGrads backward(const GaussianInputs& in, const at::Tensor& grad_rgb, const at::Tensor& grad_alpha,
-                       const at::Tensor& grad_depth) {
-  if (in.means.scalar_type() == at::kDouble) return backward_impl<double>(in, grad_rgb, grad_alpha, grad_depth);
-  return backward_impl<float>(in, grad_rgb, grad_alpha, grad_depth);
+GaussianGrads backward(const GaussianInputs& in, const GaussianOutputGrads& grads) {
+  if (in.means.scalar_type() == at::kDouble) return backward_impl<double>(in, grads);
+  return backward_impl<float>(in, grads);
 }
 
 }  // namespace flat::gaussians::cpu

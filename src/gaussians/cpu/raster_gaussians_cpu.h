@@ -8,7 +8,6 @@ namespace flat::gaussians::cpu {
 
 GaussianOutputs forward(const GaussianInputs& in);
 // Recomputes the forward per view, then replays every pixel back to front.
-GaussianGrads backward(const GaussianInputs& in, const at::Tensor& grad_rgb, const at::Tensor& grad_alpha,
-                       const at::Tensor& grad_depth);
+GaussianGrads backward(const GaussianInputs& in, const GaussianOutputGrads& grads);
 
 }  // namespace flat::gaussians::cpu

@@ -85,7 +85,7 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
   const int64_t V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W, N = in.means.size(0);
   const auto f = in.means.options();
-  GaussianOutputs out = GaussianOutputs::images_for(in);
+  GaussianOutputs out = images_for(in);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   Preprocessed pre(N, f);
   at::Tensor host_total = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
@@ -97,7 +97,8 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
                                stream) == cudaSuccess,
                "rasterize_gaussians (cuda): copying the pair count to the host failed");
     FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): preprocessing failed");
-    if (v == 0) check_input_values(in);  // the statistics' copy was enqueued before: now on the host
+    // The statistics' copy was enqueued before: now on the host.
+    if (v == 0) render::check_splat_values(in, "rasterize_gaussians");
     const int64_t pairs = host_total.data_ptr<int64_t>()[0];
     FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(), "rasterize_gaussians (cuda): " + std::to_string(pairs) +
                                                                 " (Gaussian, tile) pairs in view " + std::to_string(v) +
@@ -129,14 +130,14 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
   }
   if (V == 0) {
     FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): value checks failed");
-    check_input_values(in);
+    render::check_splat_values(in, "rasterize_gaussians");
   }
   out.max_weight = max_bits.view(at::kFloat);  // non-negative floats, stored as their bits
   return out;
 }
 
-GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
-                       const at::Tensor& grad_alpha, const at::Tensor& grad_depth) {
+GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& views,
+                       const GaussianOutputGrads& grads) {
   check_dtype(in);
   const c10::cuda::CUDAGuard guard(in.means.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
@@ -152,8 +153,8 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
     pre.run(in, vp, stream);  // the forward's screen data, recomputed bit for bit
     const at::Tensor& ids = views[kViewState * v];
     const at::Tensor& ranges = views[kViewState * v + 1];
-    BackwardImages img{grad_rgb.data_ptr<float>() + v * 3 * HW, grad_alpha.data_ptr<float>() + v * HW,
-                       grad_depth.data_ptr<float>() + v * HW, views[kViewState * v + 2].data_ptr<float>(),
+    BackwardImages img{grads.rgb.data_ptr<float>() + v * 3 * HW, grads.alpha.data_ptr<float>() + v * HW,
+                       grads.depth.data_ptr<float>() + v * HW, views[kViewState * v + 2].data_ptr<float>(),
                        views[kViewState * v + 3].data_ptr<int>()};
     launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), pre.screen_ptr(),
                            vp, img, screen_grads.data_ptr<float>(), stream);

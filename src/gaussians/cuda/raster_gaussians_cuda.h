@@ -13,7 +13,7 @@ namespace flat::gaussians::cuda {
 
 // for_backward: keep the per-view state (else `views` stays empty).
 GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector<at::Tensor>& views);
-GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& views, const at::Tensor& grad_rgb,
-                       const at::Tensor& grad_alpha, const at::Tensor& grad_depth);
+GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& views,
+                       const GaussianOutputGrads& grads);
 
 }  // namespace flat::gaussians::cuda

@@ -118,7 +118,7 @@ struct TriangleView {
 template <class T>
 RasterOutputs forward_impl(const RasterInputs& in) {
   const int64_t HW = in.height * in.width;
-  RasterOutputs out = RasterOutputs::images_for(in);
+  RasterOutputs out = images_for(in);
   out.max_weight = at::zeros({in.vertices.size(0)}, in.vertices.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     TriangleView<T> tv(in, v);

@@ -316,7 +316,7 @@ RasterOutputs forward(const RasterInputs& in, bool for_backward, std::vector<at:
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
   const int64_t N = in.vertices.size(0), V = in.w2c.size(0), H = in.height, W = in.width;
   const auto f = in.vertices.options();
-  RasterOutputs out = RasterOutputs::images_for(in);
+  RasterOutputs out = images_for(in);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   // Two views a group by default: the host's work per view (~340 us on

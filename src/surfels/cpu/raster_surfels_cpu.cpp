@@ -126,7 +126,7 @@ struct SurfelView {
 template <class T>
 SurfelOutputs forward_impl(const SurfelInputs& in) {
   const int64_t HW = in.height * in.width;
-  SurfelOutputs out = SurfelOutputs::images_for(in);
+  SurfelOutputs out = images_for(in);
   out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
   for (int64_t v = 0; v < in.w2c.size(0); ++v) {
     SurfelView<T> sv(in, v);

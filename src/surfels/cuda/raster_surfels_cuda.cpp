@@ -102,7 +102,7 @@ SurfelOutputs forward(const SurfelInputs& in, bool for_backward, std::vector<at:
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
   const int64_t N = in.means.size(0), V = in.w2c.size(0), H = in.height, W = in.width, HW = H * W;
   const auto f = in.means.options();
-  SurfelOutputs out = SurfelOutputs::images_for(in);
+  SurfelOutputs out = images_for(in);
   const at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
   const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   views.clear();

@@ -57,6 +57,14 @@ SavedConstants<K> load_constants(torch::autograd::AutogradContext* ctx) {
 at::Tensor grad_or_zero(const at::Tensor& grad, const at::TensorOptions& opts, int64_t V, int64_t C, int64_t H,
                         int64_t W);
 
+// ---------------------------------------------------------------- outputs
+// The images of `views` views of height x width pixels in `opts`,
+// uninitialised (the back ends write every pixel): rgb, alpha, depth and
+// median_depth, and normal and distortion where asked; max_weight is left
+// to the back end (its accumulation type differs).
+RenderOutput empty_images(int64_t views, int64_t height, int64_t width, const at::TensorOptions& opts, bool normal,
+                          bool distortion);
+
 // ---------------------------------------------------------------- inputs
 // The checks every rasterizer's inputs share, after its own shape checks;
 // `fn` names the rasterizer in the messages, `names` the inputs in the device
