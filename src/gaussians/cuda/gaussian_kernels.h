@@ -8,25 +8,14 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "flat/render/shared/splat_tiles.h"
 #include "gaussians/gaussian_math.h"
 
 namespace flat::gaussians::cuda {
 
-// 16 x 16 pixels per tile, one thread per pixel (3DGS' tiles).
-constexpr int kTileSize = 16;
-constexpr int kBlockSize = kTileSize * kTileSize;
-
-struct ViewParams {
-  CameraView<float> cam;
-  CompositingConstants k;
-  int width = 0, height = 0;
-  int tiles_x = 0, tiles_y = 0;
-  float background[3] = {0.f, 0.f, 0.f};
-};
-
-// Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
-FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
-FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
+// The splat kernels' 16 x 16 tiles, per-view parameters (ViewParams) and
+// tile_lo / tile_hi.
+using namespace render::splat;
 
 // Pass 1 over all n Gaussians (gaussians/cuda/preprocess.cu): screen data,
 // pixel box, depth sort key (render::depth_sort_key; kCulledKey when culled),

@@ -6,6 +6,7 @@
 //   chain       the backward's chain rule: a Gaussian's summed screen
 //               gradient of the view -> its mean, scales, quaternion, colour
 //               and opacity (one thread a Gaussian: no atomics, views in turn).
+#include "flat/render/shared/block_sum.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
 namespace flat::gaussians::cuda {
@@ -41,7 +42,6 @@ __global__ void __launch_bounds__(kThreads)
                       ScreenGaussian<float>* __restrict__ screen, PixelBox* __restrict__ boxes,
                       uint32_t* __restrict__ depth_keys, uint32_t* __restrict__ tile_masks,
                       int32_t* __restrict__ tile_counts, unsigned long long* __restrict__ total) {
-  __shared__ long long warp_sums[kThreads / 32];
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
   int32_t count = 0;
   if (i < n) {
@@ -55,7 +55,7 @@ __global__ void __launch_bounds__(kThreads)
       for (int c = 0; c < 3; ++c) g.color[c] = colors[3 * i + c];
       g.pad = 0.f;
       const uint32_t mask = tile_mask(g, b);
-      count = mask == ~0u ? (tile_hi(b.x1) - tile_lo(b.x0)) * (tile_hi(b.y1) - tile_lo(b.y0)) : __popc(mask);
+      count = mask == ~0u ? tiles_touched(b) : __popc(mask);
       if (count > 0) {
         screen[i] = g;
         boxes[i] = b;
@@ -67,15 +67,7 @@ __global__ void __launch_bounds__(kThreads)
     tile_counts[i] = count;
   }
   // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
-  long long sum = count;
-  for (int d = 16; d > 0; d >>= 1) sum += __shfl_down_sync(0xffffffffu, sum, d);
-  if ((threadIdx.x & 31) == 0) warp_sums[threadIdx.x / 32] = sum;
-  __syncthreads();
-  if (threadIdx.x == 0) {
-    long long block_sum = 0;
-    for (int w = 0; w < kThreads / 32; ++w) block_sum += warp_sums[w];
-    if (block_sum > 0) atomicAdd(total, (unsigned long long)block_sum);
-  }
+  render::cuda::add_block_sum<kThreads>(count, total);
 }
 
 __global__ void __launch_bounds__(kThreads)

@@ -6,12 +6,12 @@
 // last one; the Gaussian's screen gradients (ScreenGrad's 10 fields) are
 // summed over the warp with shuffles and added to its row once a warp with
 // 16-byte atomics (rows padded to kGradStride floats).
+#include "flat/render/shared/splat_tiles.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
 namespace flat::gaussians::cuda {
 namespace {
 
-constexpr unsigned kFullWarp = 0xffffffffu;
 constexpr int kCh = 5;  // r, g, b, depth, alpha
 
 __global__ void __launch_bounds__(kBlockSize)
@@ -20,13 +20,9 @@ __global__ void __launch_bounds__(kBlockSize)
                            float* __restrict__ screen_grads) {
   __shared__ ScreenGaussian<float> sh_g[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
-  __shared__ int block_last;
   const int tile = blockIdx.x;
   const int tid = threadIdx.x, lane = tid & 31;
-  const int x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
-  const int y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = (float)x + 0.5f, py = (float)y + 0.5f;
+  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
   const int2 range = ranges[tile];
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f};
@@ -40,13 +36,10 @@ __global__ void __launch_bounds__(kBlockSize)
     t_final = T = in.t_final[p];
     last = in.last[p];
   }
-  if (tid == 0) block_last = 0;
-  __syncthreads();
-  if (last > 0) atomicMax(&block_last, last);
-  __syncthreads();
+  const int block_end = block_last(last);
   const float bg_dot = G[0] * vp.background[0] + G[1] * vp.background[1] + G[2] * vp.background[2];
   float acc[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f}, last_f[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f}, last_alpha = 0.f;
-  for (int end = range.x + block_last; end > range.x; end -= kBlockSize) {
+  for (int end = range.x + block_end; end > range.x; end -= kBlockSize) {
     const int begin = max(range.x, end - kBlockSize);
     __syncthreads();              // the previous batch is read
     const int e = end - 1 - tid;  // staged back to front
@@ -103,9 +96,7 @@ __global__ void __launch_bounds__(kBlockSize)
 
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const ScreenGaussian<float>* screen,
                             const ViewParams& vp, const BackwardImages& in, float* screen_grads, cudaStream_t stream) {
-  const int tiles = vp.tiles_x * vp.tiles_y;
-  if (tiles == 0) return;
-  raster_backward_kernel<<<tiles, kBlockSize, 0, stream>>>(ranges, ids, screen, vp, in, screen_grads);
+  launch_per_tile(raster_backward_kernel, vp, stream, ranges, ids, screen, vp, in, screen_grads);
 }
 
 }  // namespace flat::gaussians::cuda

@@ -6,12 +6,11 @@
 // weight of each Gaussian is reduced over the warp (__reduce_max_sync), then
 // over the block in shared memory, and goes to global memory once a tile
 // (one atomicMax a tile and Gaussian, not a pixel or a warp).
+#include "flat/render/shared/splat_tiles.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
 namespace flat::gaussians::cuda {
 namespace {
-
-constexpr unsigned kFullWarp = 0xffffffffu;
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
@@ -22,10 +21,7 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ unsigned int sh_wmax[kBlockSize];  // the batch's largest weights (float bits)
   const int tile = blockIdx.x;
   const int tid = threadIdx.x;
-  const int x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
-  const int y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = (float)x + 0.5f, py = (float)y + 0.5f;
+  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
   const int2 range = ranges[tile];
   float T = 1.f, acc[4] = {0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int32_t last = 0;
@@ -99,9 +95,7 @@ __global__ void __launch_bounds__(kBlockSize)
 void launch_raster_forward(const int2* ranges, const int32_t* ids, const ScreenGaussian<float>* screen,
                            const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
                            cudaStream_t stream) {
-  const int tiles = vp.tiles_x * vp.tiles_y;
-  if (tiles == 0) return;
-  raster_forward_kernel<<<tiles, kBlockSize, 0, stream>>>(ranges, ids, screen, vp, out, max_weight_bits);
+  launch_per_tile(raster_forward_kernel, vp, stream, ranges, ids, screen, vp, out, max_weight_bits);
 }
 
 }  // namespace flat::gaussians::cuda

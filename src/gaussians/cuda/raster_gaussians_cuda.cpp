@@ -35,18 +35,6 @@ static_assert(sizeof(PixelBox) == 4 * sizeof(int), "PixelBox layout");
 // Per view, kept for the backward: sorted ids, tile ranges, final T, last entry.
 constexpr int64_t kViewState = 4;
 
-ViewParams make_params(const GaussianInputs& in, int64_t view) {
-  ViewParams vp;
-  vp.cam = make_camera_view(in.w2c.data_ptr<float>() + 16 * view, in.K.data_ptr<float>() + 4 * view);
-  vp.k = in.k;
-  vp.width = (int)in.width;
-  vp.height = (int)in.height;
-  vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
-  vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
-  for (int c = 0; c < 3; ++c) vp.background[c] = in.background.data_ptr<float>()[c];
-  return vp;
-}
-
 void check_dtype(const GaussianInputs& in) {
   FLAT_CHECK(in.means.scalar_type() == at::kFloat, "rasterize_gaussians (cuda): expected float32 tensors");
   FLAT_CHECK(in.means.size(0) < std::numeric_limits<int32_t>::max(),
@@ -91,7 +79,7 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
   at::Tensor host_total = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
   views.clear();
   for (int64_t v = 0; v < V; ++v) {
-    const ViewParams vp = make_params(in, v);
+    const ViewParams vp = render::splat_view(in, v);
     pre.run(in, vp, stream);
     FLAT_CHECK(cudaMemcpyAsync(host_total.data_ptr(), pre.total.data_ptr(), sizeof(int64_t), cudaMemcpyDeviceToHost,
                                stream) == cudaSuccess,
@@ -149,7 +137,7 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
   at::Tensor screen_grads = at::zeros({N * kGradStride}, f);  // zeroed again row by row by the chain
   Preprocessed pre(N, f);
   for (int64_t v = 0; v < V; ++v) {
-    const ViewParams vp = make_params(in, v);
+    const ViewParams vp = render::splat_view(in, v);
     pre.run(in, vp, stream);  // the forward's screen data, recomputed bit for bit
     const at::Tensor& ids = views[kViewState * v];
     const at::Tensor& ranges = views[kViewState * v + 1];

@@ -10,6 +10,7 @@
 //           from the stored visible list instead of keeping it.
 // Every array of several floats per triangle is moved through shared memory
 // (render/cuda/row_staging.cuh).
+#include "flat/render/shared/block_sum.cuh"
 #include "render/cuda/raster_kernels.h"
 #include "render/cuda/row_staging.cuh"
 
@@ -25,7 +26,6 @@ __global__ void __launch_bounds__(kThreads)
                 TriRect* __restrict__ rects, int32_t* __restrict__ tile_counts, float* __restrict__ keys,
                 unsigned long long* __restrict__ total) {
   __shared__ float sh_v[kThreads * 9];
-  __shared__ long long warp_sums[kThreads / 32];
   const int64_t base = (int64_t)blockIdx.x * kThreads;
   const int rows = (int)((n - base) < kThreads ? (n - base) : kThreads);
   load_rows<9, 9, kThreads>(vertices, nullptr, base, rows, sh_v);
@@ -46,15 +46,7 @@ __global__ void __launch_bounds__(kThreads)
     }
   }
   // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
-  long long sum = count;
-  for (int d = 16; d > 0; d >>= 1) sum += __shfl_down_sync(0xffffffffu, sum, d);
-  if ((threadIdx.x & 31) == 0) warp_sums[threadIdx.x / 32] = sum;
-  __syncthreads();
-  if (threadIdx.x == 0) {
-    long long block_sum = 0;
-    for (int w = 0; w < kThreads / 32; ++w) block_sum += warp_sums[w];
-    if (block_sum > 0) atomicAdd(total, (unsigned long long)block_sum);
-  }
+  add_block_sum<kThreads>(count, total);
 }
 
 __global__ void __launch_bounds__(kThreads)

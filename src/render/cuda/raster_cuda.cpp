@@ -80,13 +80,9 @@ static_assert(sizeof(TriRect) == 4 * sizeof(int), "TriRect layout");
 ViewParams make_params(const RasterInputs& in, const at::Tensor& w2c_cpu, const at::Tensor& K_cpu,
                        const at::Tensor& bg_cpu, int64_t view) {
   ViewParams vp;
-  vp.cam = make_camera_view(w2c_cpu.data_ptr<float>() + 16 * view, K_cpu.data_ptr<float>() + 4 * view);
-  vp.k = in.k;
-  vp.width = (int)in.width;
-  vp.height = (int)in.height;
-  vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
-  vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
-  for (int c = 0; c < 3; ++c) vp.background[c] = bg_cpu.data_ptr<float>()[c];
+  static_cast<TileView<RasterConstants>&>(vp) =
+      make_tile_view(w2c_cpu.data_ptr<float>() + 16 * view, K_cpu.data_ptr<float>() + 4 * view, in.k, in.width,
+                     in.height, kTileSize, bg_cpu.data_ptr<float>());
   vp.inv_fx = 1.f / vp.cam.fx;
   vp.inv_fy = 1.f / vp.cam.fy;
   return vp;

@@ -22,14 +22,12 @@ namespace flat::render::cuda {
 constexpr int kTileSize = 8;
 constexpr int kBlockSize = kTileSize * kTileSize;   // two warps, each on one 8x4 half (tile_pixel.cuh)
 
-struct ViewParams {
-  CameraView<float> cam;
-  RasterConstants k;
-  int width = 0, height = 0;
-  int tiles_x = 0, tiles_y = 0;
-  float background[3] = {0.f, 0.f, 0.f};
+// The shared per-view fields (view_geometry.h), then the triangles' own
+// (the same layout as the fields written out).
+struct ViewParams : TileView<RasterConstants> {
   float inv_fx = 0.f, inv_fy = 0.f;  // 1 / cam.fx, 1 / cam.fy: pixel rays by multiplication
 };
+static_assert(sizeof(ViewParams) == sizeof(TileView<RasterConstants>) + 2 * sizeof(float), "ViewParams layout");
 
 // A (triangle, tile) pair's id in the sorted lists: the triangle's
 // visible-list index in bits 0-29, and in bit 30 + h whether its window

@@ -23,7 +23,7 @@ __global__ void __launch_bounds__(kThreads)
   int32_t count = 0;
   if (preprocess_forward(means + 3 * i, scales + 2 * i, rotations + 4 * i, opacities[i], vp.cam, vp.k, vp.width,
                          vp.height, s, r, key)) {
-    count = (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));
+    count = tiles_touched(r);
     s.color[0] = colors[3 * i], s.color[1] = colors[3 * i + 1], s.color[2] = colors[3 * i + 2];
     s.opacity = opacities[i];
     s.index = (int32_t)i;

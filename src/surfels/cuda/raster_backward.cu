@@ -7,24 +7,19 @@
 // its gradient of the surfel's screen data. Every thread of the block walks
 // the same staged entries in step, so a warp sums its 32 pixels' gradients of
 // one surfel with shuffles and adds the 18 sums with one atomic a lane.
+#include "flat/render/shared/splat_tiles.cuh"
 #include "surfels/cuda/surfel_kernels.h"
 
 namespace flat::surfels::cuda {
 namespace {
-
-constexpr unsigned kFullWarp = 0xffffffffu;
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ values,
                            const PixelSurfel<float>* __restrict__ surfels, ViewParams vp, BackwardImages in,
                            float* __restrict__ surfel_grads) {
   __shared__ PixelSurfel<float> stage[kBlockSize];
-  __shared__ int block_last;
   const int tile = blockIdx.x, tid = threadIdx.x, lane = tid & 31;
-  const int x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
-  const int y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = (float)x + 0.5f, py = (float)y + 0.5f;
+  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
   const int2 range = ranges[tile];
   const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
   // Upstream gradients: r, g, b, depth, nx, ny, nz, alpha, distortion.
@@ -47,11 +42,7 @@ __global__ void __launch_bounds__(kBlockSize)
   // dL/dT_final through the background, times T_final.
   const float bg_t = t_final * (vp.background[0] * G[0] + vp.background[1] * G[1] + vp.background[2] * G[2]);
   float acc_G = 0.f, last_G = 0.f, last_alpha = 0.f;
-  if (tid == 0) block_last = 0;
-  __syncthreads();
-  if (my_last > 0) atomicMax(&block_last, my_last);
-  __syncthreads();
-  const int top = block_last;
+  const int top = block_last(my_last);
   for (int end = top; end > 0; end -= kBlockSize) {
     const int start = max(0, end - kBlockSize), count = end - start;
     __syncthreads();  // the previous round's reads of the stage
@@ -102,9 +93,7 @@ __global__ void __launch_bounds__(kBlockSize)
 
 void launch_raster_backward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
                             const ViewParams& vp, const BackwardImages& in, float* surfel_grads, cudaStream_t stream) {
-  const int tiles = vp.tiles_x * vp.tiles_y;
-  if (tiles == 0) return;
-  raster_backward_kernel<<<tiles, kBlockSize, 0, stream>>>(ranges, values, surfels, vp, in, surfel_grads);
+  launch_per_tile(raster_backward_kernel, vp, stream, ranges, values, surfels, vp, in, surfel_grads);
 }
 
 }  // namespace flat::surfels::cuda

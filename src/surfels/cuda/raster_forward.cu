@@ -4,6 +4,7 @@
 // front to back with shade() (surfels/surfel_math.h) and stops before its
 // transmittance would drop below t_min; the block leaves once all its pixels
 // have stopped. Same per-pixel semantics as surfels/cpu/raster_surfels_cpu.cpp.
+#include "flat/render/shared/splat_tiles.cuh"
 #include "surfels/cuda/surfel_kernels.h"
 
 namespace flat::surfels::cuda {
@@ -16,10 +17,7 @@ __global__ void __launch_bounds__(kBlockSize)
   __shared__ PixelSurfel<float> stage[kBlockSize];
   __shared__ unsigned int wmax[kBlockSize];  // per staged surfel: its largest weight in the tile (float bits)
   const int tile = blockIdx.x, tid = threadIdx.x;
-  const int x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
-  const int y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
-  const bool inside = x < vp.width && y < vp.height;
-  const float px = (float)x + 0.5f, py = (float)y + 0.5f;
+  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
   const int2 range = ranges[tile];
   bool done = !inside;
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
@@ -81,9 +79,7 @@ __global__ void __launch_bounds__(kBlockSize)
 void launch_raster_forward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
                            const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
                            cudaStream_t stream) {
-  const int tiles = vp.tiles_x * vp.tiles_y;
-  if (tiles == 0) return;
-  raster_forward_kernel<<<tiles, kBlockSize, 0, stream>>>(ranges, values, surfels, vp, out, max_weight_bits);
+  launch_per_tile(raster_forward_kernel, vp, stream, ranges, values, surfels, vp, out, max_weight_bits);
 }
 
 }  // namespace flat::surfels::cuda

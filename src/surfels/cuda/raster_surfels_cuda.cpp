@@ -34,21 +34,6 @@ void zero_async(const at::Tensor& t, cudaStream_t stream) {
   if (err != cudaSuccess) fail(std::string("rasterize_surfels (cuda): memset failed: ") + cudaGetErrorString(err));
 }
 
-ViewParams make_params(const SurfelInputs& in, const at::Tensor& w2c, const at::Tensor& K, const at::Tensor& bg,
-                       int64_t v) {
-  const at::Tensor w = w2c[v].to(at::kFloat).contiguous(), k = K[v].to(at::kFloat).contiguous();
-  ViewParams vp;
-  vp.cam = render::make_camera_view(w.data_ptr<float>(), k.data_ptr<float>());
-  vp.k = in.k;
-  vp.width = (int)in.width;
-  vp.height = (int)in.height;
-  vp.tiles_x = (int)((in.width + kTileSize - 1) / kTileSize);
-  vp.tiles_y = (int)((in.height + kTileSize - 1) / kTileSize);
-  const at::Tensor b = bg.to(at::kFloat).contiguous();
-  for (int c = 0; c < 3; ++c) vp.background[c] = b.data_ptr<float>()[c];
-  return vp;
-}
-
 // One view's screen data: the records, support boxes, tile counts and depth
 // keys of all N surfels (records and boxes valid where tile_counts > 0).
 struct ScreenData {
@@ -104,10 +89,9 @@ SurfelOutputs forward(const SurfelInputs& in, bool for_backward, std::vector<at:
   const auto f = in.means.options();
   SurfelOutputs out = images_for(in);
   const at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
-  const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   views.clear();
   for (int64_t v = 0; v < V; ++v) {
-    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+    const ViewParams vp = render::splat_view(in, v);
     const ScreenData sd(in, vp, stream);
     const render::cuda::TileLists lists = bin(sd, vp, N, stream, v);
     const at::Tensor &sorted_values = lists.ids, &ranges = lists.ranges;
@@ -136,12 +120,11 @@ SurfelGrads backward(const SurfelInputs& in, const std::vector<at::Tensor>& view
              "rasterize_surfels (cuda): backward state does not match the views");
   SurfelGrads g = SurfelGrads::zeros_for(in);
   if (N == 0) return g;
-  const at::Tensor w2c_cpu = in.w2c.cpu(), K_cpu = in.K.cpu(), bg_cpu = in.background.cpu();
   const at::Tensor surfel_grads = at::empty({N, kSurfelGradStride}, in.means.options());
   for (int64_t v = 0; v < V; ++v) {
     auto state = [&](int i) -> const at::Tensor& { return views[kViewState * v + i]; };
     if (state(0).numel() == 0) continue;  // nothing blended in this view
-    const ViewParams vp = make_params(in, w2c_cpu, K_cpu, bg_cpu, v);
+    const ViewParams vp = render::splat_view(in, v);
     const ScreenData sd(in, vp, stream);  // bit-identical to the forward's
     zero_async(surfel_grads, stream);
     const BackwardImages img{grads.rgb.data_ptr<float>() + v * 3 * HW,   grads.alpha.data_ptr<float>() + v * HW,

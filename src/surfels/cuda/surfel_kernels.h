@@ -8,26 +8,15 @@
 
 #include <cuda_runtime.h>
 
+#include "flat/render/shared/splat_tiles.h"
 #include "surfels/surfel_math.h"
 
 namespace flat::surfels::cuda {
 
-// 16 x 16 pixels per tile, one thread per pixel (surfels cover tens of pixels
-// each, unlike FLAT's ~2x2-pixel triangles: larger tiles, fewer pairs).
-constexpr int kTileSize = 16;
-constexpr int kBlockSize = kTileSize * kTileSize;
-
-struct ViewParams {
-  CameraView<float> cam;
-  CompositingConstants k;
-  int width = 0, height = 0;
-  int tiles_x = 0, tiles_y = 0;
-  float background[3] = {0.f, 0.f, 0.f};
-};
-
-// Tiles [x / kTileSize] touched by pixels [x0, x1) (x1 > x0).
-FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
-FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
+// The splat kernels' 16 x 16 tiles (surfels cover tens of pixels each, unlike
+// FLAT's ~2x2-pixel triangles: larger tiles, fewer pairs), per-view
+// parameters (ViewParams) and tile_lo / tile_hi.
+using namespace render::splat;
 
 // Per surfel of all n (surfels/cuda/preprocess.cu): tiles touched (0 when
 // culled) and, for the others only, the PixelSurfel screen data, support box

@@ -9,6 +9,7 @@
 #include <ATen/ATen.h>
 
 #include "flat/render/shared/compositing.h"
+#include "flat/render/shared/splat_tiles.h"
 
 namespace flat::render {
 
@@ -32,6 +33,13 @@ struct SplatInputs {
 // finite, opacities lie in [0, 1], scales are positive and rotations are
 // non-zero quaternions; `fn` names the rasterizer (splat_function.cpp).
 void check_splat_values(const SplatInputs& in, const char* fn);
+
+// View `view` of `in` as the CUDA kernels read it (in.w2c, in.K and
+// in.background in float, on the host).
+inline splat::ViewParams splat_view(const SplatInputs& in, int64_t view) {
+  return make_tile_view(in.w2c.data_ptr<float>() + 16 * view, in.K.data_ptr<float>() + 4 * view, in.k, in.width,
+                        in.height, splat::kTileSize, in.background.data_ptr<float>());
+}
 
 // Upstream gradients, (V,C,H,W) each, defined (zeros where the output had
 // none); normal and distortion only where the rasterizer has those outputs.

@@ -4,6 +4,7 @@
 // Public, under flat/render/shared/, because gaussians and surfels include it.
 #pragma once
 #include <cmath>
+#include <cstdint>
 
 #include "flat/render/shared/compositing.h"
 
@@ -26,6 +27,34 @@ FLAT_HD CameraView<T> make_camera_view(const T* w2c, const T* K) {
   }
   cam.fx = K[0], cam.fy = K[1], cam.cx = K[2], cam.cy = K[3];
   return cam;
+}
+
+// What a CUDA tile kernel reads of one view, whatever its primitive: the
+// camera, the constants K (CompositingConstants for 3DGS and 2DGS, the
+// triangles' RasterConstants), the image and its tiles, the background.
+template <class K>
+struct TileView {
+  CameraView<float> cam;
+  K k;
+  int width = 0, height = 0;
+  int tiles_x = 0, tiles_y = 0;
+  float background[3] = {0.f, 0.f, 0.f};
+};
+
+// On the host, from a row-major 4x4 world-to-camera matrix, pixel intrinsics
+// fx, fy, cx, cy and the background colour (3), for tiles of tile_size pixels.
+template <class K>
+TileView<K> make_tile_view(const float* w2c, const float* intrinsics, const K& k, int64_t width, int64_t height,
+                           int tile_size, const float* background) {
+  TileView<K> v;
+  v.cam = make_camera_view(w2c, intrinsics);
+  v.k = k;
+  v.width = (int)width;
+  v.height = (int)height;
+  v.tiles_x = (int)((width + tile_size - 1) / tile_size);
+  v.tiles_y = (int)((height + tile_size - 1) / tile_size);
+  for (int c = 0; c < 3; ++c) v.background[c] = background[c];
+  return v;
 }
 
 // Pixels [x0,x1) x [y0,y1): a primitive's support in one view. The CPU

@@ -1,0 +1,52 @@
+// Device helpers the 3DGS and 2DGS compositing kernels share (gaussians/cuda,
+// surfels/cuda raster_forward.cu / raster_backward.cu): the pixel a thread
+// owns, the block's furthest last entry, the launch of one block a tile.
+// CUDA sources only. Public, under flat/render/shared/, because gaussians
+// and surfels include it.
+#pragma once
+#include <cuda_runtime.h>
+
+#include "flat/render/shared/splat_tiles.h"
+
+namespace flat::render::splat {
+
+constexpr unsigned kFullWarp = 0xffffffffu;
+
+// Pixel (x, y) of thread tid in block `tile` (row-major over the tiles),
+// whether it lies in the image, and its centre (px, py).
+struct TilePixel {
+  int x, y;
+  bool inside;
+  float px, py;
+};
+__device__ __forceinline__ TilePixel tile_pixel(const ViewParams& vp, int tile, int tid) {
+  TilePixel p;
+  p.x = (tile % vp.tiles_x) * kTileSize + tid % kTileSize;
+  p.y = (tile / vp.tiles_x) * kTileSize + tid / kTileSize;
+  p.inside = p.x < vp.width && p.y < vp.height;
+  p.px = (float)p.x + 0.5f;
+  p.py = (float)p.y + 0.5f;
+  return p;
+}
+
+// The largest `last` (list entries a pixel processed in the forward) of the
+// block: where the backward's replay starts. Every thread calls it.
+__device__ __forceinline__ int block_last(int last) {
+  __shared__ int block_max;
+  if (threadIdx.x == 0) block_max = 0;
+  __syncthreads();
+  if (last > 0) atomicMax(&block_max, last);
+  __syncthreads();
+  return block_max;
+}
+
+// Launches `kernel` with one block of kBlockSize threads a tile of the view
+// (nothing for an empty image).
+template <class... Params, class... Args>
+void launch_per_tile(void (*kernel)(Params...), const ViewParams& vp, cudaStream_t stream, const Args&... args) {
+  const int tiles = vp.tiles_x * vp.tiles_y;
+  if (tiles == 0) return;
+  kernel<<<tiles, kBlockSize, 0, stream>>>(args...);
+}
+
+}  // namespace flat::render::splat
