@@ -16,12 +16,14 @@
 #include <cstdint>
 
 #include "flat/render/shared/compositing.h"    // FLAT_HD, CompositingConstants and its rules, tmin/tmax
+#include "flat/render/shared/fast_math.h"      // fast_exp (the falloff per (pixel, splat) pair)
 #include "flat/render/shared/view_geometry.h"  // CameraView, make_camera_view, PixelRect
 
 namespace flat::gaussians {
 
 using render::CameraView;
 using render::CompositingConstants;
+using render::fast_exp;
 using render::make_camera_view;
 using render::tmax;
 using render::tmin;
@@ -59,16 +61,6 @@ struct ScreenGrad {
 };
 constexpr int kScreenGradSize = 10;  // number of T in ScreenGrad
 
-// Fast exp on the GPU (float): the hardware ex2 approximation, a few ulp over
-// the q <= 9 range; evaluated for every (pixel, Gaussian) pair. Exact on the CPU.
-FLAT_HD float gauss_exp(float x) {
-#if defined(__CUDA_ARCH__)
-  return __expf(x);
-#else
-  return std::exp(x);
-#endif
-}
-FLAT_HD double gauss_exp(double x) { return std::exp(x); }
 
 // ---------------------------------------------------------------- 3-D covariance
 // Rotation of a unit quaternion (w, x, y, z), row-major.
@@ -312,7 +304,7 @@ FLAT_HD bool shade(const ScreenGaussian<T>& g, T px, T py, const CompositingCons
   f.dy = py - g.my;
   const T q = quad_form(g, f.dx, f.dy);
   if (!(q <= T(kSupportSq))) return false;
-  f.G = gauss_exp(T(-0.5) * q);
+  f.G = fast_exp(T(-0.5) * q);
   f.alpha = render::fragment_alpha(g.opacity, f.G, k);
   return render::fragment_blends(f.alpha, k);
 }

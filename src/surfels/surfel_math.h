@@ -18,12 +18,14 @@
 #include <cstdint>
 
 #include "flat/render/shared/compositing.h"    // FLAT_HD, CompositingConstants and its rules, tmin/tmax
+#include "flat/render/shared/fast_math.h"      // fast_exp (the falloff per (pixel, splat) pair)
 #include "flat/render/shared/view_geometry.h"  // CameraView, PixelRect
 
 namespace flat::surfels {
 
 using render::CameraView;
 using render::CompositingConstants;
+using render::fast_exp;
 using render::tmax;
 using render::tmin;
 using SurfelRect = render::PixelRect;  // pixels [x0,x1) x [y0,y1)
@@ -275,16 +277,6 @@ FLAT_HD void preprocess_backward(const T* mean, const T* scale, const T* quat, c
 }
 
 // ---------------------------------------------------------------- fragment
-// exp on the GPU (float): the hardware approximation (a few ulp over the
-// kept range rho <= 11), evaluated per (pixel, surfel) pair; exact on the CPU.
-FLAT_HD float surfel_exp(float x) {
-#if defined(__CUDA_ARCH__)
-  return __expf(x);
-#else
-  return std::exp(x);
-#endif
-}
-FLAT_HD double surfel_exp(double x) { return std::exp(x); }
 
 // Everything one pixel computes of one surfel; reused by the backward.
 template <class T>
@@ -316,7 +308,7 @@ FLAT_HD bool shade(const PixelSurfel<T>& s, T px, T py, const CompositingConstan
   f.lowpass = !(rho3d <= rho2d);
   const T rho = f.lowpass ? rho2d : rho3d;
   f.z = f.lowpass ? M[8] : f.u * M[6] + f.v * M[7] + M[8];
-  f.G = surfel_exp(T(-0.5) * rho);
+  f.G = fast_exp(T(-0.5) * rho);
   f.alpha = render::fragment_alpha(s.opacity, f.G, k);
   return render::fragment_blends(f.alpha, k) && rho <= T(kMaxCutoffSq) && f.z >= T(k.near_plane);
 }

@@ -20,6 +20,7 @@
 #include <cstdint>
 
 #include "flat/render/shared/compositing.h"
+#include "flat/render/shared/fast_math.h"
 #include "flat/render/shared/view_geometry.h"
 
 namespace flat::render {
@@ -268,46 +269,8 @@ FLAT_HD void preprocess_backward(const T* v, const CameraView<T>& cam, const Tri
 }
 
 // ---------------------------------------------------------------- window
-// pow and log of the window. On the GPU (float) the hardware approximations
-// (ex2/lg2, a few ulp; the CUDA-vs-CPU tolerances of docs/rasterizer.md hold):
-// the window is evaluated for every (pixel, triangle) pair, the accurate
-// powf costs ~40 instructions there. The CPU reference keeps std::pow/log.
-FLAT_HD float window_pow(float x, float y) {
-#if defined(__CUDA_ARCH__)
-  return __powf(x, y);
-#else
-  return std::pow(x, y);
-#endif
-}
-FLAT_HD double window_pow(double x, double y) { return std::pow(x, y); }
-FLAT_HD float window_log(float x) {
-#if defined(__CUDA_ARCH__)
-  return __logf(x);
-#else
-  return std::log(x);
-#endif
-}
-FLAT_HD double window_log(double x) { return std::log(x); }
-// a / b: on the GPU (float) the 2-ulp fast division (the IEEE one is ~10
-// instructions and runs per (pixel, triangle) pair); exact on the CPU.
-FLAT_HD float fast_div(float a, float b) {
-#if defined(__CUDA_ARCH__)
-  return __fdividef(a, b);
-#else
-  return a / b;
-#endif
-}
-FLAT_HD double fast_div(double a, double b) { return a / b; }
-// 1 / sqrt(x): on the GPU (float) the 2-ulp hardware reciprocal square root
-// (the IEEE square root and division are ~30 instructions); exact on the CPU.
-FLAT_HD float fast_rsqrt(float x) {
-#if defined(__CUDA_ARCH__)
-  return rsqrtf(x);
-#else
-  return 1.f / std::sqrt(x);
-#endif
-}
-FLAT_HD double fast_rsqrt(double x) { return 1.0 / std::sqrt(x); }
+// Its pow and log, the divisions and 1 / sqrt per (pixel, triangle) pair:
+// window_pow, window_log, fast_div and fast_rsqrt of fast_math.h.
 
 // The gradient gn of the camera-space normal (normal = -h / |h|) added into
 // the gradient gh of the plane h: gh += -(gn - (gn . h) h / |h|^2) / |h|.
