@@ -14,6 +14,11 @@
 #            seconds (it checkpoints and stops on SIGTERM); flat_eval of each
 #            stage runs beside the next one
 #   all      rooms, latents, train
+# Two variants side by side on 4 GPUs, e.g. without and with random backgrounds
+# (STAGES_DATA shares the first run's rooms and latents):
+#   GPUS_PER_SEED=1 STAGES_RUNS=/tmp/fs_base bash scripts/gpu_four_stages.sh train &
+#   GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/fs_rb STAGES_DATA=/tmp/fs_base/data \
+#     EXTRA_SET="--set loss.random_background=true" bash scripts/gpu_four_stages.sh train
 # Tables, results and grids go to $OUT. Usage on the GPU machine (repo root,
 # .deps carried, tools built in $GPU_BUILD_DIR):
 #   VAE_FILE=/tmp/flat_vae/fixed_A/vae.safetensors bash scripts/gpu_four_stages.sh all
@@ -23,7 +28,8 @@ set -uo pipefail
 source "$(dirname "$0")/gpu_common.sh"   # ROOT, OUT, BUILD
 PHASE="${1:-all}"
 S="${STAGES_RUNS:-/tmp/flat_stages}"
-D="$S/data"
+D="${STAGES_DATA:-$S/data}"   # rooms and latents (another run's, to share them)
+mkdir -p "$S"
 DEVICE="${DEVICE:-cuda}"
 ROOMS="${ROOMS:-128}"; VAL="${VAL:-16}"; FRAMES=49
 read -r -a SET <<< "${SETS:-176x320 176x320 360x640 432x768}"     # each stage's HxW
@@ -103,7 +109,7 @@ chain() {
 if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
   VAE_FILE="${VAE_FILE:-}"
   [ -f "$VAE_FILE" ] || { echo "VAE_FILE=$VAE_FILE is not a file"; exit 1; }
-  g=0
+  g=${FIRST_GPU:-0}   # the first GPU of this run (two runs side by side)
   for seed in "${SEED_LIST[@]}"; do
     devs=""
     for _ in $(seq 1 "$GPUS_PER_SEED"); do devs="$devs${devs:+,}$(( gpus > 0 ? g % gpus : 0 ))"; g=$((g + 1)); done

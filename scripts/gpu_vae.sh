@@ -87,10 +87,22 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
     g=$((g + 1))
   done
   wait
-  # Then the recipe's four stages from set A's VAE, two seeds on two GPUs each.
-  [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" VAE_FILE="$R/fixed_A/vae.safetensors" \
-    bash "$ROOT/scripts/gpu_four_stages.sh" latents && OUT="$R/out" VAE_FILE="$R/fixed_A/vae.safetensors" \
-    bash "$ROOT/scripts/gpu_four_stages.sh" train
+  # Then the recipe's four stages from set A's VAE: two seeds on two GPUs each,
+  # or with FOUR_STAGES_AB=1 two seeds on one GPU each, without (GPUs 0-1) and
+  # with (GPUs 2-3) loss.random_background, sharing rooms and latents.
+  if [ "${FOUR_STAGES:-1}" = 1 ]; then
+    export VAE_FILE="$R/fixed_A/vae.safetensors"
+    OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" latents
+    if [ "${FOUR_STAGES_AB:-0}" = 1 ]; then
+      OUT="$R/out/base" GPUS_PER_SEED=1 bash "$ROOT/scripts/gpu_four_stages.sh" train &
+      OUT="$R/out/random_background" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_rb \
+        STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="--set loss.random_background=true" \
+        bash "$ROOT/scripts/gpu_four_stages.sh" train &
+      wait
+    else
+      OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" train
+    fi
+  fi
   touch "$R/ALL_DONE"
 fi
 
@@ -117,6 +129,9 @@ if [ "$PHASE" = "wait" ]; then
   if [ -f "$R/ALL_DONE" ]; then
     echo "all runs done"
     cp "$R"/out/* "$OUT"/ 2>/dev/null
+    for v in base random_background; do  # FOUR_STAGES_AB: one archive per variant
+      [ -d "$R/out/$v" ] && tar czf "$OUT/four_stages_$v.tgz" -C "$R/out/$v" .
+    done
     tar czf "$OUT/vae_metrics.tgz" -C "$R" $(cd "$R" && ls -d */metrics */logs *.log 2>/dev/null) 2>/dev/null
     tar czf "$OUT/vae_grids.tgz" -C "$R" $(cd "$R" && ls */renders/*.png 2>/dev/null) 2>/dev/null
   else
