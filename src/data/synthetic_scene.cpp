@@ -39,8 +39,9 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
   std::vector<at::Tensor> mats;
   for (const auto& m : path.c2w) mats.push_back(at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}));
   camera::Cameras cams{intr, at::stack(mats).to(at::kFloat)};
+  const camera::Cameras cams_on_device{intr.to(o.device), cams.c2w.to(o.device)};
 
-  auto light = at::tensor({layout.light[0], layout.light[1], layout.light[2]}, at::kFloat);
+  auto light = at::tensor({layout.light[0], layout.light[1], layout.light[2]}, at::kFloat).to(o.device);
   light = light / light.norm();
   // Frames in parallel, each on one plain thread (SynthOptions::frame_threads):
   // coarse tasks instead of intra-op threads over one frame's small tensors.
@@ -48,7 +49,7 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
   std::vector<at::Tensor> rgb(o.frames), depth(o.frames), normals(o.frames), surface(o.frames);
   std::mutex progress_mutex;
   auto render_frame = [&](int64_t f) {
-    auto one = cams.index(at::tensor({f}, at::kLong));
+    auto one = cams_on_device.index(at::tensor({f}, at::kLong).to(o.device));
     camera::Rays rays = camera::pixel_rays(one, o.height, o.width);
     auto org = rays.origins.reshape({-1, 3}), dir = rays.directions.reshape({-1, 3});
     synth::Hits hit = synth::cast_rays(layout, org, dir);
@@ -63,18 +64,24 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
     n_cam = n_cam / n_cam.norm(2, -1, true).clamp_min(1e-12) * valid.unsqueeze(-1);
     auto shade = 0.35 + 0.65 * at::clamp_min(at::matmul(n, light), 0).unsqueeze(-1);
     auto colour = at::clamp(hit.albedo * shade, 0, 1) * valid.unsqueeze(-1);
-    auto to_chw = [&](const at::Tensor& t, int64_t c) { return t.reshape({o.height, o.width, c}).permute({2, 0, 1}); };
+    auto to_chw = [&](const at::Tensor& t, int64_t c) {
+      return t.reshape({o.height, o.width, c}).permute({2, 0, 1}).to(at::kCPU);
+    };
     rgb[f] = to_chw(colour, 3);
     depth[f] = to_chw(z.unsqueeze(-1), 1);
     normals[f] = to_chw(n_cam, 3);
-    surface[f] = hit.id.reshape({o.height, o.width});
+    surface[f] = hit.id.reshape({o.height, o.width}).to(at::kCPU);
     if (o.on_frame) {
       std::lock_guard<std::mutex> lock(progress_mutex);
       o.on_frame();
     }
   };
-  const int64_t threads = std::min<int64_t>(
-      o.frame_threads > 0 ? o.frame_threads : std::max(1u, std::thread::hardware_concurrency()), o.frames);
+  // A GPU takes the frames one after another: it is busy enough with one.
+  const int64_t threads = o.device.is_cuda() ? 1
+                                             : std::min<int64_t>(o.frame_threads > 0
+                                                                     ? o.frame_threads
+                                                                     : std::max(1u, std::thread::hardware_concurrency()),
+                                                                 o.frames);
   std::atomic<int64_t> next{0};
   std::exception_ptr error;
   std::mutex error_mutex;

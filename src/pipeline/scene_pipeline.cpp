@@ -121,9 +121,14 @@ primitives::ScenePrimitives ScenePipeline::decode_to(const SceneInput& in, const
 
 RenderedViews ScenePipeline::render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams,
                                     int64_t height, int64_t width) const {
+  return render(scene, cams, height, width, config_.prune_opacity);
+}
+
+RenderedViews ScenePipeline::render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams,
+                                    int64_t height, int64_t width, double min_opacity) const {
   FLAT_CHECK(scene.representation == config_.representation,
              "pipeline: a " + scene.representation + " scene given to a " + config_.representation + " pipeline");
-  const auto kept = prune(scene, config_.prune_opacity);
+  const auto kept = prune(scene, min_opacity);
   render::RenderOutput out = rasterize_scene(kept, cams, height, width, config_.raster);
   auto views = normalise_by_alpha(out);
   // 3DGS has no surface normal: the paper takes its normals from the rendered

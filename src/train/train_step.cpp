@@ -1,5 +1,6 @@
 #include "flat/train/train_step.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -140,7 +141,7 @@ std::string nonfinite_loss(const std::map<std::string, double>& terms,
 }  // namespace
 
 StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
-                            bool bf16, StepTimes* times, int64_t background_seed) {
+                            bool bf16, StepTimes* times, int64_t background_seed, double prune_opacity) {
   const auto device = pipeline.decoder()->conv2->weight.device();
   FLAT_CHECK(batch.video_latents.defined(), "training step: the batch has no latents (data.latents: true)");
   PhaseClock clock{times, device};
@@ -163,7 +164,8 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   std::vector<pipeline::RenderedViews> rendered;
   for (int64_t b = 0; b < scene.batch(); ++b) {
     const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
-    rendered.push_back(pipeline.render(leaf.scene.scene(b), batch.target_cameras(b).to(device), H, W));
+    rendered.push_back(pipeline.render(leaf.scene.scene(b), batch.target_cameras(b).to(device), H, W,
+                                       prune_opacity >= 0 ? prune_opacity : pipeline.config().prune_opacity));
     r.triangles += rendered.back().triangles;
     if (background_seed >= 0)
       use_random_background(rendered.back(), pipeline.config().raster.background,
@@ -185,6 +187,11 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   backward_into_decoder(leaf);
   clock.lap(&StepTimes::decoder_backward);
   return r;
+}
+
+double training_prune_opacity(double target, int64_t warmup_steps, int64_t step) {
+  if (warmup_steps <= 0 || step >= warmup_steps) return target;
+  return target * double(std::max<int64_t>(step, 0)) / double(warmup_steps);
 }
 
 }  // namespace flat::train

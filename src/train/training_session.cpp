@@ -107,6 +107,8 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   pipeline = std::make_unique<pipeline::ScenePipeline>(cfg.pipeline, decoder);
   objective = std::make_unique<loss::Objective>(cfg.loss, device, bf16);
   if (cfg.loss.random_background) background_seed_ = int64_t(cfg.seed);
+  prune_opacity_ = cfg.pipeline.prune_opacity;
+  prune_warmup_steps_ = cfg.prune_warmup_steps;
   optimiser = std::make_unique<optim::AdamW>(decoder->named_parameters().pairs(), adamw);
 }
 
@@ -125,7 +127,8 @@ StepOutcome TrainingSession::step(const data::Batch& batch, int64_t step, StepTi
   if (dp_) dp_->before_backward();
   out.result = vae_task() ? vae_forward_backward(vae, vae_loss, vae_lpips, batch, bf16, times)
                           : forward_backward(*pipeline, *objective, batch, bf16, times,
-                                             background_seed_ < 0 ? -1 : background_seed_ * 1000003 + step);
+                                             background_seed_ < 0 ? -1 : background_seed_ * 1000003 + step,
+                                             training_prune_opacity(prune_opacity_, prune_warmup_steps_, step));
   out.stop_signal = stop_signal;
   if (dp_) {
     // Every rank comes here, also one whose loss was not finite (no backward):

@@ -112,6 +112,9 @@ class ScenePipeline {
   // config's prune_opacity, with the rasterizer of its representation.
   RenderedViews render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams, int64_t height,
                        int64_t width) const;
+  // The same, pruning below `min_opacity` instead (training's prune warm-up).
+  RenderedViews render(const primitives::ScenePrimitives& scene, const camera::Cameras& cams, int64_t height,
+                       int64_t width, double min_opacity) const;
 
   const PipelineConfig& config() const { return config_; }
   model::SceneDecoder& decoder() { return decoder_; }

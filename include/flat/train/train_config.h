@@ -187,6 +187,11 @@ struct TrainConfig {
   std::string stage = "stage1";  // a name for logs and checkpoints
   std::string task = "scene";    // scene: the scene decoder on latents; vae: the Wan VAE on frames
   int64_t steps = 20000;         // paper, stage 1
+  // Training renders prune at pipeline.prune_opacity * min(1, step / this):
+  // a stage that starts pruning (stage 4) raises the threshold gradually
+  // instead of removing most of the previous stage's soft triangles at step 0
+  // (pruned triangles get no gradient). Validation prunes at the full value.
+  int64_t prune_warmup_steps = 0;
   std::string device = "cuda";
   std::string precision = "bf16";  // bf16: autocast on CUDA, fp32 master weights; fp32
   int64_t seed = 0;
@@ -212,6 +217,9 @@ struct TrainConfig {
     v.field("task", task, config::one_of({"scene", "vae"}),
             "scene: train the scene decoder on latents | vae: train the Wan VAE on the frames (its own stage)");
     v.field("steps", steps, config::positive(), "optimisation steps of this stage");
+    v.field("prune_warmup_steps", prune_warmup_steps, config::non_negative(),
+            "steps over which the training renders' pruning threshold rises linearly from 0 to "
+            "pipeline.prune_opacity (0: the full threshold from step 0; validation always uses the full one)");
     v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
     v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
     v.field("seed", seed, "seed of the weights' initialisation and every random draw");

@@ -48,7 +48,14 @@ struct StepResult {
 // parameters (the caller zeroes them). times: optional per-phase timing.
 // background_seed >= 0: the renders take random backgrounds drawn from it
 // (loss.random_background, train/random_background.h); -1: the configured one.
+// prune_opacity >= 0: the training renders prune below it instead of the
+// pipeline's prune_opacity (prune_warmup_steps, training_prune_opacity).
 StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
-                            bool bf16, StepTimes* times = nullptr, int64_t background_seed = -1);
+                            bool bf16, StepTimes* times = nullptr, int64_t background_seed = -1,
+                            double prune_opacity = -1);
+
+// The training renders' pruning threshold at `step`: `target` (the pipeline's
+// prune_opacity) times min(1, step / warmup_steps); `target` when warmup_steps is 0.
+double training_prune_opacity(double target, int64_t warmup_steps, int64_t step);
 
 }  // namespace flat::train

@@ -72,6 +72,8 @@ class TrainingSession {
  private:
   double grad_clip_ = 0;
   int64_t background_seed_ = -1;  // loss.random_background: the run's seed (a step's colours follow from it); -1: off
+  double prune_opacity_ = 0;        // pipeline.prune_opacity, reached after prune_warmup_steps_
+  int64_t prune_warmup_steps_ = 0;
   DataParallel* dp_ = nullptr;
 };
 
