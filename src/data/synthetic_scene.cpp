@@ -48,59 +48,69 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
   // Each frame's arithmetic is the same either way: the output does not change.
   std::vector<at::Tensor> rgb(o.frames), depth(o.frames), normals(o.frames), surface(o.frames);
   std::mutex progress_mutex;
-  auto render_frame = [&](int64_t f) {
-    auto one = cams_on_device.index(at::tensor({f}, at::kLong).to(o.device));
-    camera::Rays rays = camera::pixel_rays(one, o.height, o.width);
+  // Frames [first, first + count) in one batch of rays: one frame per call on
+  // the CPU's threads, many per call on a GPU (its kernels need large batches).
+  auto render_frames = [&](int64_t first, int64_t count) {
+    auto sel = cams_on_device.index(at::arange(first, first + count, at::TensorOptions(at::kLong).device(o.device)));
+    camera::Rays rays = camera::pixel_rays(sel, o.height, o.width);
     auto org = rays.origins.reshape({-1, 3}), dir = rays.directions.reshape({-1, 3});
     synth::Hits hit = synth::cast_rays(layout, org, dir);
     auto valid = at::isfinite(hit.t);
-    auto R = one.c2w[0].narrow(0, 0, 3).narrow(1, 0, 3);  // camera -> world rotation
+    auto R = sel.c2w.narrow(1, 0, 3).narrow(2, 0, 3);  // (K,3,3) camera -> world rotations
+    auto per_frame = [&](const at::Tensor& t) { return t.reshape({count, o.height * o.width, -1}); };
     // z-depth = distance along the ray times the cosine to the optical axis.
-    auto z = at::where(valid, hit.t * at::matmul(dir, R.select(1, 2)), at::zeros_like(hit.t));
+    auto cosine = (per_frame(dir) * R.select(2, 2).unsqueeze(1)).sum(-1).reshape({-1});
+    auto z = at::where(valid, hit.t * cosine, at::zeros_like(hit.t));
     // Normals facing the camera (the side of the surface the ray sees).
     auto n = hit.normal * at::where((hit.normal * dir).sum(-1, true) > 0, -1.0, 1.0);
-    auto n_cam = at::matmul(n, R);  // R^T n for row vectors
+    auto n_cam = at::bmm(per_frame(n), R).reshape({-1, 3});  // R^T n for row vectors
     // Unit length to float precision (sphere normals (p - c)/r carry the hit point's rounding).
     n_cam = n_cam / n_cam.norm(2, -1, true).clamp_min(1e-12) * valid.unsqueeze(-1);
     auto shade = 0.35 + 0.65 * at::clamp_min(at::matmul(n, light), 0).unsqueeze(-1);
     auto colour = at::clamp(hit.albedo * shade, 0, 1) * valid.unsqueeze(-1);
     auto to_chw = [&](const at::Tensor& t, int64_t c) {
-      return t.reshape({o.height, o.width, c}).permute({2, 0, 1}).to(at::kCPU);
+      return t.reshape({count, o.height, o.width, c}).permute({0, 3, 1, 2}).to(at::kCPU);
     };
-    rgb[f] = to_chw(colour, 3);
-    depth[f] = to_chw(z.unsqueeze(-1), 1);
-    normals[f] = to_chw(n_cam, 3);
-    surface[f] = hit.id.reshape({o.height, o.width}).to(at::kCPU);
-    if (o.on_frame) {
-      std::lock_guard<std::mutex> lock(progress_mutex);
-      o.on_frame();
-    }
-  };
-  // A GPU takes the frames one after another: it is busy enough with one.
-  const int64_t threads = o.device.is_cuda() ? 1
-                                             : std::min<int64_t>(o.frame_threads > 0
-                                                                     ? o.frame_threads
-                                                                     : std::max(1u, std::thread::hardware_concurrency()),
-                                                                 o.frames);
-  std::atomic<int64_t> next{0};
-  std::exception_ptr error;
-  std::mutex error_mutex;
-  auto worker = [&] {
-    for (int64_t f = next++; f < o.frames; f = next++) {
-      try {
-        render_frame(f);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(error_mutex);
-        if (!error) error = std::current_exception();
-        next = o.frames;  // the others stop after their frame
+    auto c = to_chw(colour, 3), d = to_chw(z.unsqueeze(-1), 1), nm = to_chw(n_cam, 3);
+    auto id = hit.id.reshape({count, o.height, o.width}).to(at::kCPU);
+    for (int64_t k = 0; k < count; ++k) {
+      rgb[first + k] = c[k];
+      depth[first + k] = d[k];
+      normals[first + k] = nm[k];
+      surface[first + k] = id[k];
+      if (o.on_frame) {
+        std::lock_guard<std::mutex> lock(progress_mutex);
+        o.on_frame();
       }
     }
   };
-  std::vector<std::thread> pool;
-  for (int64_t t = 1; t < threads; ++t) pool.emplace_back(worker);
-  worker();
-  for (auto& t : pool) t.join();
-  if (error) std::rethrow_exception(error);
+  if (o.device.is_cuda()) {
+    // Up to 4 M rays a batch (a few hundred MB of temporaries).
+    const int64_t per_batch = std::max<int64_t>(1, (int64_t(1) << 22) / (o.height * o.width));
+    for (int64_t f = 0; f < o.frames; f += per_batch) render_frames(f, std::min(per_batch, o.frames - f));
+  } else {
+    const int64_t threads = std::min<int64_t>(
+        o.frame_threads > 0 ? o.frame_threads : std::max(1u, std::thread::hardware_concurrency()), o.frames);
+    std::atomic<int64_t> next{0};
+    std::exception_ptr error;
+    std::mutex error_mutex;
+    auto worker = [&] {
+      for (int64_t f = next++; f < o.frames; f = next++) {
+        try {
+          render_frames(f, 1);
+        } catch (...) {
+          std::lock_guard<std::mutex> lock(error_mutex);
+          if (!error) error = std::current_exception();
+          next = o.frames;  // the others stop after their frame
+        }
+      }
+    };
+    std::vector<std::thread> pool;
+    for (int64_t t = 1; t < threads; ++t) pool.emplace_back(worker);
+    worker();
+    for (auto& t : pool) t.join();
+    if (error) std::rethrow_exception(error);
+  }
   SynthScene s;
   s.cameras = cams;
   s.images = at::stack(rgb).contiguous();
