@@ -178,4 +178,14 @@ void write_viewer(const std::string& folder, const std::string& glb_path, const 
   dir.commit();
 }
 
+std::string write_viewer_if_available(const std::string& folder, const std::string& glb_path,
+                                      const camera::CameraSet& start_cameras, const std::string& three_dir,
+                                      const std::string& mesh_glb_path) {
+  const std::string three = three_dir.empty() ? default_three_js_dir() : three_dir;
+  if (!viewer_available(three))
+    return "viewer not written: three.js not found in " + three + " (Debian package libjs-three)";
+  write_viewer(folder, glb_path, start_cameras, three, mesh_glb_path);
+  return "";
+}
+
 }  // namespace flat::exporter

@@ -252,15 +252,14 @@ void Inference::render_novel(const primitives::ScenePrimitives& on_device, const
 
 void Inference::write_viewer() {
   if (!o_.viewer) return;
-  const std::string three = o_.three_js_dir.empty() ? exporter::default_three_js_dir() : o_.three_js_dir;
   if (!have_glb_) {
     s_.notes.push_back("viewer not written: it shows scene.glb, which was not written");
-  } else if (!exporter::viewer_available(three)) {
-    s_.notes.push_back("viewer not written: three.js not found in " + three + " (Debian package libjs-three)");
-  } else {
-    exporter::write_viewer(out_->file("viewer"), out_->file("scene.glb"), {input_.cameras, W_, H_}, three);
-    s_.outputs.push_back("viewer/index.html");
+    return;
   }
+  const std::string why_not = exporter::write_viewer_if_available(out_->file("viewer"), out_->file("scene.glb"),
+                                                                  {input_.cameras, W_, H_}, o_.three_js_dir);
+  if (why_not.empty()) s_.outputs.push_back("viewer/index.html");
+  else s_.notes.push_back(why_not);
 }
 
 InferSummary Inference::finish() {

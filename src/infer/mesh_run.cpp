@@ -147,17 +147,15 @@ void write_comparison(const StagedDir& out, const mesh::ViewTargets& all, const 
 // The viewer shows the GLB files; a note says why it is missing otherwise.
 void write_viewer(const MeshRunOptions& o, const StagedDir& out, const mesh::ViewTargets& all, bool glb,
                   MeshRunSummary& s) {
-  const std::string three = o.three_js_dir.empty() ? exporter::default_three_js_dir() : o.three_js_dir;
   if (!glb) {
     s.notes.push_back("viewer not written: it shows GLB files, which this build cannot write");
-  } else if (!exporter::viewer_available(three)) {
-    s.notes.push_back("viewer not written: three.js not found in " + three + " (Debian package libjs-three)");
-  } else {
-    exporter::write_viewer(out.file("viewer"), out.file("refined.glb"),
-                           {all.cameras.to(at::kCPU), all.width(), all.height()}, three,
-                           o.convert ? out.file("mesh.glb") : "");
-    s.outputs.push_back("viewer/index.html");
+    return;
   }
+  const std::string why_not = exporter::write_viewer_if_available(
+      out.file("viewer"), out.file("refined.glb"), {all.cameras.to(at::kCPU), all.width(), all.height()},
+      o.three_js_dir, o.convert ? out.file("mesh.glb") : "");
+  if (why_not.empty()) s.outputs.push_back("viewer/index.html");
+  else s.notes.push_back(why_not);
 }
 
 std::vector<int64_t> to_vector(const at::Tensor& indices) {

@@ -32,4 +32,11 @@ bool viewer_available(const std::string& three_dir);
 void write_viewer(const std::string& folder, const std::string& glb_path, const camera::CameraSet& start_cameras,
                   const std::string& three_dir, const std::string& mesh_glb_path = "");
 
+// For the tools (flat_infer, flat_mesh), where a missing three.js is a note,
+// not an error: write_viewer() with three_dir (empty: default_three_js_dir())
+// when it holds three.js. Returns "" once written, else why it was not.
+std::string write_viewer_if_available(const std::string& folder, const std::string& glb_path,
+                                      const camera::CameraSet& start_cameras, const std::string& three_dir,
+                                      const std::string& mesh_glb_path = "");
+
 }  // namespace flat::exporter
