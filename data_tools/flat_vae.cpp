@@ -12,6 +12,7 @@
 // weights were pretrained or random. An existing output is refused (before any
 // work) unless --overwrite; a frame folder appears whole or not at all.
 #include <filesystem>
+#include <functional>
 
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
@@ -151,6 +152,23 @@ void check_video_range(const at::Tensor& video, const std::string& what) {
          "]; the VAE expects [-1,1] (e.g. 2*x/255-1 for 8-bit values)");
 }
 
+// Runs `step` (encode or decode) on each element of the batch in turn, on the
+// VAE's device and dtype (one at a time: bounded memory), without gradients;
+// returns the results concatenated, float32 on the CPU.
+at::Tensor each_batch_element(const at::Tensor& batch, const std::string& what, const WanVAE& vae,
+                              const std::function<at::Tensor(const at::Tensor&)>& step) {
+  const auto& weight = vae->conv2->weight;
+  torch::NoGradGuard no_grad;
+  std::vector<at::Tensor> results;
+  Progress progress(what, batch.size(0));
+  for (int64_t b = 0; b < batch.size(0); ++b) {
+    results.push_back(step(batch.narrow(0, b, 1).to(weight.device(), weight.scalar_type())).to(at::kCPU, at::kFloat));
+    progress.step();
+  }
+  progress.finish();
+  return at::cat(results, 0);
+}
+
 void encode(const Options& o) {
   Metadata meta;
   check_usage(o, false);
@@ -175,17 +193,8 @@ void encode(const Options& o) {
                                                       frames_in_flight,
                     "flat_vae encode of " + shape_str(video), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
-  auto weight = vae->conv2->weight;
-  torch::NoGradGuard no_grad;
-  std::vector<at::Tensor> latents;
-  Progress progress("encoding", video.size(0));
-  for (int64_t b = 0; b < video.size(0); ++b) {
-    at::Tensor v = video.narrow(0, b, 1).to(weight.device(), weight.scalar_type());
-    latents.push_back(vae->encode(v, o.mode == "streaming").to(at::kCPU, at::kFloat));
-    progress.step();
-  }
-  progress.finish();
-  at::Tensor latent = at::cat(latents, 0);
+  at::Tensor latent = each_batch_element(video, "encoding", vae,
+                                         [&](const at::Tensor& v) { return vae->encode(v, o.mode == "streaming"); });
   check_finite(latent, "flat_vae: the encoded latent");
   meta["frames"] = std::to_string(video.size(2));
   meta["height"] = std::to_string(video.size(3));
@@ -209,17 +218,9 @@ void decode(const Options& o) {
                         pixels * 4.0 * 6.0 * double(vae_dim(o)) * (o.mode == "full" ? frames : 4.0),
                     "flat_vae decode of latent " + shape_str(latent), cli::resolve_device(o.device));
   WanVAE vae = make_vae(o, meta);
-  auto weight = vae->conv2->weight;
-  torch::NoGradGuard no_grad;
-  std::vector<at::Tensor> videos;
-  Progress progress("decoding", latent.size(0));
-  for (int64_t b = 0; b < latent.size(0); ++b) {
-    at::Tensor z = latent.narrow(0, b, 1).to(weight.device(), weight.scalar_type());
-    videos.push_back(vae->decode(z, o.mode == "streaming", !o.no_clamp).to(at::kCPU, at::kFloat));
-    progress.step();
-  }
-  progress.finish();
-  at::Tensor video = at::cat(videos, 0);
+  at::Tensor video = each_batch_element(latent, "decoding", vae, [&](const at::Tensor& z) {
+    return vae->decode(z, o.mode == "streaming", !o.no_clamp);
+  });
   check_finite(video, "flat_vae: the decoded video");
   meta["clamped"] = o.no_clamp ? "false" : "true";
   if (fs::path(o.out).extension() == ".safetensors") {
