@@ -158,6 +158,25 @@ inline void check_transmittance_floor(const render::RenderOutput& out, int64_t n
   CHECK(out.max_weight[n - 1].item<float>() < 1e-3f);
 }
 
+// The background of the empty-scene checks: a colour no channel shares.
+inline const std::vector<double> kEmptySceneBackground = {0.1, 0.2, 0.3};
+
+// An empty scene rendered into 2 views of height x width over
+// kEmptySceneBackground: the background everywhere, alpha 0, no max_weight,
+// and rgb.sum()'s gradient reaches `leaf` (an input that requires grad) with
+// its own, empty, shape.
+inline void check_empty_scene(const render::RenderOutput& out, int64_t height, int64_t width,
+                              const torch::Tensor& leaf) {
+  CHECK(out.rgb.sizes() == torch::IntArrayRef({2, 3, height, width}));
+  for (int64_t c = 0; c < 3; ++c)
+    CHECK(out.rgb.select(1, c).sub(kEmptySceneBackground[c]).abs().max().item<float>() < 1e-7f);
+  CHECK(out.alpha.abs().max().item<float>() == 0.0f);
+  CHECK(out.max_weight.numel() == 0);
+  out.rgb.sum().backward();
+  REQUIRE(leaf.grad().defined());
+  CHECK(leaf.grad().sizes() == leaf.sizes());
+}
+
 // A rasterizer of a fixed scene into given cameras.
 using ViewsFn = std::function<render::RenderOutput(const camera::Cameras&)>;
 
