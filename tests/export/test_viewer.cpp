@@ -148,7 +148,7 @@ struct ShotScene {
   std::string folder;
 };
 
-ShotScene shot_scene(const fs::path& dir, int64_t cam_w, int64_t cam_h, const std::string& three) {
+ShotScene shot_scene(const fs::path& dir, int64_t cam_w, int64_t cam_h) {
   const int64_t n = 14;
   ShotScene sc;
   sc.intrinsics = torch::tensor({0.85, 1.05, 0.44, 0.57});
@@ -171,7 +171,7 @@ ShotScene shot_scene(const fs::path& dir, int64_t cam_w, int64_t cam_h, const st
   const auto glb = (dir / "scene.glb").string();
   flat::exporter::write_triangle_glb(glb, {sc.vertices, sc.colors, sc.opacities, sc.sigmas});
   sc.folder = (dir / "viewer").string();
-  write_viewer(sc.folder, glb, one_camera(sc.intrinsics, sc.c2w, cam_w, cam_h), three);
+  write_viewer(sc.folder, glb, one_camera(sc.intrinsics, sc.c2w, cam_w, cam_h), default_three_js_dir());
   return sc;
 }
 
@@ -218,8 +218,21 @@ std::pair<double, double> compare(const torch::Tensor& rgb, const flat::render::
   return {iou, colour_err};
 }
 
-// Why a screenshot cannot be taken here ("" when it can).
-std::string no_screenshot(std::string& chromium, const std::string& three) {
+// The screenshot `rgb` shows the rasterizer's `view`: IoU >= 0.9 of their
+// masks and a mean colour difference below 0.05 (printed, with `what`).
+void check_screenshot_matches(const torch::Tensor& rgb, const flat::render::RenderOutput& view,
+                              const std::string& what) {
+  const auto [iou, colour_err] = compare(rgb, view);
+  std::printf("viewer screenshot, %s: IoU %.4f with the rasterizer's alpha > 0.5, mean |colour difference| %.4f\n",
+              what.c_str(), iou, colour_err);
+  CHECK(iou >= 0.9);
+  CHECK(colour_err < 0.05);
+}
+
+// Why a screenshot cannot be taken here ("" when it can). The viewer uses
+// the default three.js folder.
+std::string no_screenshot(std::string& chromium) {
+  const std::string three = default_three_js_dir();
   chromium = flat::test::find_program("chromium");
   if (chromium.empty()) return "no chromium on PATH (Debian package chromium): viewer not checked against the rasterizer";
   if (!viewer_available(three)) return "three.js r111 not found in " + three + " (Debian package libjs-three)";
@@ -231,13 +244,12 @@ std::string no_screenshot(std::string& chromium, const std::string& three) {
 }  // namespace
 
 TEST_CASE("viewer: a chromium screenshot of a camera matches the rasterizer's view", "[export][viewer]") {
-  const std::string three = default_three_js_dir();
   std::string chromium;
-  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  if (const std::string why = no_screenshot(chromium); !why.empty()) FLAT_SKIP(why);
   auto dir = flat::test::scratch_dir("viewer_screenshot");
   // Headless chromium lays small windows out at a 500-pixel minimum width: stay above it.
   const int64_t width = 640, height = 480;
-  const auto sc = shot_scene(dir, width, height, three);
+  const auto sc = shot_scene(dir, width, height);
   const auto out = raster_view(sc, width, height);
   REQUIRE((out.alpha[0][0] > 0.5).sum().item<int64_t>() > 1000);  // the scene is in view
   flat::write_image((dir / "rasterizer.png").string(), out.rgb[0]);  // to compare by eye when this fails
@@ -253,40 +265,30 @@ TEST_CASE("viewer: a chromium screenshot of a camera matches the rasterizer's vi
   int shot = 0;
   for (const std::string& query : {std::string("camera=0"), explicit_camera}) {
     const auto rgb = screenshot(chromium, dir, sc, query, width, height, "shot" + std::to_string(shot++));
-    const auto [iou, colour_err] = compare(rgb, out);
-    std::printf("viewer screenshot (%s...): IoU %.4f with the rasterizer's alpha > 0.5, mean |colour difference| %.4f\n",
-                query.substr(0, 8).c_str(), iou, colour_err);
-    CHECK(iou >= 0.9);
-    CHECK(colour_err < 0.05);
+    check_screenshot_matches(rgb, out, query.substr(0, 8) + "...");
   }
 }
 
 TEST_CASE("viewer: a 5:3 camera in a 4:3 window is letterboxed, not stretched", "[export][viewer]") {
-  const std::string three = default_three_js_dir();
   std::string chromium;
-  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  if (const std::string why = no_screenshot(chromium); !why.empty()) FLAT_SKIP(why);
   auto dir = flat::test::scratch_dir("viewer_aspect");
-  const auto sc = shot_scene(dir, 640, 384, three);  // 5:3 images
+  const auto sc = shot_scene(dir, 640, 384);  // 5:3 images
   // An 800x600 window: the view is 800x480, centred (60 rows above and below).
   const auto rgb = screenshot(chromium, dir, sc, "camera=0", 800, 600, "shot_4x3");
   const auto out = raster_view(sc, 800, 480);
-  const auto [iou, colour_err] = compare(rgb.narrow(1, 60, 480), out);
-  std::printf("viewer screenshot, 5:3 camera in a 4:3 window: IoU %.4f, mean |colour difference| %.4f\n", iou,
-              colour_err);
-  CHECK(iou >= 0.9);
-  CHECK(colour_err < 0.05);
+  check_screenshot_matches(rgb.narrow(1, 60, 480), out, "5:3 camera in a 4:3 window");
   // Nothing of the scene is drawn in the bands.
   const auto bg = torch::tensor({1.0f, 0.0f, 1.0f}).view({3, 1, 1});
   CHECK((rgb.narrow(1, 0, 55) - bg).abs().amax(0).lt(0.25).sum().item<int64_t>() == 0);  // not the canvas' magenta
 }
 
 TEST_CASE("viewer: with a mesh GLB the page toggles to the opaque mesh (show=mesh)", "[export][viewer]") {
-  const std::string three = default_three_js_dir();
   std::string chromium;
-  if (const std::string why = no_screenshot(chromium, three); !why.empty()) FLAT_SKIP(why);
+  if (const std::string why = no_screenshot(chromium); !why.empty()) FLAT_SKIP(why);
   auto dir = flat::test::scratch_dir("viewer_mesh");
   const int64_t width = 640, height = 480;
-  auto sc = shot_scene(dir, width, height, three);
+  auto sc = shot_scene(dir, width, height);
   // The "mesh": the same triangles, shared nothing, in one cyan (the soup's
   // colours all have green >= 0.5 and differ from it).
   auto mesh = flat::primitives::mesh_from_soup({sc.vertices, sc.colors, sc.opacities, sc.sigmas});
@@ -294,8 +296,8 @@ TEST_CASE("viewer: with a mesh GLB the page toggles to the opaque mesh (show=mes
   const auto mesh_glb = (dir / "mesh.glb").string();
   flat::exporter::write_mesh_glb(mesh_glb, mesh);
   sc.folder = (dir / "viewer_mesh").string();
-  write_viewer(sc.folder, (dir / "scene.glb").string(), one_camera(sc.intrinsics, sc.c2w, width, height), three,
-               mesh_glb);
+  write_viewer(sc.folder, (dir / "scene.glb").string(), one_camera(sc.intrinsics, sc.c2w, width, height),
+               default_three_js_dir(), mesh_glb);
   CHECK(decode_base64(script_string(flat::test::read_file(sc.folder + "/mesh_glb.js"), "FLAT_MESH_GLB")) ==
         flat::test::read_file(mesh_glb));
   const auto soup_view = raster_view(sc, width, height);
@@ -314,14 +316,8 @@ TEST_CASE("viewer: with a mesh GLB the page toggles to the opaque mesh (show=mes
   const auto soup_shot = hide_button(screenshot(chromium, dir, sc, "camera=0", width, height, "soup"), soup_view_c);
   const auto mesh_shot =
       hide_button(screenshot(chromium, dir, sc, "camera=0&show=mesh", width, height, "mesh"), mesh_view_c);
-  const auto [iou_s, err_s] = compare(soup_shot, soup_view_c);
-  const auto [iou_m, err_m] = compare(mesh_shot, mesh_view_c);
-  std::printf("viewer with mesh: soup IoU %.4f colour %.4f; show=mesh IoU %.4f colour %.4f\n", iou_s, err_s, iou_m,
-              err_m);
-  CHECK(iou_s >= 0.9);
-  CHECK(err_s < 0.05);
-  CHECK(iou_m >= 0.9);
-  CHECK(err_m < 0.05);
+  check_screenshot_matches(soup_shot, soup_view_c, "with mesh, the soup");
+  check_screenshot_matches(mesh_shot, mesh_view_c, "with mesh, show=mesh");
   // The mesh shot is not the soup's: the colours differ where both draw.
   CHECK(compare(mesh_shot, soup_view_c).second > 0.1);
 }
