@@ -112,6 +112,18 @@ bool exr_available() {
   }
 }
 
+// Import options with the metric scale that read the depth and normal maps
+// from depth/ and normals/ in `root` (made here, empty).
+data::ImportOptions with_map_folders(const fs::path& root, double metric_scale) {
+  fs::create_directories(root / "depth");
+  fs::create_directories(root / "normals");
+  data::ImportOptions o;
+  o.metric_scale = metric_scale;
+  o.geometry.depth_dir = (root / "depth").string();
+  o.geometry.normals_dir = (root / "normals").string();
+  return o;
+}
+
 data::FrameBatch load_all(const std::string& dir, bool depth = true, bool normals = true) {
   std::vector<int64_t> all;
   for (int64_t i = 0; i < kFrames; ++i) all.push_back(i);
@@ -125,18 +137,13 @@ TEST_CASE("geometry maps: RE10K with NPY depth and OpenGL 8-bit PNG normals", "[
   auto root = test::fresh_dir("geo_re10k");
   auto s = room();
   write_re10k(root, s);
-  fs::create_directories(root / "depth");
-  fs::create_directories(root / "normals");
+  auto o = with_map_folders(root, 0.5);
+  o.geometry.normals_convention = "opengl";
   for (int64_t i = 0; i < kFrames; ++i) {
     write_npy((root / "depth" / (timestamp(i) + ".npy")).string(), s.depth[i][0]);  // (H,W) float32
     write_normals_png(root / "normals" / (timestamp(i) + ".png"), flip_yz(s.normals[i]));
   }
   REQUIRE(s.depth.min().item<float>() > 0);  // a closed room: every pixel known
-  data::ImportOptions o;
-  o.metric_scale = 0.5;
-  o.geometry.depth_dir = (root / "depth").string();
-  o.geometry.normals_dir = (root / "normals").string();
-  o.geometry.normals_convention = "opengl";
   auto scene = data::import_re10k((root / "cams.txt").string(), (root / "frames").string(), (root / "scene").string(), o);
   CHECK(scene.has_depth);
   CHECK(scene.has_normals);
@@ -175,9 +182,9 @@ TEST_CASE("geometry maps: transforms.json with 16-bit PNG depth and OpenCV NPY n
   auto root = test::fresh_dir("geo_transforms");
   auto s = room();
   write_transforms(root, s);
-  fs::create_directories(root / "depth");
-  fs::create_directories(root / "normals");
+  auto o = with_map_folders(root, 2.0);
   const double unit = 0.001;  // millimetres
+  o.geometry.depth_png_scale = unit;
   auto units = (s.depth / unit).round();
   REQUIRE(units.max().item<float>() < 65535);
   for (int64_t i = 0; i < kFrames; ++i) {
@@ -185,11 +192,6 @@ TEST_CASE("geometry maps: transforms.json with 16-bit PNG depth and OpenCV NPY n
     write_npy((root / "normals" / ("f" + std::to_string(i) + ".npy")).string(),
               s.normals[i].permute({1, 2, 0}).contiguous());  // (H,W,3) float32
   }
-  data::ImportOptions o;
-  o.metric_scale = 2.0;
-  o.geometry.depth_dir = (root / "depth").string();
-  o.geometry.depth_png_scale = unit;
-  o.geometry.normals_dir = (root / "normals").string();
   auto scene = data::import_transforms_json((root / "capture").string(), (root / "scene").string(), o);
   CHECK_THAT(scene.depth_source, FLAT_CONTAINS("png files from "));
   CHECK_THAT(scene.depth_source, FLAT_CONTAINS("0.001 m per PNG unit"));
@@ -217,23 +219,17 @@ TEST_CASE("geometry maps follow a resized image with nearest samples (EXR depth,
   auto root = test::fresh_dir("geo_resize");
   auto s = room();
   write_transforms(root, s);
-  fs::create_directories(root / "depth");
-  fs::create_directories(root / "normals");
+  auto o = with_map_folders(root, 1.5);
+  o.max_size = kW / 2;  // 16x12 -> 8x6
   for (int64_t i = 0; i < kFrames; ++i) {
     data::write_depth((root / "depth" / ("f" + std::to_string(i) + ".exr")).string(), s.depth[i]);
     write_npy((root / "normals" / ("f" + std::to_string(i) + ".npy")).string(), s.normals[i].to(at::kHalf));
   }
-  data::ImportOptions o;
-  o.metric_scale = 1.5;
-  o.max_size = kW / 2;  // 16x12 -> 8x6
-  o.geometry.depth_dir = (root / "depth").string();
-  o.geometry.normals_dir = (root / "normals").string();
   auto scene = data::import_transforms_json((root / "capture").string(), (root / "scene").string(), o);
   REQUIRE(scene.height == kH / 2);
   REQUIRE(scene.width == kW / 2);
   CHECK_THAT(scene.depth_source, FLAT_CONTAINS("exr files from "));
-  std::vector<int64_t> all = {0, 1, 2, 3};
-  auto f = data::load_frames(data::read_scene((root / "scene").string()), all, true, true);
+  auto f = load_all((root / "scene").string());
   // Halving with nearest takes every second pixel (odd rows and columns): no depth is averaged.
   auto odd = [](const at::Tensor& t) { return t.slice(2, 1, kH, 2).slice(3, 1, kW, 2); };
   CHECK(torch::allclose(f.depth, odd(s.depth) * 1.5, 1e-6, 1e-6));
