@@ -22,6 +22,19 @@ using namespace flat::test;
 
 namespace {
 
+// flat_train on write_config(steps, extra) in a fresh folder `name`: the
+// folder, the exit code and the log.
+struct TinyRun {
+  std::string dir;
+  int rc = 0;
+  std::string log;
+};
+TinyRun train_tiny(const std::string& name, int steps, const std::string& extra) {
+  const std::string d = fresh_dir(name).string();
+  const int rc = train({"--config", write_config(d, steps, extra)}, d + "/log.txt");
+  return {d, rc, read_file(d + "/log.txt")};
+}
+
 // A python3 with the tensorboard package ($FLAT_PYTHON, else the venv that
 // scripts/install_deps.sh makes), or "" when there is none.
 std::string tensorboard_python() {
@@ -231,9 +244,7 @@ TEST_CASE("flat_train: SIGTERM during the step-0 validation is honoured after on
 
 TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cleanly", "[train]") {
   {
-    const std::string d = fresh_dir("train_nan_once").string();
-    const int rc = train({"--config", write_config(d, 6, "debug: {nan_steps: [2]}\n")}, d + "/log.txt");
-    const std::string log = read_file(d + "/log.txt");
+    const auto [d, rc, log] = train_tiny("train_nan_once", 6, "debug: {nan_steps: [2]}\n");
     INFO(log);
     REQUIRE(rc == 0);
     auto r = rows(d + "/run");
@@ -246,10 +257,8 @@ TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cl
     CHECK(std::isfinite(r[5].at("loss").get<double>()));
   }
   {
-    const std::string d = fresh_dir("train_nan_repeated").string();
-    const int rc = train({"--config", write_config(d, 8, "debug: {nan_steps: [3, 4, 5]}\nnan_guard: {max_consecutive: 3}\n")},
-                         d + "/log.txt");
-    const std::string log = read_file(d + "/log.txt");
+    const auto [d, rc, log] =
+        train_tiny("train_nan_repeated", 8, "debug: {nan_steps: [3, 4, 5]}\nnan_guard: {max_consecutive: 3}\n");
     INFO(log);
     CHECK(rc == 1);
     CHECK(log.find("3 consecutive steps had a non-finite loss") != std::string::npos);
@@ -261,10 +270,8 @@ TEST_CASE("flat_train: a NaN batch is skipped and counted; NaN in a row stops cl
 }
 
 TEST_CASE("flat_train: a session whose every step is non-finite exits 1 and writes no model", "[train]") {
-  const std::string d = fresh_dir("train_nan_all").string();
-  const int rc = train({"--config", write_config(d, 3, "debug: {nan_steps: [0, 1, 2]}\nnan_guard: {max_consecutive: 5}\n")},
-                       d + "/log.txt");
-  const std::string log = read_file(d + "/log.txt");
+  const auto [d, rc, log] =
+      train_tiny("train_nan_all", 3, "debug: {nan_steps: [0, 1, 2]}\nnan_guard: {max_consecutive: 5}\n");
   INFO(log);
   CHECK(rc == 1);
   CHECK(log.find("every one of the 3 steps") != std::string::npos);
