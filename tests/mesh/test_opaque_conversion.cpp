@@ -57,6 +57,22 @@ double psnr(const primitives::TriangleSoup& s, const mesh::ViewTargets& t, const
   return -10 * std::log10((out.rgb.clamp(0, 1) - t.rgb).square().mean().item<double>());
 }
 
+// The wall's soup converted with `o` in a short run (20 repair steps, 3
+// views a step): the mesh, the report and the mesh's statistics.
+struct Converted {
+  primitives::IndexedMesh mesh;
+  mesh::ConversionReport report;
+  mesh::MeshStatistics stats;
+};
+Converted convert_short(const Wall& w, mesh::OpaqueOptions o) {
+  o.repair_steps = 20;
+  o.views_per_step = 3;
+  Converted c;
+  c.mesh = mesh::convert_to_opaque_mesh(w.soup, w.targets, o, &c.report);
+  c.stats = mesh::mesh_statistics(c.mesh);
+  return c;
+}
+
 // The mesh, rendered opaque, shows the wall: its PSNR is far (6 dB) above
 // the flat mean colour's.
 void check_renders_the_wall(const primitives::IndexedMesh& m, const Wall& w, const mesh::OpaqueOptions& o) {
@@ -74,11 +90,7 @@ TEST_CASE("opaque conversion: a soup of a wall becomes a connected opaque mesh t
   mesh::OpaqueOptions o;
   o.conversion = "stitch";  // the paper's selection and vertex stitching
   o.selection_steps = 20;
-  o.repair_steps = 20;
-  o.views_per_step = 3;
-  mesh::ConversionReport r;
-  const auto m = mesh::convert_to_opaque_mesh(w.soup, w.targets, o, &r);
-  const auto stats = mesh::mesh_statistics(m);
+  const auto [m, r, stats] = convert_short(w, o);
   INFO(mesh::format_statistics(stats));
   CHECK(m.num_faces() > 0);
   CHECK(r.stitched_pairs > 0);
@@ -94,12 +106,8 @@ TEST_CASE("opaque conversion: a soup of a wall becomes a connected opaque mesh t
 TEST_CASE("opaque conversion (view grids): the wall becomes one flat, edge-connected sheet that renders it", "[mesh]") {
   // Squares of ~10 pixels: the grid samples every 2 pixels (the token grid), finer texture aliases.
   const auto w = wall(0.9f, 0.1f, 16, 12, 4);
-  mesh::OpaqueOptions o;  // conversion "grid", the default
-  o.repair_steps = 20;
-  o.views_per_step = 3;
-  mesh::ConversionReport r;
-  const auto m = mesh::convert_to_opaque_mesh(w.soup, w.targets, o, &r);
-  const auto stats = mesh::mesh_statistics(m);
+  const mesh::OpaqueOptions o;  // conversion "grid", the default
+  const auto [m, r, stats] = convert_short(w, o);
   INFO(mesh::format_statistics(stats));
   REQUIRE(m.num_faces() > 50);
   // Three views of one wall: the middle view's sheet, and strips from the side views.
