@@ -34,7 +34,7 @@ DEVICE="${DEVICE:-cuda}"
 ROOMS="${ROOMS:-128}"; VAL="${VAL:-16}"; FRAMES=49
 read -r -a SET <<< "${SETS:-176x320 176x320 360x640 432x768}"     # each stage's HxW
 read -r -a STEP <<< "${STEPS:-1100 300 300 200}"                    # each stage's steps
-read -r -a LIMIT <<< "${STAGE_SECONDS:-150 90 150 150}"             # each stage's time bound
+read -r -a LIMIT <<< "${STAGE_SECONDS:-150 90 150 180}"             # each stage's time bound
 read -r -a SEED_LIST <<< "${SEEDS:-0 1}"
 GPUS_PER_SEED="${GPUS_PER_SEED:-2}"
 WINDOW=(17 49 49 49)
@@ -56,13 +56,19 @@ stage_args() {
 
 if [ "$PHASE" = rooms ] || [ "$PHASE" = all ]; then
   rm -rf "$D"; mkdir -p "$D"
-  big="${SET[3]}"; P=$(( gpus > 0 ? 16 : 2 )); per=$(( (ROOMS + P - 1) / P ))
+  big="${SET[3]}"
+  # SYNTH_DEVICE=cuda: the rays are cast on the GPUs (one process each), else 16 CPU processes.
+  synth_dev="${SYNTH_DEVICE:-cpu}"; [ "$gpus" -eq 0 ] && synth_dev=cpu
+  if [ "$synth_dev" = cuda ]; then P=$gpus; else P=$(( gpus > 0 ? 16 : 2 )); fi
+  per=$(( (ROOMS + P - 1) / P ))
   for k in $(seq 0 $((P - 1))); do
     n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
-    "$BUILD/flat_synth" --threads 2 --out "$D/train" --count $n --first-index $((k * per)) --seed 7 --family room \
+    CUDA_VISIBLE_DEVICES=$(( gpus > 0 ? k % gpus : 0 )) "$BUILD/flat_synth" --device "$synth_dev" --threads 2 \
+      --out "$D/train" --count $n --first-index $((k * per)) --seed 7 --family room \
       --frames $FRAMES --size "$big" --motion mixed --log-level warn >"$S/synth_$k.log" 2>&1 &
   done
-  "$BUILD/flat_synth" --threads 2 --out "$D/val" --count "$VAL" --seed 1001 --family room --frames $FRAMES \
+  CUDA_VISIBLE_DEVICES=$(( gpus > 0 ? (gpus - 1) : 0 )) "$BUILD/flat_synth" --device "$synth_dev" --threads 2 \
+    --out "$D/val" --count "$VAL" --seed 1001 --family room --frames $FRAMES \
     --size "$big" --motion mixed --log-level warn >"$S/synth_val.log" 2>&1 &
   wait
   note "rooms: $(ls "$D/train" | wc -l) training, $(ls "$D/val" | wc -l) held-out, $FRAMES frames of $big"

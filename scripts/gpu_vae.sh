@@ -2,21 +2,26 @@
 # The VAE stage on the GPU (issue #44, docs/training.md "A VAE stage that does
 # not fall"): why the shipped recipe's held-out reconstruction fell, and the
 # fixed recipe on three room sets, one GPU each.
-#   prep   build flat_synth and flat_train; three room sets of SETS_ROOMS
-#          training + 16 held-out rooms (49 frames of 176x320), each set its own
-#          seeds: A = the recipe's rooms (seeds 7 / 1001, where the fall was
-#          seen), B = 41 / 1041, C = 53 / 1053 (used by no test or doc before).
+#   prep   build flat_synth, then (while the other tools build) cast three
+#          room sets of SETS_ROOMS training + 16 held-out rooms (49 frames of
+#          176x320) on the GPUs, each set its own seeds: A = the recipe's rooms
+#          (seeds 7 / 1001, where the fall was seen), B = 41 / 1041, C = 53 /
+#          1053 (used by no test or doc before); and the four stages' rooms.
 #   start  in the background (setsid: the runs outlive this call on a warm
-#          machine), one GPU each:
-#            GPU 0: the A/B on set A, single frames, 1,200 steps, validated
-#                   every 100 steps, the arms side by side: "old" (the recipe
-#                   before the fix: lr 2e-3, no clipping, bf16), then the old
-#                   recipe with one thing changed: "clip" (grad_clip 1),
-#                   "lr" (lr 5e-4), "fp32" (precision fp32), and "new" (the
-#                   fixed configs/recipe/vae_image.yaml, cut to 1,200 steps);
+#          machine):
+#            GPU 0: with VAE_AB=1 the A/B that found the fall (session 9: on
+#                   set A, single frames, 1,200 steps, validated every 100:
+#                   "old" = lr 2e-3, no clipping, bf16; "clip", "lr", "fp32"
+#                   change one thing; "new" = configs/recipe/vae_image.yaml);
+#                   with GPU_TESTS=1 the CUDA tests of render, gaussians,
+#                   surfels, optim and data (built here, -j 6);
 #            GPUs 1-3: the fixed recipe (configs/recipe/vae_image.yaml then
 #                   configs/recipe/vae.yaml) on sets A, B, C, alone on the GPU,
-#                   wall time measured from the first step to the VAE file.
+#                   wall time measured from the first step to the VAE file;
+#            then the recipe's four stages from set A's VAE
+#                   (scripts/gpu_four_stages.sh; FOUR_STAGES_AB=1: two
+#                   variants, AB_A_NAME/AB_A_SET and AB_B_NAME/AB_B_SET, two
+#                   seeds each, one GPU a seed).
 #   wait   wait up to WAIT_SECONDS for the runs, then print each run's
 #          validation curve and falls; once all are done, tables and grids
 #          go to $OUT.
@@ -33,25 +38,35 @@ cd "$ROOT"
 if [ "$PHASE" = "prep" ]; then
   nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
   t0=$(date +%s); mkdir -p "$R"
-  # Logs stay under $R: the device returns few files.
-  gpu_cmake -DFLAT_BUILD_TESTS=OFF -DFLAT_CUTLASS=OFF >"$R/configure.log" 2>&1 || { tail -30 "$R/configure.log"; exit 1; }
-  ninja -C "$BUILD" flat_synth flat_train flat_latents flat_eval >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
-  echo "built in $(( $(date +%s) - t0 )) s"
+  gpus=$(nvidia-smi -L | wc -l)
+  # Logs stay under $R: the device returns few files. Tests are configured
+  # (built later on GPU 0 by "start" with GPU_TESTS=1).
+  gpu_cmake -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF >"$R/configure.log" 2>&1 || { tail -30 "$R/configure.log"; exit 1; }
+  # flat_synth first: the rooms are cast on the GPUs while the other tools build.
+  ninja -C "$BUILD" flat_synth >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
+  echo "flat_synth built in $(( $(date +%s) - t0 )) s"
+  ( ninja -C "$BUILD" flat_train flat_latents flat_eval >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
+  builder=$!
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
-  P=8; per=$(( (ROOMS + P - 1) / P ))
+  P=$gpus; per=$(( (ROOMS + P - 1) / P )); g=0
   for s in A B C; do
     for k in $(seq 0 $((P - 1))); do
       n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
-      "$BUILD/flat_synth" --threads 2 --out "$R/set$s/train" --count $n --first-index $((k * per)) --seed "${TRAIN_SEED[$s]}" \
-        --family room --frames $FRAMES --size $SIZE --motion mixed --log-level warn >"$R/synth_${s}_$k.log" 2>&1 &
+      CUDA_VISIBLE_DEVICES=$(( g++ % gpus )) "$BUILD/flat_synth" --device cuda --out "$R/set$s/train" --count $n \
+        --first-index $((k * per)) --seed "${TRAIN_SEED[$s]}" --family room --frames $FRAMES --size $SIZE --motion mixed \
+        --log-level warn >"$R/synth_${s}_$k.log" 2>&1 &
     done
-    "$BUILD/flat_synth" --threads 2 --out "$R/set$s/val" --count 16 --seed "${VAL_SEED[$s]}" --family room \
-      --frames $FRAMES --size $SIZE --motion mixed --log-level warn >"$R/synth_${s}_val.log" 2>&1 &
+    CUDA_VISIBLE_DEVICES=$(( g++ % gpus )) "$BUILD/flat_synth" --device cuda --out "$R/set$s/val" --count 16 \
+      --seed "${VAL_SEED[$s]}" --family room --frames $FRAMES --size $SIZE --motion mixed --log-level warn \
+      >"$R/synth_${s}_val.log" 2>&1 &
   done
   # The four stages' rooms (scripts/gpu_four_stages.sh) at the same time.
-  [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" rooms >"$R/stage_rooms.log" 2>&1 &
+  [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" SYNTH_DEVICE=cuda bash "$ROOT/scripts/gpu_four_stages.sh" rooms >"$R/stage_rooms.log" 2>&1 &
   wait
-  for s in A B C; do echo "set $s: $(ls "$R/set$s/train" | wc -l) training, $(ls "$R/set$s/val" | wc -l) held-out rooms"; done
+  grep -h "error" "$R"/synth_*.log | head -5
+  grep -q "BUILD FAILED" "$R/build_tools.log" && { grep -E "error|FAILED" "$R/build_tools.log" | head -30; exit 1; }
+  for s in A B C; do echo "set $s: $(ls "$R/set$s/train" | grep -c room) training, $(ls "$R/set$s/val" | grep -c room) held-out rooms"; done
+  tail -2 "$R/out/four_stages.txt" 2>/dev/null
   echo "prep done in $(( $(date +%s) - t0 )) s"
 fi
 
@@ -71,22 +86,37 @@ if [ "$PHASE" = "start" ]; then
 fi
 
 if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
-  old=(--set optim.lr=2e-3 --set optim.grad_clip=0 --set optim.warmup_steps=100)
-  ab=(--set steps=1200 --set validation.every=100 --set checkpoint.every=600)
-  train_vae ab_old 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" &
-  train_vae ab_clip 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set optim.grad_clip=1 &
-  train_vae ab_lr 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set optim.lr=5e-4 &
-  train_vae ab_fp32 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set precision=fp32 &
-  train_vae ab_new 0 A configs/recipe/vae_image.yaml "${ab[@]}" &
+  if [ "${VAE_AB:-0}" = 1 ]; then  # the A/B that found the fall (session 9); 5ffc29e fixed its cause
+    old=(--set optim.lr=2e-3 --set optim.grad_clip=0 --set optim.warmup_steps=100)
+    ab=(--set steps=1200 --set validation.every=100 --set checkpoint.every=600)
+    train_vae ab_old 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" &
+    train_vae ab_clip 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set optim.grad_clip=1 &
+    train_vae ab_lr 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set optim.lr=5e-4 &
+    train_vae ab_fp32 0 A configs/recipe/vae_image.yaml "${old[@]}" "${ab[@]}" --set precision=fp32 &
+    train_vae ab_new 0 A configs/recipe/vae_image.yaml "${ab[@]}" &
+  fi
+  if [ "${GPU_TESTS:-0}" = 1 ]; then  # GPU 0: the CUDA tests of the modules changed since the last device run
+    ( ninja -C "$BUILD" -j 6 -k 0 ${GPU_TEST_TARGETS:-flat_test_render flat_test_gaussians flat_test_surfels flat_test_optim flat_test_data} \
+        >"$R/build_tests.log" 2>&1
+      cd "$BUILD" && CUDA_VISIBLE_DEVICES=0 OMP_NUM_THREADS=4 ctest --output-on-failure -R "${GPU_CTEST_REGEX:-render|gaussians|surfels|optim|data}" \
+        >"$R/ctest.log" 2>&1
+      echo "rc $?" >>"$R/ctest.log"
+      CUDA_VISIBLE_DEVICES=0 "$BUILD/tests/flat_test_render" "*cuda*" -s 2>&1 | grep "cuda-vs-cpu" >"$R/cuda_vs_cpu.log"
+      for t in render gaussians surfels optim data; do
+        [ -x "$BUILD/tests/flat_test_$t" ] && CUDA_VISIBLE_DEVICES=0 "$BUILD/tests/flat_test_$t" "[cuda]" 2>&1 | tail -2 | sed "s/^/[cuda] $t: /"
+      done >"$R/cuda_only.log"
+      touch "$R/TESTS_DONE" ) &
+  fi
   g=1
   for s in A B C; do
     ( t0=$(date +%s)
       train_vae "fixed_${s}_image" $g $s configs/recipe/vae_image.yaml
       train_vae "fixed_$s" $g $s configs/recipe/vae.yaml --set init.path="$R/fixed_${s}_image"
       echo $(( $(date +%s) - t0 )) >"$R/fixed_$s.seconds" ) &
+    [ "$s" = A ] && vae_a=$!
     g=$((g + 1))
   done
-  wait
+  wait "$vae_a"   # the four stages need set A's VAE only
   # Then the recipe's four stages from set A's VAE: two seeds on two GPUs each,
   # or with FOUR_STAGES_AB=1 two seeds on one GPU each, without (GPUs 0-1) and
   # with (GPUs 2-3) loss.random_background, sharing rooms and latents.
@@ -94,15 +124,18 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
     export VAE_FILE="$R/fixed_A/vae.safetensors"
     OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" latents
     if [ "${FOUR_STAGES_AB:-0}" = 1 ]; then
-      OUT="$R/out/base" GPUS_PER_SEED=1 bash "$ROOT/scripts/gpu_four_stages.sh" train &
-      OUT="$R/out/random_background" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_rb \
-        STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="--set loss.random_background=true" \
+      # AB_A / AB_B: each variant's name and its --set arguments for every stage.
+      OUT="$R/out/${AB_A_NAME:-base}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" \
+        bash "$ROOT/scripts/gpu_four_stages.sh" train &
+      OUT="$R/out/${AB_B_NAME:-random_background}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
+        STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="${AB_B_SET:---set loss.random_background=true}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       wait
     else
       OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" train
     fi
   fi
+  wait   # sets B and C, the tests
   touch "$R/ALL_DONE"
 fi
 
@@ -124,16 +157,23 @@ if [ "$PHASE" = "wait" ]; then
   while [ ! -f "$R/ALL_DONE" ] && [ $(( $(date +%s) - t0 )) -lt "$limit" ]; do sleep 10; done
   nvidia-smi --query-gpu=index,utilization.gpu,memory.used --format=csv,noheader
   curves | tee "$OUT/vae_curves.txt"
+  if [ -f "$R/ctest.log" ]; then
+    grep -E "tests passed|tests failed|^rc " "$R/ctest.log"; grep -E "\*\*\*Failed|FAILED" "$R/ctest.log" | head -10
+    cat "$R/cuda_only.log" 2>/dev/null
+    tar czf "$OUT/tests.tgz" -C "$R" $(cd "$R" && ls ctest.log cuda_vs_cpu.log cuda_only.log build_tests.log 2>/dev/null)
+  fi
   tail -12 "$R/out/four_stages.txt" 2>/dev/null
+  for v in "$R"/out/*/; do [ -f "$v/four_stages.txt" ] && { echo "== $(basename "$v")"; tail -10 "$v/four_stages.txt"; }; done
   for s in A B C; do [ -f "$R/fixed_$s.seconds" ] && echo "fixed recipe on set $s: $(cat "$R/fixed_$s.seconds") s from launch to the VAE file"; done | tee -a "$OUT/vae_curves.txt"
   if [ -f "$R/ALL_DONE" ]; then
     echo "all runs done"
     cp "$R"/out/* "$OUT"/ 2>/dev/null
-    for v in base random_background; do  # FOUR_STAGES_AB: one archive per variant
-      [ -d "$R/out/$v" ] && tar czf "$OUT/four_stages_$v.tgz" -C "$R/out/$v" .
+    for v in "$R"/out/*/; do  # FOUR_STAGES_AB: one archive per variant
+      v=$(basename "$v"); tar czf "$OUT/four_stages_$v.tgz" -C "$R/out/$v" .
     done
     tar czf "$OUT/vae_metrics.tgz" -C "$R" $(cd "$R" && ls -d */metrics */logs *.log 2>/dev/null) 2>/dev/null
-    tar czf "$OUT/vae_grids.tgz" -C "$R" $(cd "$R" && ls */renders/*.png 2>/dev/null) 2>/dev/null
+    # The first and the last grid of each run (all of them exceed the device's 16 MiB a file).
+    tar czf "$OUT/vae_grids.tgz" -C "$R" $(cd "$R" && for d in */renders; do ls "$d"/*.png 2>/dev/null | sed -n '1p;$p'; done) 2>/dev/null
   else
     echo "still running after ${limit} s: call wait again"
   fi
