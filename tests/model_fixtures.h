@@ -4,6 +4,7 @@
 #pragma once
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include <torch/torch.h>
 
@@ -63,6 +64,12 @@ inline data::Scene write_scene_with_latents(const std::string& dir, uint64_t see
   data::WindowLatents l{torch::randn({16, Tl, 6, 10}), torch::randn({32, Tl, 6, 10})};
   data::write_scene_latents(scene, info, {l});
   return data::read_scene(dir);
+}
+
+// write_scene_with_latents() for each of `scenes` (folders below `dir`, e.g.
+// "setA/room_a"), with seeds 1, 2, ... in their order.
+inline void write_scenes_with_latents(const std::filesystem::path& dir, const std::vector<std::string>& scenes) {
+  for (size_t i = 0; i < scenes.size(); ++i) write_scene_with_latents((dir / scenes[i]).string(), uint64_t(i + 1));
 }
 
 }  // namespace flat::test

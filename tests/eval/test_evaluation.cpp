@@ -181,11 +181,8 @@ TEST_CASE("flat_eval over two datasets: failures listed, resumable, settings gua
   const auto dir = test::scratch_dir("eval_run");
   const std::string model = (dir / "model.safetensors").string();
   test::write_tiny_model(model);
-  test::write_scene_with_latents((dir / "setA/room_a").string(), 1);
-  test::write_scene_with_latents((dir / "setA/room_b").string(), 2);
-  test::write_scene_with_latents((dir / "setB/room_c").string(), 3);
+  test::write_scenes_with_latents(dir, {"setA/room_a", "setA/room_b", "setB/room_c", "setB/room_broken"});
   // A broken scene: its latents file is gone.
-  test::write_scene_with_latents((dir / "setB/room_broken").string(), 4);
   fs::remove(dir / "setB/room_broken/latents_48x80_f9.safetensors");
 
   auto o = eval_options(model, {"A=" + (dir / "setA").string(), "B=" + (dir / "setB").string()}, dir / "out");

@@ -16,10 +16,7 @@ TEST_CASE("validation scores the held-out scenes exactly as flat_eval does, per 
   const auto dir = test::fresh_dir("val_vs_eval");
   const std::string model = (dir / "model.safetensors").string();
   test::write_tiny_model(model);
-  test::write_scene_with_latents((dir / "A/room_a").string(), 1);
-  test::write_scene_with_latents((dir / "A/room_b").string(), 2);
-  test::write_scene_with_latents((dir / "B/room_c").string(), 3);
-  test::write_scene_with_latents((dir / "B/room_d").string(), 4);
+  test::write_scenes_with_latents(dir, {"A/room_a", "A/room_b", "B/room_c", "B/room_d"});
 
   eval::EvalRunOptions o;
   o.model = model;
