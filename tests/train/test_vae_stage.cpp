@@ -30,11 +30,9 @@ std::string write_vae_config(const std::string& dir, int steps, int val_samples 
   std::ofstream(path) << tiny_run_yaml(dir, "stage: tiny-vae\ntask: vae", steps)
                       << "validation: {datasets: [{root: " << data << "/val}], every: " << steps
                       << ", scenes: " << val_samples << ", grid_views: 2}\n"
-                      << "log: {progress_seconds: 1}\n"
                       << "data: {datasets: [{root: " << data << "/train}], height: 32, width: 48, input_frames: 5, "
                       << "target_views: 1, workers: 1, depth: false, normals: false, input_images: true, "
                       << "latents: false}\n"
-                      << "pipeline: {model: {vae: {dim: 4}}}\n"
                       << "vae: {l1: 1.0, l2: 1.0, kl: 1.0e-6, stats_samples: 4}\n";
   return path;
 }

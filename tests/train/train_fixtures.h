@@ -37,12 +37,13 @@ inline const std::string& tiny_data() {
 }
 
 // The head of every tiny CPU config: the run folder under `dir`, the
-// `stage` lines, fp32 on one thread, a constant LR, a checkpoint every 2 steps.
+// `stage` lines, fp32 on one thread, a constant LR, a checkpoint every 2
+// steps, progress every second and a dim-4 VAE (tiny_data()'s latents).
 inline std::string tiny_run_yaml(const std::string& dir, const std::string& stage, int steps) {
   return "run_dir: " + dir + "/run\n" + stage + "\nsteps: " + std::to_string(steps) +
          "\ndevice: cpu\nprecision: fp32\nseed: 0\nthreads: 1\n" +
          "optim: {lr: 0.003, warmup_steps: 0, schedule: constant, weight_decay: 0}\n" +
-         "checkpoint: {every: 2, keep: 2}\n";
+         "checkpoint: {every: 2, keep: 2}\nlog: {progress_seconds: 1}\npipeline: {model: {vae: {dim: 4}}}\n";
 }
 
 // A tiny CPU config in `dir`/config.yaml; `extra` is appended (YAML keys at
@@ -52,10 +53,8 @@ inline std::string write_config(const std::string& dir, int steps, const std::st
   const std::string path = dir + "/config.yaml";
   std::ofstream(path) << tiny_run_yaml(dir, "stage: tiny", steps)
                       << "validation: {datasets: [{root: " << data << "/val}], every: 4, scenes: 1, grid_views: 2}\n"
-                      << "log: {progress_seconds: 1}\n"
                       << "data: {datasets: [{root: " << data << "/train}], height: 32, width: 48, input_frames: 5, "
                       << "target_views: 2, workers: 1, latents: true}\n"
-                      << "pipeline: {model: {vae: {dim: 4}}}\n"
                       << "loss: {lambda_perc: 0}\n"
                       << extra;
   return path;
