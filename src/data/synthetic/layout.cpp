@@ -63,6 +63,15 @@ Box shell(Random& rng, Vec3 half, int64_t& next_id) {
   return room;
 }
 
+// A layout whose first surfaces are the room shell of half extents `half`
+// (floor at y = 0), which both families are drawn inside.
+Layout inside_shell(Random& rng, Vec3 half, int64_t& next_id) {
+  Layout L;
+  L.boxes.push_back(shell(rng, half, next_id));
+  L.room_half = half;
+  return L;
+}
+
 Sphere ball(Random& rng, Vec3 centre, double radius, int64_t& next_id) {
   Sphere s;
   s.centre = centre;
@@ -76,11 +85,9 @@ Sphere ball(Random& rng, Vec3 centre, double radius, int64_t& next_id) {
 }  // namespace
 
 Layout make_room(Random& rng) {
-  Layout L;
   int64_t id = 0;
-  Vec3 half{rng.uniform(2.2, 3.5), rng.uniform(1.3, 1.6), rng.uniform(2.2, 3.5)};
-  L.boxes.push_back(shell(rng, half, id));
-  L.room_half = half;
+  const Vec3 half{rng.uniform(2.2, 3.5), rng.uniform(1.3, 1.6), rng.uniform(2.2, 3.5)};
+  Layout L = inside_shell(rng, half, id);
   L.focus = {0, 1.2, 0};
   // Furniture against the walls: each box touches the floor and one wall.
   int64_t pieces = rng.integer(3, 6);
@@ -110,11 +117,8 @@ Layout make_room(Random& rng) {
 }
 
 Layout make_object_scene(Random& rng) {
-  Layout L;
   int64_t id = 0;
-  Vec3 half{rng.uniform(6, 9), rng.uniform(3, 4), rng.uniform(6, 9)};
-  L.boxes.push_back(shell(rng, half, id));
-  L.room_half = half;
+  Layout L = inside_shell(rng, {rng.uniform(6, 9), rng.uniform(3, 4), rng.uniform(6, 9)}, id);
   // A pedestal with a few objects within ~0.8 m of the centre.
   double ph = rng.uniform(0.3, 0.5);
   L.boxes.push_back(solid(rng, {0, ph, 0}, {0.6, ph, 0.6}, rng.uniform(0, M_PI / 2), id));
