@@ -63,15 +63,6 @@ Box shell(Random& rng, Vec3 half, int64_t& next_id) {
   return room;
 }
 
-// A layout whose first surfaces are the room shell of half extents `half`
-// (floor at y = 0), which both families are drawn inside.
-Layout inside_shell(Random& rng, Vec3 half, int64_t& next_id) {
-  Layout L;
-  L.boxes.push_back(shell(rng, half, next_id));
-  L.room_half = half;
-  return L;
-}
-
 Sphere ball(Random& rng, Vec3 centre, double radius, int64_t& next_id) {
   Sphere s;
   s.centre = centre;
@@ -80,6 +71,15 @@ Sphere ball(Random& rng, Vec3 centre, double radius, int64_t& next_id) {
   s.stripes = rng.uniform(0.05, 0.2);
   s.id = next_id++;
   return s;
+}
+
+// A layout whose first surfaces are the room shell of half extents `half`
+// (floor at y = 0), which both families are drawn inside.
+Layout inside_shell(Random& rng, Vec3 half, int64_t& next_id) {
+  Layout L;
+  L.boxes.push_back(shell(rng, half, next_id));
+  L.room_half = half;
+  return L;
 }
 
 }  // namespace
