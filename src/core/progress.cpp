@@ -103,6 +103,10 @@ double Progress::eta_for(int64_t done, int64_t total, double elapsed_seconds) {
   return double(total - done) * elapsed_seconds / double(done);
 }
 
+double Progress::per_minute(int64_t done, double elapsed_seconds) {
+  return elapsed_seconds > 0 ? double(done) * 60.0 / elapsed_seconds : 0.0;
+}
+
 std::string Progress::format_duration(double seconds) {
   if (!std::isfinite(seconds) || seconds < 0) return "?";
   const auto s = static_cast<long long>(std::llround(seconds));

@@ -241,7 +241,7 @@ std::string batch_summary_json(const BatchImportOptions& o, const BatchImportRes
   j["failed"] = r.failed;
   j["seconds"] = r.seconds;
   // Clips this run imported per minute of its wall time (present ones cost little and are not counted).
-  j["clips_per_minute"] = r.seconds > 0 ? double(r.imported) * 60.0 / r.seconds : 0.0;
+  j["clips_per_minute"] = Progress::per_minute(r.imported, r.seconds);
   nlohmann::ordered_json failures = nlohmann::ordered_json::array();
   for (const auto& f : r.failures) failures.push_back({{"name", f.name}, {"source", f.source}, {"reason", f.reason}});
   j["failures"] = std::move(failures);
@@ -326,9 +326,9 @@ BatchImportResult import_batch(const BatchImportOptions& o) {
   r.failed = int64_t(r.failures.size());
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   write_file_atomic(r.summary_path, batch_summary_json(o, r));
-  const double per_minute = r.seconds > 0 ? double(r.imported) * 60.0 / r.seconds : 0.0;
   spdlog::info("{} clips: {} imported, {} already present, {} failed in {} ({:.1f} clips/min); summary: {}", r.clips,
-               r.imported, r.present, r.failed, Progress::format_duration(r.seconds), per_minute, r.summary_path);
+               r.imported, r.present, r.failed, Progress::format_duration(r.seconds),
+               Progress::per_minute(r.imported, r.seconds), r.summary_path);
   if (r.failed)
     spdlog::warn("{} of {} clips failed (listed with their reasons in {}); the others are in {}", r.failed, r.clips,
                  r.summary_path, o.out_root);

@@ -215,8 +215,8 @@ void write_report(const std::string& file, const EncodeOptions& o, const EncodeS
   j["windows"] = s.windows;
   j["seconds"] = s.seconds;
   // Scenes of this shard handled per minute (encoded, present, short or failed), and sets encoded per minute.
-  j["scenes_per_minute"] = s.seconds > 0 ? double(s.scenes) * 60.0 / s.seconds : 0.0;
-  j["sets_per_minute"] = s.seconds > 0 ? double(s.encoded) * 60.0 / s.seconds : 0.0;
+  j["scenes_per_minute"] = Progress::per_minute(s.scenes, s.seconds);
+  j["sets_per_minute"] = Progress::per_minute(s.encoded, s.seconds);
   j["failed"] = json::array();
   for (const auto& f : s.failed) j["failed"].push_back({{"scene", f.dir}, {"set", f.set}, {"reason", f.reason}});
   if (s.spread.pairs > 0)

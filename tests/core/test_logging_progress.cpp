@@ -96,6 +96,13 @@ TEST_CASE("progress: ETA is remaining items over the rate so far", "[progress]")
   CHECK(std::isinf(Progress::eta_for(10, 0, 10.0)));    // unknown total
 }
 
+TEST_CASE("progress: a finished run's items per minute", "[progress]") {
+  using flat::Progress;
+  CHECK(Progress::per_minute(30, 90.0) == Approx(20.0));
+  CHECK(Progress::per_minute(0, 90.0) == 0.0);
+  CHECK(Progress::per_minute(30, 0.0) == 0.0);  // no time passed: no rate
+}
+
 TEST_CASE("progress: the line shows count, rate, ETA and figures", "[progress]") {
   using flat::Progress;
   CHECK(Progress::format_line("train", 250, 1000, 20.0, "loss=0.012", false) ==

@@ -23,6 +23,8 @@ class Progress {
 
   // The arithmetic and text behind the line, pure so that tests need no clock.
   static double eta_for(int64_t done, int64_t total, double elapsed_seconds);
+  // Items per minute of a finished run's wall time (its summaries); 0 when no time passed.
+  static double per_minute(int64_t done, double elapsed_seconds);
   static std::string format_duration(double seconds);  // "45s", "1m12s", "2h05m", "?"
   // "label  123/1000  12.3 it/s  ETA 1m12s  loss=0.012" (final: "done in 1m21s").
   static std::string format_line(const std::string& label, int64_t done, int64_t total, double elapsed_seconds,
