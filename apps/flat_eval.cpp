@@ -17,7 +17,6 @@
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
-#include "flat/core/shape.h"
 #include "flat/eval/evaluation_run.h"
 #include "flat/pipeline/scene_pipeline.h"
 
@@ -83,10 +82,7 @@ int main(int argc, char** argv) {
       std::cerr << "flat_eval: give --model, --scenes and --out (or --compare FOLDERS...); see --help\n";
       return 2;
     }
-    if (!size.empty() && !flat::parse_size(size, o.settings.height, o.settings.width)) {
-      std::cerr << "flat_eval: --size must be HxW (e.g. 176x320), got '" << size << "'\n";
-      return 2;
-    }
+    flat::cli::parse_size_option(size, o.settings.height, o.settings.width, "flat_eval");
     // Refused up front, not by the allocator of every scene: the rasterizer's limit is 2^30 pixels a view.
     if (!size.empty() && o.settings.height * o.settings.width > (int64_t(1) << 30)) {
       std::cerr << "flat_eval: --size " << size << " is " << o.settings.height * o.settings.width

@@ -16,7 +16,6 @@
 #include "flat/core/config.h"
 #include "flat/core/error.h"
 #include "flat/core/log.h"
-#include "flat/core/shape.h"
 #include "flat/infer/inference.h"
 #include "flat/pipeline/scene_pipeline.h"
 
@@ -90,10 +89,7 @@ int main(int argc, char** argv) {
                    "(no such file)\n";
       return 2;
     }
-    if (!size.empty() && !flat::parse_size(size, o.height, o.width)) {
-      std::cerr << "flat_infer: --size must be HxW (e.g. 176x320), got '" << size << "'\n";
-      return 2;
-    }
+    flat::cli::parse_size_option(size, o.height, o.width, "flat_infer");
     auto summary = flat::infer::run_inference(o);
     std::cout << flat::infer::format_summary(summary);
     return 0;

@@ -21,7 +21,6 @@
 #include "flat/core/cli.h"
 #include "flat/core/error.h"
 #include "flat/core/pending_log.h"
-#include "flat/core/shape.h"
 #include "flat/data/scene.h"
 #include "flat/latents/encode_latents.h"
 
@@ -55,8 +54,7 @@ std::vector<latents::LatentSetSpec> requested_sets(const Options& o) {
   s.step = o.step;
   s.plucker = o.camera_rays == "rppc,plucker";
   s.origin = "--scenes";
-  if (!o.size.empty() && !parse_size(o.size, s.height, s.width))
-    throw cli::UsageError("flat_latents: --size must be HxW (e.g. 176x320), got '" + o.size + "'");
+  cli::parse_size_option(o.size, s.height, s.width, "flat_latents");
   if (s.window < 1 || (s.window - 1) % 4 != 0)
     throw cli::UsageError("flat_latents: --window must be 1+4k frames (17, 49, ...), got " + std::to_string(s.window));
   if (s.height % 8 != 0 || s.width % 8 != 0)

@@ -25,6 +25,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/log.h"
+#include "flat/core/shape.h"
 
 namespace flat::cli {
 
@@ -128,6 +129,11 @@ CLI::Option* add_set(CLI::App& app, std::vector<std::string>& overrides, const s
       .add_option("--set", overrides,
                   "override a config key by its full key path, as flat_train's --set (repeat it): --set " + example)
       ->take_all();
+}
+
+void parse_size_option(const std::string& text, int64_t& height, int64_t& width, const std::string& tool) {
+  if (!text.empty() && !parse_size(text, height, width))
+    throw UsageError(tool + ": --size must be HxW (e.g. 176x320), got '" + text + "'");
 }
 
 std::vector<std::string> section_overrides(const std::vector<std::string>& overrides, const std::string& section,

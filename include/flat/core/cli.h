@@ -63,6 +63,10 @@ void rename_old_names(const CLI::App& app, int argc, char** argv);
 // --set KEY=VALUE, repeatable: a config key by its full path, as flat_train
 // takes it (pipeline.prune_opacity=0.4) in every tool. `example` is shown in --help.
 CLI::Option* add_set(CLI::App& app, std::vector<std::string>& overrides, const std::string& example);
+// A --size HxW option's value into height and width (left as they are when
+// `text` is empty); any other text is a UsageError of `tool`.
+void parse_size_option(const std::string& text, int64_t& height, int64_t& width, const std::string& tool);
+
 // The --set overrides of a tool that reads one section of the training config
 // (flat_eval, flat_infer: `pipeline`), relative to that section:
 // "pipeline.prune_opacity=0.4" -> "prune_opacity=0.4". A key without the
