@@ -1,6 +1,7 @@
 // PSNR and SSIM against independently computed values; normal accuracy; LPIPS
 // metric wrapper.
 #include <cmath>
+#include <vector>
 
 #include "flat/eval/baselines.h"
 #include "flat/eval/image_metrics.h"
@@ -34,6 +35,15 @@ Patterns patterns() {
   return p;
 }
 
+// A per-view metric (V) against each view's reference value, to a relative `eps`.
+void check_per_view(const at::Tensor& got, const std::vector<double>& want, double eps) {
+  REQUIRE(got.numel() == int64_t(want.size()));
+  for (size_t v = 0; v < want.size(); ++v) {
+    INFO("view " << v);
+    CHECK(got[int64_t(v)].item<double>() == Approx(want[v]).epsilon(eps));
+  }
+}
+
 }  // namespace
 
 // Reference values: scikit-image 0.26.0 / numpy 2.4 in a throwaway venv, on the
@@ -43,18 +53,10 @@ Patterns patterns() {
 //   peak_signal_noise_ratio(a[v], b[v], data_range=1.0)
 TEST_CASE("SSIM and PSNR match scikit-image on analytic image pairs", "[eval]") {
   auto p = patterns();
-  auto s = ssim(p.a, p.b);
-  CHECK(s[0].item<double>() == Approx(0.06923615003211213).epsilon(1e-9));
-  CHECK(s[1].item<double>() == Approx(0.11419412885833967).epsilon(1e-9));
-  auto s2 = ssim(p.a, p.b2);
-  CHECK(s2[0].item<double>() == Approx(0.9462230358678374).epsilon(1e-10));
-  CHECK(s2[1].item<double>() == Approx(0.946210944406258).epsilon(1e-10));
-  auto q = psnr(p.a, p.b);
-  CHECK(q[0].item<double>() == Approx(8.511896495579215).epsilon(1e-12));
-  CHECK(q[1].item<double>() == Approx(8.672224358785561).epsilon(1e-12));
-  auto q2 = psnr(p.a, p.b2);
-  CHECK(q2[0].item<double>() == Approx(25.90650030242582).epsilon(1e-12));
-  CHECK(q2[1].item<double>() == Approx(25.90650030242582).epsilon(1e-12));
+  check_per_view(ssim(p.a, p.b), {0.06923615003211213, 0.11419412885833967}, 1e-9);
+  check_per_view(ssim(p.a, p.b2), {0.9462230358678374, 0.946210944406258}, 1e-10);
+  check_per_view(psnr(p.a, p.b), {8.511896495579215, 8.672224358785561}, 1e-12);
+  check_per_view(psnr(p.a, p.b2), {25.90650030242582, 25.90650030242582}, 1e-12);
   // float32 inputs agree to float precision.
   CHECK(ssim(p.a.to(at::kFloat), p.b2.to(at::kFloat))[0].item<double>() == Approx(0.9462230358678374).epsilon(1e-5));
 }
