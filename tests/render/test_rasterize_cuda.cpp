@@ -177,20 +177,26 @@ TEST_CASE("rasterize cuda: empty scene and culled triangles", "[render][cuda]") 
   CHECK(r.alpha.abs().max().item<float>() == 0.0f);
 }
 
-TEST_CASE("rasterize cuda: a backward through the cameras only (scene frozen) runs and gives them no gradient",
-          "[render][cuda]") {
+TEST_CASE("rasterize cuda: the cameras get no gradient, with the scene frozen or not", "[render][cuda]") {
   FLAT_REQUIRE_CUDA();
-  // The forward keeps no backward state when no scene input requires grad;
-  // autograd still calls the backward when the cameras do.
+  // The cameras reach the kernels as a call's settings, not as autograd
+  // inputs: a frozen scene gives outputs that need no gradient (and the
+  // forward keeps no backward state); a scene that learns gets its gradient
+  // and the cameras none.
   const torch::Device dev(torch::kCUDA, 0);
   auto soup = flat::test::random_soup(200, torch::kFloat, 606, 0.5);
   auto cams = flat::test::test_cameras(2).to(dev);
   cams.c2w = cams.c2w.clone().requires_grad_(true);
-  auto out = rasterize(soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev), soup.sigmas.to(dev), cams,
-                       40, 56, RasterSettings{});
-  REQUIRE(out.alpha.max().item<float>() > 0.0f);
+  auto frozen = rasterize(soup.vertices.to(dev), soup.colors.to(dev), soup.opacities.to(dev), soup.sigmas.to(dev),
+                          cams, 40, 56, RasterSettings{});
+  REQUIRE(frozen.alpha.max().item<float>() > 0.0f);
+  CHECK_FALSE(frozen.rgb.requires_grad());
+  auto colors = soup.colors.to(dev).requires_grad_(true);
+  auto out = rasterize(soup.vertices.to(dev), colors, soup.opacities.to(dev), soup.sigmas.to(dev), cams, 40, 56,
+                       RasterSettings{});
   REQUIRE(out.rgb.requires_grad());
   REQUIRE_NOTHROW(out.rgb.sum().backward());
+  CHECK(colors.grad().abs().sum().item<double>() > 0.0);
   CHECK((!cams.c2w.grad().defined() || cams.c2w.grad().abs().sum().item<double>() == 0.0));
 }
 
