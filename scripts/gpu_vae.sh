@@ -49,7 +49,7 @@ if [ "$PHASE" = "prep" ]; then
   builder=$!
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
   P=$gpus; per=$(( (ROOMS + P - 1) / P )); g=0
-  for s in A B C; do
+  for s in ${VAE_SETS:-A B C}; do   # VAE_SETS: fewer sets (one GPU)
     for k in $(seq 0 $((P - 1))); do
       n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
       CUDA_VISIBLE_DEVICES=$(( g++ % gpus )) "$BUILD/flat_synth" --device cuda --out "$R/set$s/train" --count $n \
@@ -65,7 +65,7 @@ if [ "$PHASE" = "prep" ]; then
   wait
   grep -h "error" "$R"/synth_*.log | head -5
   grep -q "BUILD FAILED" "$R/build_tools.log" && { grep -E "error|FAILED" "$R/build_tools.log" | head -30; exit 1; }
-  for s in A B C; do echo "set $s: $(ls "$R/set$s/train" | grep -c room) training, $(ls "$R/set$s/val" | grep -c room) held-out rooms"; done
+  for s in ${VAE_SETS:-A B C}; do echo "set $s: $(ls "$R/set$s/train" | grep -c room) training, $(ls "$R/set$s/val" | grep -c room) held-out rooms"; done
   tail -2 "$R/out/four_stages.txt" 2>/dev/null
   echo "prep done in $(( $(date +%s) - t0 )) s"
 fi
@@ -151,6 +151,36 @@ curves() {
     grep -m2 -E "error|Error|FAILED" "$log" | cut -c1-240
   done
 }
+
+# One set's single-frame part on GPU 0 with ONE_ARGS (a recipe change tried
+# alone, e.g. ONE_ARGS="--set optim.warmup_steps=500"), the CUDA tests beside
+# it with GPU_TESTS=1; in the foreground (one GPU, one call).
+if [ "$PHASE" = "one" ]; then
+  set_name="${ONE_SET:-A}"
+  if [ "${GPU_TESTS:-0}" = 1 ]; then
+    ( ninja -C "$BUILD" -j 8 -k 0 ${GPU_TEST_TARGETS:-flat_test_render flat_test_gaussians flat_test_surfels flat_test_optim flat_test_data} \
+        >"$R/build_tests.log" 2>&1
+      cd "$BUILD" && OMP_NUM_THREADS=4 ctest --output-on-failure -R "${GPU_CTEST_REGEX:-render|gaussians|surfels|optim|data}" \
+        >"$R/ctest.log" 2>&1
+      echo "rc $?" >>"$R/ctest.log"
+      for t in render gaussians surfels optim data; do
+        [ -x "$BUILD/tests/flat_test_$t" ] && "$BUILD/tests/flat_test_$t" "[cuda]" 2>&1 | tail -2 | sed "s/^/[cuda] $t: /"
+      done >"$R/cuda_only.log" ) &
+  fi
+  t0=$(date +%s)
+  # shellcheck disable=SC2086
+  train_vae "one_${set_name}_image" 0 "$set_name" configs/recipe/vae_image.yaml ${ONE_ARGS:-}
+  echo "one_${set_name}_image: $(( $(date +%s) - t0 )) s"
+  wait
+  curves | grep one_ | tee "$OUT/vae_curves.txt"
+  if [ -f "$R/ctest.log" ]; then
+    grep -E "tests passed|tests failed|^rc " "$R/ctest.log"; grep -E "\*\*\*Failed|FAILED" -A3 "$R/ctest.log" | head -30
+    cat "$R/cuda_only.log"
+    tar czf "$OUT/tests.tgz" -C "$R" $(cd "$R" && ls ctest.log cuda_only.log build_tests.log 2>/dev/null)
+  fi
+  tar czf "$OUT/vae_one.tgz" -C "$R" "one_${set_name}_image/metrics" "one_${set_name}_image.log" \
+    $(cd "$R" && ls one_"${set_name}"_image/renders/*.png | sed -n '1p;$p')
+fi
 
 if [ "$PHASE" = "wait" ]; then
   limit=${WAIT_SECONDS:-300}; t0=$(date +%s)
