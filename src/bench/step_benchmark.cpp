@@ -102,9 +102,13 @@ std::string write_random_lpips_weights(const std::string& path, uint64_t seed) {
   return path;
 }
 
-StepBenchmark benchmark_training(const TrainConfig& cfg, int64_t warmup, int64_t steps, bool profile) {
-  FLAT_CHECK(!profile || cfg.device.rfind("cuda", 0) == 0,
+StepBenchmark benchmark_training(const TrainConfig& config, int64_t warmup, int64_t steps, bool profile) {
+  FLAT_CHECK(!profile || config.device.rfind("cuda", 0) == 0,
              "flat_bench train: --profile needs device: cuda (GPU kernel times)");
+  // The steady-state step: pruning at the config's full threshold from the
+  // first timed step (a warm-up of the pruning would time unpruned renders).
+  TrainConfig cfg = config;
+  cfg.prune_warmup_steps = 0;
   torch::manual_seed(uint64_t(cfg.seed));
   TrainingSession session(cfg);
   data::LoaderConfig data_cfg = cfg.data;

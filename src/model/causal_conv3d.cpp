@@ -54,7 +54,24 @@ at::Tensor CausalConv3dImpl::forward_prepadded(const at::Tensor& x_padded, const
   return residual.defined() ? y + residual : y;
 }
 
-at::Tensor CausalConv3dImpl::forward(const at::Tensor& x) { return forward_prepadded(pad_past_frames(x, past_frames())); }
+at::Tensor CausalConv3dImpl::forward_single_frame(const at::Tensor& x, const at::Tensor& residual) {
+  FLAT_CHECK(x.dim() == 5 && x.size(1) == in_channels() && x.size(2) == 1,
+             "CausalConv3d: the single-frame path takes (B," + std::to_string(in_channels()) + ",1,H,W), got " +
+                 shape_str(x));
+  FLAT_CHECK(has_single_frame_path(), "CausalConv3d: no single-frame path for a kernel of " +
+                                          std::to_string(weight.size(2)) + " frames with " +
+                                          std::to_string(past_frames()) + " past frames and time stride " +
+                                          std::to_string(stride_[0]));
+  const int64_t kt = weight.size(2);
+  at::Tensor y = at::conv3d(x, weight.narrow(2, kt - 1, 1), bias, {1, stride_[1], stride_[2]},
+                            {0, padding_[1], padding_[2]});
+  return residual.defined() ? y + residual : y;
+}
+
+at::Tensor CausalConv3dImpl::forward(const at::Tensor& x) {
+  if (x.dim() == 5 && x.size(2) == 1 && has_single_frame_path()) return forward_single_frame(x);
+  return forward_prepadded(pad_past_frames(x, past_frames()));
+}
 
 at::Tensor CausalConv3dImpl::forward_cached(const at::Tensor& x, at::Tensor& history) {
   const int64_t n = past_frames();

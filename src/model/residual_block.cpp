@@ -9,6 +9,8 @@ at::Tensor norm_silu_conv(const at::Tensor& x, RMSNorm& norm, CausalConv3d& conv
   // The norm + SiLU writes straight into the causally padded input of the
   // conv; in streaming mode the padding is the layer's history instead of zeros.
   const int64_t n = conv->past_frames();
+  if (cache == nullptr && x.size(2) == 1 && conv->has_single_frame_path())
+    return conv->forward_single_frame(norm->silu_padded(x, 0), residual);
   if (cache == nullptr) return conv->forward_prepadded(norm->silu_padded(x, n), residual);
   return conv->forward_prepadded(norm->silu_streamed(x, n, cache->next()), residual);
 }

@@ -193,3 +193,59 @@ TEST_CASE("vae_dim_of_file reads the width from either naming, and names a file 
   flat::save_safetensors((dir / "other.safetensors").string(), {{"x", torch::zeros({2})}});
   REQUIRE_THROWS_WITH(vae_dim_of_file((dir / "other.safetensors").string()), FLAT_CONTAINS("other.safetensors"));
 }
+
+TEST_CASE("CausalConv3d: one frame through the last temporal tap equals the zero-padded conv, gradients too",
+          "[model][vae]") {
+  torch::manual_seed(11);
+  using flat::model::Int3;
+  flat::model::CausalConv3d conv(5, 7, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1});
+  REQUIRE(conv->has_single_frame_path());
+  auto x = torch::randn({2, 5, 1, 6, 4}, torch::requires_grad());
+  auto residual = torch::randn({2, 7, 1, 6, 4});
+  auto g = torch::randn({2, 7, 1, 6, 4});
+  auto fast = conv->forward_single_frame(x, residual);
+  auto [gx_fast, gw_fast, gb_fast] = [&] {
+    auto grads = torch::autograd::grad({fast}, {x, conv->weight, conv->bias}, {g});
+    return std::make_tuple(grads[0], grads[1], grads[2]);
+  }();
+  auto padded = conv->forward_prepadded(flat::model::pad_past_frames(x, 2), residual);
+  auto grads = torch::autograd::grad({padded}, {x, conv->weight, conv->bias}, {g});
+  CHECK(fast.sizes() == padded.sizes());
+  CHECK(flat::test::rel_error(fast, padded) < 1e-6);
+  CHECK(flat::test::rel_error(gx_fast, grads[0]) < 1e-6);
+  CHECK(flat::test::rel_error(gw_fast, grads[1]) < 1e-6);
+  CHECK(flat::test::rel_error(gb_fast, grads[2]) < 1e-6);
+  // The taps that meet the zero frames get no gradient either way.
+  CHECK(gw_fast.narrow(2, 0, 2).abs().max().item<double>() == 0.0);
+  // forward() takes the single-frame path for one frame; a strided or pastless conv has none.
+  CHECK(flat::test::rel_error(conv->forward(x.detach()), conv->forward_prepadded(flat::model::pad_past_frames(x.detach(), 2))) < 1e-6);
+  flat::model::CausalConv3d pointwise(5, 7, Int3{1, 1, 1});
+  CHECK_FALSE(pointwise->has_single_frame_path());
+  REQUIRE_THROWS_WITH(pointwise->forward_single_frame(x), FLAT_CONTAINS("no single-frame path"));
+  REQUIRE_THROWS_WITH(conv->forward_single_frame(torch::randn({2, 5, 2, 6, 4})), FLAT_CONTAINS("(B,5,1,H,W)"));
+}
+
+TEST_CASE("VAE on one frame (the single-frame path) equals frame 0 of a longer video, output and weight gradients",
+          "[model][vae]") {
+  // Causal: frame 0's reconstruction depends on frame 0 alone. A single frame
+  // takes every conv's single-frame path, the 5-frame video the padded one.
+  torch::manual_seed(12);
+  WanVAE vae(tiny_config());
+  auto video = torch::rand({1, 3, 5, 16, 16}) * 2 - 1;
+  auto frame0 = [&](const at::Tensor& v) {
+    vae->zero_grad();
+    auto out = vae->decode(vae->encode(v, /*streaming=*/false), /*streaming=*/false, /*clamp=*/false).narrow(2, 0, 1);
+    (out * out).sum().backward();
+    std::vector<at::Tensor> g;
+    for (const auto& p : vae->parameters()) g.push_back(p.grad().defined() ? p.grad().clone() : torch::zeros_like(p));
+    return std::make_pair(out.detach(), g);
+  };
+  auto [one, g_one] = frame0(video.narrow(2, 0, 1));
+  auto [five, g_five] = frame0(video);
+  CHECK(flat::test::rel_error(one, five) < 1e-5);
+  REQUIRE(g_one.size() == g_five.size());
+  double worst = 0;
+  for (size_t i = 0; i < g_one.size(); ++i)
+    if (g_five[i].abs().max().item<double>() > 0) worst = std::max(worst, flat::test::rel_error(g_one[i], g_five[i]));
+  CHECK(worst < 1e-4);
+}

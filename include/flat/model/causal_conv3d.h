@@ -25,7 +25,8 @@ class CausalConv3dImpl : public torch::nn::Module {
   CausalConv3dImpl(int64_t in_channels, int64_t out_channels, Int3 kernel, Int3 stride = {1, 1, 1},
                    Int3 padding = {0, 0, 0}, std::string conv_backend = "auto");
 
-  // Full sequence: pads 2*pt zero frames in front (one copy), then the conv.
+  // Full sequence: pads 2*pt zero frames in front (one copy), then the conv
+  // (a single frame: forward_single_frame).
   at::Tensor forward(const at::Tensor& x);
   // Streaming: prepends this layer's history (zeros on the first chunk) instead
   // of the zero frames, and keeps the last 2*pt input frames as the new history.
@@ -35,6 +36,13 @@ class CausalConv3dImpl : public torch::nn::Module {
   // `residual`, when given, is added to the output (fused into the conv's
   // epilogue where conv3d_inference runs a CUTLASS kernel).
   at::Tensor forward_prepadded(const at::Tensor& x_padded, const at::Tensor& residual = {});
+  // The full sequence of one frame (the VAE's single-frame stage): its past is
+  // all zero frames, so only the kernel's last temporal tap meets data and the
+  // conv runs with that tap alone, unpadded (kt times less work; the same
+  // output and gradients up to rounding). Needs x with T = 1 and
+  // has_single_frame_path().
+  at::Tensor forward_single_frame(const at::Tensor& x, const at::Tensor& residual = {});
+  bool has_single_frame_path() const { return past_frames() > 0 && stride_[0] == 1 && weight.size(2) == past_frames() + 1; }
 
   int64_t past_frames() const { return 2 * padding_[0]; }
   int64_t in_channels() const { return weight.size(1); }

@@ -195,7 +195,7 @@ struct TrainConfig {
   std::string device = "cuda";
   std::string precision = "bf16";  // bf16: autocast on CUDA, fp32 master weights; fp32
   int64_t seed = 0;
-  int64_t threads = 0;  // CPU intra-op threads (0 = libtorch's default)
+  int64_t threads = 0;  // CPU intra-op threads (0 = libtorch's default less data.workers)
   bool cudnn_benchmark = true;  // cuDNN times its conv algorithms once per new shape (a stage's shapes are fixed)
   InitConfig init;
   OptimConfig optim;
@@ -223,7 +223,8 @@ struct TrainConfig {
     v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
     v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
     v.field("seed", seed, "seed of the weights' initialisation and every random draw");
-    v.field("threads", threads, config::non_negative(), "CPU threads (0 = default)");
+    v.field("threads", threads, config::non_negative(),
+            "CPU intra-op threads (0: the cores, or OMP_NUM_THREADS, less data.workers; at least 1)");
     v.field("cudnn_benchmark", cudnn_benchmark,
             "CUDA: cuDNN times its convolution algorithms once for each new shape and keeps the fastest "
             "(a stage's shapes are fixed; false: cuDNN's heuristics)");
