@@ -22,6 +22,8 @@ void SynthOptions::check() const {
   if (motion != "pan" && motion != "zoom" && motion != "orbit" && motion != "mixed")
     fail("synthetic scene: motion must be pan, zoom, orbit or mixed, got '" + motion + "'");
   FLAT_CHECK(frames >= 1 && frames <= 1000, "synthetic scene: frames must be in [1, 1000], got " + std::to_string(frames));
+  FLAT_CHECK(frames_per_batch >= 0,
+             "synthetic scene: frames_per_batch must be >= 0 (0: automatic), got " + std::to_string(frames_per_batch));
   FLAT_CHECK(height >= 2 && width >= 2 && height <= 4096 && width <= 4096,
              "synthetic scene: size must be within 2..4096, got " + std::to_string(height) + "x" + std::to_string(width));
 }
@@ -43,9 +45,9 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
 
   auto light = at::tensor({layout.light[0], layout.light[1], layout.light[2]}, at::kFloat).to(o.device);
   light = light / light.norm();
-  // Frames in parallel, each on one plain thread (SynthOptions::frame_threads):
-  // coarse tasks instead of intra-op threads over one frame's small tensors.
-  // Each frame's arithmetic is the same either way: the output does not change.
+  // On the CPU, frames in parallel, each on one plain thread
+  // (SynthOptions::frame_threads): coarse tasks instead of intra-op threads
+  // over one frame's small tensors. The output does not depend on the threads.
   std::vector<at::Tensor> rgb(o.frames), depth(o.frames), normals(o.frames), surface(o.frames);
   std::mutex progress_mutex;
   // Frames [first, first + count) in one batch of rays: one frame per call on
@@ -84,33 +86,38 @@ SynthScene render_synthetic_scene(const SynthOptions& o) {
       }
     }
   };
-  if (o.device.is_cuda()) {
-    // Up to 4 M rays a batch (a few hundred MB of temporaries).
-    const int64_t per_batch = std::max<int64_t>(1, (int64_t(1) << 22) / (o.height * o.width));
-    for (int64_t f = 0; f < o.frames; f += per_batch) render_frames(f, std::min(per_batch, o.frames - f));
-  } else {
-    const int64_t threads = std::min<int64_t>(
-        o.frame_threads > 0 ? o.frame_threads : std::max(1u, std::thread::hardware_concurrency()), o.frames);
-    std::atomic<int64_t> next{0};
-    std::exception_ptr error;
-    std::mutex error_mutex;
-    auto worker = [&] {
-      for (int64_t f = next++; f < o.frames; f = next++) {
-        try {
-          render_frames(f, 1);
-        } catch (...) {
-          std::lock_guard<std::mutex> lock(error_mutex);
-          if (!error) error = std::current_exception();
-          next = o.frames;  // the others stop after their frame
-        }
+  // A batch: one frame on the CPU (the threads take the frames), up to 4 M rays
+  // on a GPU (a few hundred MB of temporaries), or SynthOptions::frames_per_batch.
+  const int64_t per_batch =
+      o.frames_per_batch > 0
+          ? o.frames_per_batch
+          : (o.device.is_cuda() ? std::max<int64_t>(1, (int64_t(1) << 22) / (o.height * o.width)) : 1);
+  const int64_t batches = (o.frames + per_batch - 1) / per_batch;
+  // A GPU takes its batches one after another: it is busy enough with one.
+  const int64_t threads =
+      o.device.is_cuda()
+          ? 1
+          : std::min<int64_t>(o.frame_threads > 0 ? o.frame_threads : std::max(1u, std::thread::hardware_concurrency()),
+                              batches);
+  std::atomic<int64_t> next{0};
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto worker = [&] {
+    for (int64_t b = next++; b < batches; b = next++) {
+      try {
+        render_frames(b * per_batch, std::min(per_batch, o.frames - b * per_batch));
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(error_mutex);
+        if (!error) error = std::current_exception();
+        next = batches;  // the others stop after their batch
       }
-    };
-    std::vector<std::thread> pool;
-    for (int64_t t = 1; t < threads; ++t) pool.emplace_back(worker);
-    worker();
-    for (auto& t : pool) t.join();
-    if (error) std::rethrow_exception(error);
-  }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int64_t t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
   SynthScene s;
   s.cameras = cams;
   s.images = at::stack(rgb).contiguous();

@@ -31,9 +31,11 @@ struct SynthOptions {
   // as flat_synth does): OpenMP teams of two processes side by side spin
   // against each other, plain threads wait in the kernel (issue #30).
   int64_t frame_threads = 1;
-  // Where the rays are cast: the CPU, or a GPU (frames one after another; the
-  // outputs come back to the CPU). Same arithmetic, float32 either way.
+  // Where the rays are cast: the CPU, or a GPU (batches of frames one after
+  // another; the outputs come back to the CPU). Float32 either way.
   c10::Device device = c10::Device(c10::kCPU);
+  // Frames cast in one batch of rays; 0: one on the CPU, up to 4 M rays on a GPU.
+  int64_t frames_per_batch = 0;
   std::function<void()> on_frame;  // after each rendered frame (progress); calls are serialised
   void check() const;  // throws flat::Error naming the bad option
 };
