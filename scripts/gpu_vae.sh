@@ -16,8 +16,9 @@
 #                   with GPU_TESTS=1 the CUDA tests of render, gaussians,
 #                   surfels, optim and data (built here, -j 6);
 #            GPUs 1-3: the fixed recipe (configs/recipe/vae_image.yaml then
-#                   configs/recipe/vae.yaml) on sets A, B, C, alone on the GPU,
-#                   wall time measured from the first step to the VAE file;
+#                   configs/recipe/vae.yaml) on sets A, B, C, one set a GPU,
+#                   wall time measured from the first step to the VAE file
+#                   (the test build of GPU_TESTS shares the CPUs meanwhile);
 #            then the recipe's four stages from set A's VAE
 #                   (scripts/gpu_four_stages.sh; FOUR_STAGES_AB=1: two
 #                   variants, AB_A_NAME/AB_A_SET and AB_B_NAME/AB_B_SET, two
@@ -48,22 +49,29 @@ if [ "$PHASE" = "prep" ]; then
   ( ninja -C "$BUILD" flat_train flat_latents flat_eval >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
   builder=$!
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
-  P=$gpus; per=$(( (ROOMS + P - 1) / P )); g=0
+  [ "$gpus" -gt 0 ] || { echo "no GPU visible (nvidia-smi -L)"; exit 1; }
+  P=$gpus; per=$(( (ROOMS + P - 1) / P )); g=0; synths=()
+  # The GPU is chosen before the job forks: `CUDA_VISIBLE_DEVICES=$((g++)) cmd &`
+  # would expand in the child and put every job on GPU 0.
+  synth() {  # log name, then flat_synth's arguments
+    local log=$1 dev=$(( g % gpus )); shift; g=$((g + 1))
+    CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_synth" --device cuda --family room --frames $FRAMES --size $SIZE \
+      --motion mixed --log-level warn "$@" >"$R/$log.log" 2>&1 &
+    synths+=($!)
+  }
   for s in ${VAE_SETS:-A B C}; do   # VAE_SETS: fewer sets (one GPU)
     for k in $(seq 0 $((P - 1))); do
       n=$(( ROOMS - k * per < per ? ROOMS - k * per : per )); [ "$n" -le 0 ] && continue
-      CUDA_VISIBLE_DEVICES=$(( g++ % gpus )) "$BUILD/flat_synth" --device cuda --out "$R/set$s/train" --count $n \
-        --first-index $((k * per)) --seed "${TRAIN_SEED[$s]}" --family room --frames $FRAMES --size $SIZE --motion mixed \
-        --log-level warn >"$R/synth_${s}_$k.log" 2>&1 &
+      synth "synth_${s}_$k" --out "$R/set$s/train" --count $n --first-index $((k * per)) --seed "${TRAIN_SEED[$s]}"
     done
-    CUDA_VISIBLE_DEVICES=$(( g++ % gpus )) "$BUILD/flat_synth" --device cuda --out "$R/set$s/val" --count 16 \
-      --seed "${VAL_SEED[$s]}" --family room --frames $FRAMES --size $SIZE --motion mixed --log-level warn \
-      >"$R/synth_${s}_val.log" 2>&1 &
+    synth "synth_${s}_val" --out "$R/set$s/val" --count 16 --seed "${VAL_SEED[$s]}"
   done
   # The four stages' rooms (scripts/gpu_four_stages.sh) at the same time.
   [ "${FOUR_STAGES:-1}" = 1 ] && OUT="$R/out" SYNTH_DEVICE=cuda bash "$ROOT/scripts/gpu_four_stages.sh" rooms >"$R/stage_rooms.log" 2>&1 &
+  failed=0
+  for p in "${synths[@]}"; do wait "$p" || failed=$((failed + 1)); done
   wait
-  grep -h "error" "$R"/synth_*.log | head -5
+  [ "$failed" -eq 0 ] || { echo "$failed flat_synth run(s) failed:"; grep -h "error" "$R"/synth_*.log | head -5; exit 1; }
   grep -q "BUILD FAILED" "$R/build_tools.log" && { grep -E "error|FAILED" "$R/build_tools.log" | head -30; exit 1; }
   for s in ${VAE_SETS:-A B C}; do echo "set $s: $(ls "$R/set$s/train" | grep -c room) training, $(ls "$R/set$s/val" | grep -c room) held-out rooms"; done
   tail -2 "$R/out/four_stages.txt" 2>/dev/null
@@ -71,9 +79,11 @@ if [ "$PHASE" = "prep" ]; then
 fi
 
 # One VAE training: name, GPU, set, config, extra flat_train arguments...
+# TRAIN_SECONDS bounds it (SIGTERM: it checkpoints and stops; 0 = no bound).
 train_vae() {
   local name=$1 gpu=$2 set=$3 config=$4; shift 4
-  CUDA_VISIBLE_DEVICES=$gpu OMP_NUM_THREADS=4 "$BUILD/flat_train" --config "$config" --set run_dir="$R/$name" \
+  CUDA_VISIBLE_DEVICES=$gpu OMP_NUM_THREADS=4 timeout -s TERM "${TRAIN_SECONDS:-0}" \
+    "$BUILD/flat_train" --config "$config" --set run_dir="$R/$name" \
     --set "data.datasets=[{root: $R/set$set/train}]" --set "validation.datasets=[{root: $R/set$set/val}]" \
     --set threads=4 --set data.workers=4 "$@" >"$R/$name.log" 2>&1
 }
@@ -117,17 +127,20 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
     g=$((g + 1))
   done
   wait "$vae_a"   # the four stages need set A's VAE only
-  # Then the recipe's four stages from set A's VAE: two seeds on two GPUs each,
-  # or with FOUR_STAGES_AB=1 two seeds on one GPU each, without (GPUs 0-1) and
-  # with (GPUs 2-3) loss.random_background, sharing rooms and latents.
+  # Then the recipe's four stages from set A's VAE, as soon as it is written
+  # (sets B and C may still train on GPUs 2-3 for a few seconds): two seeds on
+  # two GPUs each, or with FOUR_STAGES_AB=1 two variants (AB_A_* on GPUs 0-1,
+  # AB_B_* on GPUs 2-3; by default the configs as shipped, which take random
+  # backgrounds at stage 4 only, against random backgrounds at every stage),
+  # one GPU a seed, sharing rooms and latents.
   if [ "${FOUR_STAGES:-1}" = 1 ]; then
     export VAE_FILE="$R/fixed_A/vae.safetensors"
     OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" latents
     if [ "${FOUR_STAGES_AB:-0}" = 1 ]; then
       # AB_A / AB_B: each variant's name and its --set arguments for every stage.
-      OUT="$R/out/${AB_A_NAME:-base}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" \
+      OUT="$R/out/${AB_A_NAME:-as_shipped}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
-      OUT="$R/out/${AB_B_NAME:-random_background}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
+      OUT="$R/out/${AB_B_NAME:-random_background_everywhere}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
         STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="${AB_B_SET:---set loss.random_background=true}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       wait
@@ -141,7 +154,7 @@ fi
 
 # Each run's held-out reconstruction PSNR at every validation, the best, the last and the falls.
 curves() {
-  for log in "$R"/ab_*.log "$R"/fixed_*.log; do
+  for log in "$R"/ab_*.log "$R"/fixed_*.log "$R"/one_*.log; do
     [ -f "$log" ] || continue
     local name; name=$(basename "$log" .log)
     local v; v=$(grep -oE 'validation @ step [0-9]+: reconstruction PSNR [0-9.]+' "$log" | sed -E 's/validation @ step ([0-9]+): reconstruction PSNR /\1:/' | tr '\n' ' ')
@@ -158,7 +171,7 @@ curves() {
 if [ "$PHASE" = "one" ]; then
   set_name="${ONE_SET:-A}"
   if [ "${GPU_TESTS:-0}" = 1 ]; then
-    ( ninja -C "$BUILD" -j 8 -k 0 ${GPU_TEST_TARGETS:-flat_test_render flat_test_gaussians flat_test_surfels flat_test_optim flat_test_data} \
+    ( timeout "${TEST_SECONDS:-420}" ninja -C "$BUILD" -j 8 -k 0 ${GPU_TEST_TARGETS:-flat_test_render flat_test_gaussians flat_test_surfels flat_test_optim flat_test_data} \
         >"$R/build_tests.log" 2>&1
       cd "$BUILD" && OMP_NUM_THREADS=4 ctest --output-on-failure -R "${GPU_CTEST_REGEX:-render|gaussians|surfels|optim|data}" \
         >"$R/ctest.log" 2>&1
@@ -168,9 +181,11 @@ if [ "$PHASE" = "one" ]; then
       done >"$R/cuda_only.log" ) &
   fi
   t0=$(date +%s)
+  # Bounded (ONE_SECONDS): it checkpoints and stops on SIGTERM, and what it
+  # validated so far still comes back. The tests beside it share the cores.
   # shellcheck disable=SC2086
-  train_vae "one_${set_name}_image" 0 "$set_name" configs/recipe/vae_image.yaml ${ONE_ARGS:-}
-  echo "one_${set_name}_image: $(( $(date +%s) - t0 )) s"
+  TRAIN_SECONDS="${ONE_SECONDS:-300}" train_vae "one_${set_name}_image" 0 "$set_name" configs/recipe/vae_image.yaml ${ONE_ARGS:-}
+  echo "one_${set_name}_image: rc $? after $(( $(date +%s) - t0 )) s (the test build beside it)"
   wait
   curves | grep one_ | tee "$OUT/vae_curves.txt"
   if [ -f "$R/ctest.log" ]; then
@@ -197,10 +212,14 @@ if [ "$PHASE" = "wait" ]; then
   for s in A B C; do [ -f "$R/fixed_$s.seconds" ] && echo "fixed recipe on set $s: $(cat "$R/fixed_$s.seconds") s from launch to the VAE file"; done | tee -a "$OUT/vae_curves.txt"
   if [ -f "$R/ALL_DONE" ]; then
     echo "all runs done"
-    cp "$R"/out/* "$OUT"/ 2>/dev/null
-    for v in "$R"/out/*/; do  # FOUR_STAGES_AB: one archive per variant
-      v=$(basename "$v"); tar czf "$OUT/four_stages_$v.tgz" -C "$R/out/$v" .
+    # The four stages' tables, results, logs and grids: one archive per
+    # variant (FOUR_STAGES_AB) or one for the single run (the device returns 8 files).
+    variants=0
+    for v in "$R"/out/*/; do
+      [ -d "$v" ] || continue
+      v=$(basename "$v"); variants=$((variants + 1)); tar czf "$OUT/four_stages_$v.tgz" -C "$R/out/$v" .
     done
+    [ "$variants" -eq 0 ] && [ -d "$R/out" ] && tar czf "$OUT/four_stages.tgz" -C "$R/out" .
     tar czf "$OUT/vae_metrics.tgz" -C "$R" $(cd "$R" && ls -d */metrics */logs *.log 2>/dev/null) 2>/dev/null
     # The first and the last grid of each run (all of them exceed the device's 16 MiB a file).
     tar czf "$OUT/vae_grids.tgz" -C "$R" $(cd "$R" && for d in */renders; do ls "$d"/*.png 2>/dev/null | sed -n '1p;$p'; done) 2>/dev/null

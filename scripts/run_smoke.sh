@@ -16,7 +16,8 @@ bash "$ROOT/scripts/install_deps.sh"
 # suite is README command 2; every tool: cmake --build build --target flat_tools).
 # Without a visible GPU the CUTLASS Hopper convolutions (a decoder speed-up for
 # sm_90 only, about 4 minutes of one core to compile) can never run: left out.
-cutlass=()
+# The choice is stored in the build folder's cache: with a GPU it is made again.
+cutlass=(-DFLAT_CUTLASS=ON)
 if ! nvidia-smi -L >/dev/null 2>&1; then
   cutlass=(-DFLAT_CUTLASS=OFF)
   echo "no GPU visible: building without the CUTLASS Hopper convolutions (scripts/build.sh -DFLAT_CUTLASS=ON adds them)"
