@@ -32,11 +32,17 @@ D="${STAGES_DATA:-$S/data}"   # rooms and latents (another run's, to share them)
 mkdir -p "$S"
 DEVICE="${DEVICE:-cuda}"
 ROOMS="${ROOMS:-128}"; VAL="${VAL:-16}"; FRAMES=49
+# A second held-out set of a seed no run or doc had used before (8128): every
+# stage is scored on it too, so a choice made on the first set is rechecked.
+FRESH_SEED="${FRESH_SEED:-8128}"
 read -r -a SET <<< "${SETS:-176x320 176x320 360x640 432x768}"     # each stage's HxW
-# Stage 4 gets minutes: at 180 s its start-up and two validations at 432x768
-# left 130-142 steps, and the pruned model was still recovering (docs/training.md).
-read -r -a STEP <<< "${STEPS:-1100 300 300 1000}"                   # each stage's steps
-read -r -a LIMIT <<< "${STAGE_SECONDS:-150 90 150 420}"             # each stage's time bound
+# Each stage's steps are what one H100 a seed gets through in its bound (four
+# seeds side by side, 2026-11-27: 480 / 124 / 78 / 142 in 150 / 90 / 150 /
+# 180 s), so the cosine schedule reaches its end instead of being cut at its
+# peak (1,100 planned steps stopped at 480). Stage 4 gets minutes: at 180 s its
+# start-up and validations left 130-142 steps, still recovering from the pruning.
+read -r -a STEP <<< "${STEPS:-450 120 75 600}"                      # each stage's steps
+read -r -a LIMIT <<< "${STAGE_SECONDS:-170 110 170 420}"            # each stage's time bound
 # The reserved-but-unallocated share of a full GPU (8 GiB in the OOM of one
 # stage 3 beside a flat_eval) is what expandable segments give back.
 export PYTORCH_CUDA_ALLOC_CONF="${PYTORCH_CUDA_ALLOC_CONF:-expandable_segments:True}"
@@ -56,7 +62,10 @@ stage_args() {
   ARGS=(--config "configs/recipe/stage$st.yaml" --set run_dir="$run" --set seed="$seed" --set device="$DEVICE" \
     --set "data.datasets=[{root: $D/train}]" --set "validation.datasets=[{root: $D/val}]" \
     --set data.height="${SET[$i]%x*}" --set data.width="${SET[$i]#*x}" --set steps="${STEP[$i]}" \
-    --set init.path="$init" --set pipeline.model.vae.dim="$VAE_DIM" "${EXTRA[@]}")
+    --set init.path="$init" --set pipeline.model.vae.dim="$VAE_DIM" \
+    --set validation.scenes="$VAL" --set validation.max_views=9 --set validation.every="${STEP[$i]}" "${EXTRA[@]}")
+  # validation: all held-out rooms, 9 views each (what flat_eval --max-views 9
+  # scores, so the two figures can be compared), at the start and the end.
 }
 
 if [ "$PHASE" = rooms ] || [ "$PHASE" = all ]; then
@@ -75,6 +84,9 @@ if [ "$PHASE" = rooms ] || [ "$PHASE" = all ]; then
   CUDA_VISIBLE_DEVICES=$(( gpus > 0 ? (gpus - 1) : 0 )) "$BUILD/flat_synth" --device "$synth_dev" --threads 2 \
     --out "$D/val" --count "$VAL" --seed 1001 --family room --frames $FRAMES \
     --size "$big" --motion mixed --log-level warn >"$S/synth_val.log" 2>&1 &
+  CUDA_VISIBLE_DEVICES=$(( gpus > 1 ? (gpus - 2) : 0 )) "$BUILD/flat_synth" --device "$synth_dev" --threads 2 \
+    --out "$D/fresh" --count "$VAL" --seed "$FRESH_SEED" --family room --frames $FRAMES \
+    --size "$big" --motion mixed --log-level warn >"$S/synth_fresh.log" 2>&1 &
   wait
   note "rooms: $(ls "$D/train" | wc -l) training, $(ls "$D/val" | wc -l) held-out, $FRAMES frames of $big"
 fi
@@ -87,7 +99,7 @@ if [ "$PHASE" = latents ] || [ "$PHASE" = all ]; then
       i=$((st - 1))
       # One flat_latents per stage config: each sets its own size and window.
       CUDA_VISIBLE_DEVICES=$k OMP_NUM_THREADS=4 "$BUILD/flat_latents" --configs "configs/recipe/stage$st.yaml" \
-        --set "data.datasets=[{root: $D/train}]" --set "validation.datasets=[{root: $D/val}]" \
+        --set "data.datasets=[{root: $D/train}]" --set "validation.datasets=[{root: $D/val}, {root: $D/fresh}]" \
         --set data.height="${SET[$i]%x*}" --set data.width="${SET[$i]#*x}" \
         --vae "$VAE_FILE" --device "$DEVICE" --threads 4 --shard "$k/$shards" >"$S/latents_s${st}_$k.log" 2>&1 \
         || { echo "flat_latents stage $st shard $k failed:"; tail -5 "$S/latents_s${st}_$k.log"; }
@@ -109,9 +121,17 @@ chain() {
       "${ARGS[@]}" --set threads=4 --set data.workers=3 >"$S/seed${seed}_stage$st.log" 2>&1
     echo "seed $seed stage $st: rc $? in $(( $(date +%s) - t0 )) s, $(grep -oE 'validation @ step [0-9]+: PSNR [0-9.]+ dB' "$S/seed${seed}_stage$st.log" | tail -1)" \
       | tee -a "$OUT/four_stages.txt"
-    CUDA_VISIBLE_DEVICES=${devs%%,*} OMP_NUM_THREADS=4 "$BUILD/flat_eval" --model "$run" --scenes "heldout=$D/val" \
-      --out "$S/eval_seed${seed}_stage$st" --name "seed$seed stage$st ${SET[$i]}" --latent-set "${SET[$i]}_f${WINDOW[$i]}" \
-      --max-views 9 --device "$DEVICE" --threads 4 >"$S/eval_seed${seed}_stage$st.log" 2>&1 &
+    (for set in val fresh; do
+      CUDA_VISIBLE_DEVICES=${devs%%,*} OMP_NUM_THREADS=4 "$BUILD/flat_eval" --model "$run" --scenes "heldout=$D/$set" \
+        --out "$S/eval_${set}_seed${seed}_stage$st" --name "seed$seed stage$st ${SET[$i]} $set" \
+        --latent-set "${SET[$i]}_f${WINDOW[$i]}" --max-views 9 --device "$DEVICE" --threads 4 \
+        >"$S/eval_${set}_seed${seed}_stage$st.log" 2>&1
+    done
+    # One held-out number: the trainer's last validation and flat_eval on the same rooms and views.
+    echo "seed $seed stage $st: trainer's $(grep -oE 'validation @ step [0-9]+: PSNR [0-9.]+' "$S/seed${seed}_stage$st.log" | tail -1) dB," \
+      "flat_eval $(python3 -c 'import json,sys; r=json.load(open(sys.argv[1])); print("%.2f dB (model %s)" % (r["means"][-1]["psnr"], r["model"]))' \
+        "$S/eval_val_seed${seed}_stage$st/results.json" 2>/dev/null)" \
+      | tee -a "$OUT/four_stages.txt") &
     prev="$run"
   done
   wait
@@ -127,11 +147,13 @@ if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
     chain "$seed" "$devs" &
   done
   wait
-  evals=$(ls -d "$S"/eval_seed*/ 2>/dev/null)
-  # shellcheck disable=SC2086
-  "$BUILD/flat_eval" --compare $evals --out-table "$OUT/four_stages_table.md" --overwrite >/dev/null 2>&1
-  cat "$OUT/four_stages_table.md" 2>/dev/null | head -30
-  tar czf "$OUT/four_stages_results.tgz" -C "$S" $(cd "$S" && ls -d eval_seed*/results.json eval_seed*/*.md eval_seed*/*.csv 2>/dev/null) 2>/dev/null
+  for set in val fresh; do
+    evals=$(ls -d "$S"/eval_${set}_seed*/ 2>/dev/null)
+    # shellcheck disable=SC2086
+    "$BUILD/flat_eval" --compare $evals --out-table "$OUT/four_stages_table_$set.md" --overwrite >/dev/null 2>&1
+    cat "$OUT/four_stages_table_$set.md" 2>/dev/null | head -30
+  done
+  tar czf "$OUT/four_stages_results.tgz" -C "$S" $(cd "$S" && ls -d eval_*/results.json eval_*/*.md eval_*/*.csv 2>/dev/null) 2>/dev/null
   tar czf "$OUT/four_stages_logs.tgz" -C "$S" $(cd "$S" && ls *.log seed*/stage*/metrics/*.jsonl 2>/dev/null) 2>/dev/null
   tar czf "$OUT/four_stages_grids.tgz" -C "$S" $(cd "$S" && ls seed0/stage*/renders/*.png 2>/dev/null | sort | awk -F/ '{k=$1"/"$2; last[k]=$0} END {for (k in last) print last[k]}') 2>/dev/null
   note "four stages done"

@@ -112,7 +112,7 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
         >"$R/ctest.log" 2>&1
       echo "rc $?" >>"$R/ctest.log"
       CUDA_VISIBLE_DEVICES=0 "$BUILD/tests/flat_test_render" "*cuda*" -s 2>&1 | grep "cuda-vs-cpu" >"$R/cuda_vs_cpu.log"
-      for t in render gaussians surfels optim data; do
+      for t in ${GPU_CUDA_TESTS:-render gaussians surfels optim data}; do
         [ -x "$BUILD/tests/flat_test_$t" ] && CUDA_VISIBLE_DEVICES=0 "$BUILD/tests/flat_test_$t" "[cuda]" 2>&1 | tail -2 | sed "s/^/[cuda] $t: /"
       done >"$R/cuda_only.log"
       touch "$R/TESTS_DONE" ) &
@@ -176,7 +176,7 @@ if [ "$PHASE" = "one" ]; then
       cd "$BUILD" && OMP_NUM_THREADS=4 ctest --output-on-failure -R "${GPU_CTEST_REGEX:-render|gaussians|surfels|optim|data}" \
         >"$R/ctest.log" 2>&1
       echo "rc $?" >>"$R/ctest.log"
-      for t in render gaussians surfels optim data; do
+      for t in ${GPU_CUDA_TESTS:-render gaussians surfels optim data}; do
         [ -x "$BUILD/tests/flat_test_$t" ] && "$BUILD/tests/flat_test_$t" "[cuda]" 2>&1 | tail -2 | sed "s/^/[cuda] $t: /"
       done >"$R/cuda_only.log" ) &
   fi
