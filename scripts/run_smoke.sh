@@ -11,9 +11,13 @@
 # runs/tiny); its data and run folders are its own and rebuilt on every call.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
-bash "$ROOT/scripts/install_deps.sh"
-# What the demo runs, and flat_infer for README's next commands (the test
-# suite is README command 2; every tool: cmake --build build --target flat_tools).
+# --demo: the build's libraries and libtorch only (not the exports' readers and
+# players, which the test suite, README command 2, installs).
+bash "$ROOT/scripts/install_deps.sh" --demo
+# What the demo runs (the test suite is README command 2; flat_infer for
+# README's next commands: cmake --build build --target flat_infer; every tool:
+# --target flat_tools). flat_infer's own modules (infer, mesh, export) are
+# about 140 s of this machine's 2 cores.
 # Without a visible GPU the CUTLASS Hopper convolutions (a decoder speed-up for
 # sm_90 only, about 4 minutes of one core to compile) can never run: left out.
 # The choice is stored in the build folder's cache: with a GPU it is made again.
@@ -22,7 +26,7 @@ if ! nvidia-smi -L >/dev/null 2>&1; then
   cutlass=(-DFLAT_CUTLASS=OFF)
   echo "no GPU visible: building without the CUTLASS Hopper convolutions (scripts/build.sh -DFLAT_CUTLASS=ON adds them)"
 fi
-FLAT_BUILD_TARGETS="${FLAT_BUILD_TARGETS:-flat_synth flat_latents flat_train flat_eval flat_infer}" \
+FLAT_BUILD_TARGETS="${FLAT_BUILD_TARGETS:-flat_synth flat_latents flat_train flat_eval}" \
   bash "$ROOT/scripts/build.sh" "${cutlass[@]}"
 B="${BUILD_DIR:-$ROOT/build}"
 RUN="${FLAT_SMOKE_DIR:-runs/tiny}"
@@ -69,3 +73,4 @@ fi
 echo "main job complete in $(( $(date +%s) - T0 )) s: $RUN/vae (vae.safetensors, renders/), $RUN/stage1 (config.yaml,"
 echo "  logs/train.log, metrics/*.jsonl, tensorboard/, renders/val_step_*.png, checkpoints/, model.safetensors),"
 echo "  $RUN/eval (table.md, results.json, scenes.csv)"
+echo "next: cmake --build ${B#"$ROOT"/} --target flat_infer, then README's \"Inference and evaluation\""
