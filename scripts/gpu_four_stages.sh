@@ -155,6 +155,39 @@ if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
   done
   tar czf "$OUT/four_stages_results.tgz" -C "$S" $(cd "$S" && ls -d eval_*/results.json eval_*/*.md eval_*/*.csv 2>/dev/null) 2>/dev/null
   tar czf "$OUT/four_stages_logs.tgz" -C "$S" $(cd "$S" && ls *.log seed*/stage*/metrics/*.jsonl 2>/dev/null) 2>/dev/null
+  [ "${MESH_ROOMS:-0}" -gt 0 ] && bash "$0" mesh
   tar czf "$OUT/four_stages_grids.tgz" -C "$S" $(cd "$S" && ls seed0/stage*/renders/*.png 2>/dev/null | sort | awk -F/ '{k=$1"/"$2; last[k]=$0} END {for (k in last) print last[k]}') 2>/dev/null
   note "four stages done"
+fi
+
+# flat_mesh on the recipe's held-out rooms (issue #44): the first MESH_ROOMS
+# rooms of the held-out set, decoded by seed 0's stage 4 (flat_infer's soup,
+# pruned as the model says), refined and converted with flat_mesh's defaults
+# (every 4th frame held out), two rooms at a time on each of this run's GPUs.
+if [ "$PHASE" = mesh ]; then
+  model="$S/seed${SEED_LIST[0]}/stage4"; M="$S/mesh"; rm -rf "$M"; mkdir -p "$M"
+  [ -f "$model/model.safetensors" ] || { note "mesh: no stage-4 model in $model"; exit 1; }
+  g0=${FIRST_GPU:-0}; ngpu=$(( GPUS_PER_SEED * ${#SEED_LIST[@]} )); slots=$(( ngpu * 2 ))
+  rooms=$(ls "$D/val" | grep room | head -"${MESH_ROOMS:-8}")
+  k=0
+  for room in $rooms; do
+    dev=$(( gpus > 0 ? (g0 + k % ngpu) % gpus : 0 ))
+    ( CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_infer" --model "$model" --scene "$D/val/$room" --out "$M/infer_$room" \
+        --device "$DEVICE" --no-video --no-viewer --no-renders --novel none >"$M/infer_$room.log" 2>&1 &&
+      CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_mesh" --from "$M/infer_$room" --out "$M/mesh_$room" --device "$DEVICE" \
+        --no-viewer >"$M/mesh_$room.log" 2>&1
+      echo "mesh $room: rc $?" >>"$M/rc.txt" ) &
+    k=$((k + 1)); [ $(( k % slots )) -eq 0 ] && wait
+  done
+  wait
+  cat "$M/rc.txt"
+  python3 "$ROOT/scripts/mesh_table.py" "$M"/mesh_room_*/ >"$OUT/mesh_table.md" 2>&1
+  for d in "$M"/mesh_room_*/; do
+    python3 -c 'import json,sys; m=json.load(open(sys.argv[1]+"/metrics.json")); s=json.load(open(sys.argv[1]+"/mesh_stats.json")); sc=m["scores"]
+print(m["scene"], *["%s %.2f dB cos %.3f" % (k, sc[k]["held_out"]["psnr"], sc[k]["held_out"]["normal_cosine"]) for k in ("feedforward","refined","mesh") if k in sc], "edge pieces %d / %d faces" % (s["edge_connected_pieces"], s["faces"]))' "$d" 2>&1
+  done >>"$OUT/mesh_table.md"
+  cat "$OUT/mesh_table.md"
+  tar czf "$OUT/mesh_results.tgz" -C "$M" $(cd "$M" && ls mesh_room_*/metrics.json mesh_room_*/mesh_stats.json *.log rc.txt 2>/dev/null) \
+    $(cd "$M" && ls mesh_room_*/renders/compare.png 2>/dev/null | head -1) 2>/dev/null
+  note "mesh: $(wc -l <"$M/rc.txt") rooms"
 fi

@@ -46,7 +46,7 @@ if [ "$PHASE" = "prep" ]; then
   # flat_synth first: the rooms are cast on the GPUs while the other tools build.
   ninja -C "$BUILD" flat_synth >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
   echo "flat_synth built in $(( $(date +%s) - t0 )) s"
-  ( ninja -C "$BUILD" flat_train flat_latents flat_eval >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
+  ( ninja -C "$BUILD" flat_train flat_latents flat_eval flat_infer flat_mesh >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
   builder=$!
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
   [ "$gpus" -gt 0 ] || { echo "no GPU visible (nvidia-smi -L)"; exit 1; }
@@ -138,14 +138,14 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
     OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" latents
     if [ "${FOUR_STAGES_AB:-0}" = 1 ]; then
       # AB_A / AB_B: each variant's name and its --set arguments for every stage.
-      OUT="$R/out/${AB_A_NAME:-as_shipped}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" \
+      OUT="$R/out/${AB_A_NAME:-as_shipped}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" MESH_ROOMS="${MESH_ROOMS:-8}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       OUT="$R/out/${AB_B_NAME:-random_background_everywhere}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
         STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="${AB_B_SET:---set loss.random_background=true}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       wait
     else
-      OUT="$R/out" bash "$ROOT/scripts/gpu_four_stages.sh" train
+      OUT="$R/out" MESH_ROOMS="${MESH_ROOMS:-8}" bash "$ROOT/scripts/gpu_four_stages.sh" train
     fi
   fi
   wait   # sets B and C, the tests
