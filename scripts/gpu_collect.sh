@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Whatever the background runs of scripts/gpu_vae.sh have finished so far, into
+# $OUT: for a device call near the end of the session's budget, which cannot
+# wait for ALL_DONE. Waits up to WAIT_SECONDS for ALL_DONE first.
+#   results.tgz  every flat_eval's results.json and table, both variants'
+#                four_stages.txt and compare tables, the mesh table
+#   logs.tgz     the stage logs and metrics (*.jsonl)
+#   grids.tgz    seed 0's last validation grid of every stage, both variants
+#   vae.tgz      the VAE runs' metrics and logs
+set -uo pipefail
+source "$(dirname "$0")/gpu_common.sh"   # ROOT, OUT, BUILD
+R="${VAE_RUNS:-/tmp/flat_vae}"
+limit=${WAIT_SECONDS:-0}; t0=$(date +%s)
+while [ ! -f "$R/ALL_DONE" ] && [ $(( $(date +%s) - t0 )) -lt "$limit" ]; do sleep 5; done
+[ -f "$R/ALL_DONE" ] && echo "all runs done" || echo "collecting while runs go on ($(( $(date +%s) - t0 )) s waited)"
+nvidia-smi --query-gpu=index,utilization.gpu,memory.used --format=csv,noheader
+for S in /tmp/flat_stages /tmp/flat_stages_b; do
+  [ -d "$S" ] || continue
+  for set in val fresh; do
+    evals=$(ls -d "$S"/eval_${set}_seed*/ 2>/dev/null | while read -r d; do [ -f "$d/results.json" ] && echo "$d"; done)
+    # shellcheck disable=SC2086
+    [ -n "$evals" ] && "$BUILD/flat_eval" --compare $evals --out-table "$S/compare_$set.md" --overwrite >/dev/null 2>&1
+  done
+done
+for v in "$R"/out/*/; do [ -f "$v/four_stages.txt" ] && { echo "== $(basename "$v")"; cat "$v/four_stages.txt"; }; done
+cd /tmp && tar czf "$OUT/results.tgz" $(ls -d flat_stages*/eval_*/results.json flat_stages*/eval_*/table.md flat_stages*/compare_*.md \
+  flat_stages*/mesh/mesh_room_*/metrics.json flat_stages*/mesh/mesh_room_*/mesh_stats.json flat_stages*/mesh/rc.txt 2>/dev/null) \
+  -C "$R" out 2>/dev/null
+tar czf "$OUT/logs.tgz" $(ls flat_stages*/*.log flat_stages*/seed*/stage*/metrics/*.jsonl flat_stages*/seed*/stage*/logs/*.jsonl 2>/dev/null)
+tar czf "$OUT/grids.tgz" $(for d in flat_stages*/seed0/stage*/renders; do ls "$d"/*.png 2>/dev/null | tail -1; done) \
+  $(ls flat_stages/mesh/mesh_room_*/renders/compare.png 2>/dev/null | head -1)
+tar czf "$OUT/vae.tgz" -C "$R" $(cd "$R" && ls -d fixed_*/metrics fixed_*/logs fixed_*.log 2>/dev/null)
+ls -la "$OUT"
