@@ -24,8 +24,9 @@ for S in /tmp/flat_stages /tmp/flat_stages_b; do
 done
 for v in "$R"/out/*/; do [ -f "$v/four_stages.txt" ] && { echo "== $(basename "$v")"; cat "$v/four_stages.txt"; }; done
 cd /tmp && tar czf "$OUT/results.tgz" $(ls -d flat_stages*/eval_*/results.json flat_stages*/eval_*/table.md flat_stages*/compare_*.md \
-  flat_stages*/mesh/mesh_room_*/metrics.json flat_stages*/mesh/mesh_room_*/mesh_stats.json flat_stages*/mesh/rc.txt 2>/dev/null) \
-  -C "$R" out 2>/dev/null
+  flat_stages*/mesh/mesh_room_*/metrics.json flat_stages*/mesh/mesh_room_*/mesh_stats.json flat_stages*/mesh/rc.txt \
+  flat_stages*/mesh/*.log 2>/dev/null) \
+  -C "$R" $(cd "$R" && ls out/*/*.txt out/*/*.md 2>/dev/null)   # not out's archives: copies, and the 16 MiB a file
 tar czf "$OUT/logs.tgz" $(ls flat_stages*/*.log flat_stages*/seed*/stage*/metrics/*.jsonl flat_stages*/seed*/stage*/logs/*.jsonl 2>/dev/null)
 tar czf "$OUT/grids.tgz" $(for d in flat_stages*/seed0/stage*/renders; do ls "$d"/*.png 2>/dev/null | tail -1; done) \
   $(ls flat_stages/mesh/mesh_room_*/renders/compare.png 2>/dev/null | head -1)

@@ -172,7 +172,9 @@ if [ "$PHASE" = mesh ]; then
   k=0
   for room in $rooms; do
     dev=$(( gpus > 0 ? (g0 + k % ngpu) % gpus : 0 ))
+    # The rooms hold every stage's latent set: stage 4's is named.
     ( CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_infer" --model "$model" --scene "$D/val/$room" --out "$M/infer_$room" \
+        --latent-set "${MESH_LATENT_SET:-${SET[3]}_f${WINDOW[3]}}" \
         --device "$DEVICE" --no-video --no-viewer --no-renders --novel none >"$M/infer_$room.log" 2>&1 &&
       CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_mesh" --from "$M/infer_$room" --out "$M/mesh_$room" --device "$DEVICE" \
         --no-viewer >"$M/mesh_$room.log" 2>&1
