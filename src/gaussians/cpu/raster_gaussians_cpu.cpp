@@ -17,8 +17,6 @@
 namespace flat::gaussians::cpu {
 namespace {
 
-using render::cpu::composite_backward;
-using render::cpu::composite_forward;
 using render::cpu::ViewSums;
 
 // One view's Gaussians for composite_forward / composite_backward
@@ -61,6 +59,8 @@ struct GaussianView {
     v[0] = g.color[0], v[1] = g.color[1], v[2] = g.color[2], v[3] = g.z;
   }
   void blended(int64_t, const Fragment&, T, T, bool) {}
+  void write_own_images(int64_t, const render::RenderOutput&) const {}
+  void forward_done(const ViewSums<T>&) {}
 
   void start(size_t) { gr = ScreenGrad<T>{}; }
   void grad_values(size_t r, int64_t, const Fragment& f, T* v) const {
@@ -84,47 +84,16 @@ struct GaussianView {
   }
 };
 
-template <class T>
-GaussianOutputs forward_impl(const GaussianInputs& in) {
-  const int64_t HW = in.height * in.width;
-  GaussianOutputs out = images_for(in);
-  out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
-  for (int64_t v = 0; v < in.w2c.size(0); ++v) {
-    GaussianView<T> gv(in, v);
-    const ViewSums<T> sums = composite_forward<T>(gv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
-    render::cpu::write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth,
-                                   at::Tensor(), out.median_depth);
-  }
-  return out;
-}
-
-template <class T>
-GaussianGrads backward_impl(const GaussianInputs& in, const GaussianOutputGrads& grads) {
-  const int64_t HW = in.height * in.width;
-  GaussianGrads g = GaussianGrads::zeros_for(in);
-  std::vector<T> scratch_max(in.means.size(0), T(0));
-  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
-    GaussianView<T> gv(in, view);
-    gv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(gv, in.width, HW, in.k, scratch_max.data());
-    // Upstream gradient per pixel and channel (r, g, b, depth, alpha).
-    const std::vector<T> G = render::cpu::interleave_grads<T>({grads.rgb, grads.depth, grads.alpha}, view, HW);
-    composite_backward<T>(gv, fwd, in.width, G, in.background.data_ptr<T>());
-  }
-  return g;
-}
-
 }  // namespace
 
 GaussianOutputs forward(const GaussianInputs& in) {
-  if (in.means.scalar_type() == at::kDouble) return forward_impl<double>(in);
-  FLAT_CHECK(in.means.scalar_type() == at::kFloat, "rasterize_gaussians (cpu): expected float32 or float64 tensors");
-  return forward_impl<float>(in);
+  return render::cpu::forward_views<GaussianView>(in, in.means, images_for(in), "rasterize_gaussians");
 }
 
+// Upstream gradient per pixel and channel (r, g, b, depth, alpha).
 GaussianGrads backward(const GaussianInputs& in, const GaussianOutputGrads& grads) {
-  if (in.means.scalar_type() == at::kDouble) return backward_impl<double>(in, grads);
-  return backward_impl<float>(in, grads);
+  return render::cpu::backward_views<GaussianView>(in, in.means, GaussianGrads::zeros_for(in),
+                                                   {grads.rgb, grads.depth, grads.alpha}, "rasterize_gaussians");
 }
 
 }  // namespace flat::gaussians::cpu

@@ -69,6 +69,8 @@ struct TriangleView {
     v[4] = t.normal[0], v[5] = t.normal[1], v[6] = t.normal[2];
   }
   void blended(int64_t, const Fragment&, T, T, bool) {}
+  void write_own_images(int64_t, const RenderOutput&) const {}
+  void forward_done(const ViewSums<T>&) {}
 
   void start(size_t) {
     std::fill(reinterpret_cast<T*>(&gr), reinterpret_cast<T*>(&gr) + kTriGradSize, T(0));
@@ -115,50 +117,17 @@ struct TriangleView {
   }
 };
 
-template <class T>
-RasterOutputs forward_impl(const RasterInputs& in) {
-  const int64_t HW = in.height * in.width;
-  RasterOutputs out = images_for(in);
-  out.max_weight = at::zeros({in.vertices.size(0)}, in.vertices.options());
-  for (int64_t v = 0; v < in.w2c.size(0); ++v) {
-    TriangleView<T> tv(in, v);
-    const ViewSums<T> sums = composite_forward<T>(tv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
-    write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth, out.normal,
-                      out.median_depth);
-  }
-  return out;
-}
-
-template <class T>
-RasterGrads backward_impl(const RasterInputs& in, const at::Tensor& g_rgb, const at::Tensor& g_alpha,
-                          const at::Tensor& g_depth, const at::Tensor& g_normal) {
-  const int64_t HW = in.height * in.width;
-  RasterGrads g = RasterGrads::zeros_for(in);
-  std::vector<T> scratch_max(in.vertices.size(0), T(0));
-  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
-    TriangleView<T> tv(in, view);
-    tv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(tv, in.width, HW, in.k, scratch_max.data());
-    // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha).
-    const std::vector<T> G = interleave_grads<T>({g_rgb, g_depth, g_normal, g_alpha}, view, HW);
-    composite_backward<T>(tv, fwd, in.width, G, in.background.data_ptr<T>());
-  }
-  return g;
-}
-
 }  // namespace
 
 RasterOutputs forward(const RasterInputs& in) {
-  if (in.vertices.scalar_type() == at::kDouble) return forward_impl<double>(in);
-  FLAT_CHECK(in.vertices.scalar_type() == at::kFloat, "rasterize (cpu): expected float32 or float64 tensors");
-  return forward_impl<float>(in);
+  return forward_views<TriangleView>(in, in.vertices, images_for(in), "rasterize");
 }
 
+// Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha).
 RasterGrads backward(const RasterInputs& in, const at::Tensor& grad_rgb, const at::Tensor& grad_alpha,
                      const at::Tensor& grad_depth, const at::Tensor& grad_normal) {
-  if (in.vertices.scalar_type() == at::kDouble)
-    return backward_impl<double>(in, grad_rgb, grad_alpha, grad_depth, grad_normal);
-  return backward_impl<float>(in, grad_rgb, grad_alpha, grad_depth, grad_normal);
+  return backward_views<TriangleView>(in, in.vertices, RasterGrads::zeros_for(in),
+                                      {grad_rgb, grad_depth, grad_normal, grad_alpha}, "rasterize");
 }
 
 }  // namespace flat::render::cpu

@@ -24,8 +24,6 @@
 namespace flat::surfels::cpu {
 namespace {
 
-using render::cpu::composite_backward;
-using render::cpu::composite_forward;
 using render::cpu::ViewSums;
 
 // One view's surfels for composite_forward / composite_backward
@@ -91,6 +89,11 @@ struct SurfelView {
     m1[p] += w * m;
     m2[p] += w * m * m;
   }
+  void write_own_images(int64_t view, const render::RenderOutput& out) const {
+    std::copy(dist.begin(), dist.end(), out.distortion.data_ptr<T>() + view * in.height * in.width);
+  }
+  // The backward reads the forward's final transmittance (the distortion's A).
+  void forward_done(const ViewSums<T>& fwd) { t_final = &fwd.t_final; }
 
   void start(size_t) {
     std::fill(reinterpret_cast<T*>(&gr), reinterpret_cast<T*>(&gr) + kSurfelGradSize, T(0));
@@ -123,50 +126,17 @@ struct SurfelView {
   }
 };
 
-template <class T>
-SurfelOutputs forward_impl(const SurfelInputs& in) {
-  const int64_t HW = in.height * in.width;
-  SurfelOutputs out = images_for(in);
-  out.max_weight = at::zeros({in.means.size(0)}, in.means.options());
-  for (int64_t v = 0; v < in.w2c.size(0); ++v) {
-    SurfelView<T> sv(in, v);
-    const ViewSums<T> sums = composite_forward<T>(sv, in.width, HW, in.k, out.max_weight.data_ptr<T>());
-    render::cpu::write_view_images(v, HW, sums, in.background.data_ptr<T>(), out.rgb, out.alpha, out.depth,
-                                   out.normal, out.median_depth);
-    std::copy(sv.dist.begin(), sv.dist.end(), out.distortion.data_ptr<T>() + v * HW);
-  }
-  return out;
-}
-
-template <class T>
-SurfelGrads backward_impl(const SurfelInputs& in, const SurfelOutputGrads& grads) {
-  const int64_t HW = in.height * in.width;
-  SurfelGrads g = SurfelGrads::zeros_for(in);
-  std::vector<T> scratch_max(in.means.size(0), T(0));
-  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
-    SurfelView<T> sv(in, view);
-    sv.grads = &g;
-    const ViewSums<T> fwd = composite_forward<T>(sv, in.width, HW, in.k, scratch_max.data());
-    sv.t_final = &fwd.t_final;
-    // Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
-    const std::vector<T> G = render::cpu::interleave_grads<T>(
-        {grads.rgb, grads.depth, grads.normal, grads.alpha, grads.distortion}, view, HW);
-    composite_backward<T>(sv, fwd, in.width, G, in.background.data_ptr<T>());
-  }
-  return g;
-}
-
 }  // namespace
 
 SurfelOutputs forward(const SurfelInputs& in) {
-  if (in.means.scalar_type() == at::kDouble) return forward_impl<double>(in);
-  FLAT_CHECK(in.means.scalar_type() == at::kFloat, "rasterize_surfels (cpu): expected float32 or float64 tensors");
-  return forward_impl<float>(in);
+  return render::cpu::forward_views<SurfelView>(in, in.means, images_for(in), "rasterize_surfels");
 }
 
+// Upstream gradient per pixel and channel (r, g, b, depth, nx, ny, nz, alpha, distortion).
 SurfelGrads backward(const SurfelInputs& in, const SurfelOutputGrads& grads) {
-  if (in.means.scalar_type() == at::kDouble) return backward_impl<double>(in, grads);
-  return backward_impl<float>(in, grads);
+  return render::cpu::backward_views<SurfelView>(
+      in, in.means, SurfelGrads::zeros_for(in),
+      {grads.rgb, grads.depth, grads.normal, grads.alpha, grads.distortion}, "rasterize_surfels");
 }
 
 }  // namespace flat::surfels::cpu

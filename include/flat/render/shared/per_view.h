@@ -1,8 +1,9 @@
 // The CPU references' per-view compositing, shared by the three rasterizers
 // (render/cpu, gaussians/cpu, surfels/cpu): the compositing order, the
 // front-to-back loop and its back-to-front replay (3DGS' recurrence), the
-// images written from the per-pixel sums and the upstream gradients laid out
-// per pixel, which are the same whatever the primitive. Each primitive
+// images written from the per-pixel sums, the upstream gradients laid out
+// per pixel, the backward over every view and the float/double choice, which
+// are the same whatever the primitive. Each primitive
 // supplies a small struct with its own maths (its fragment at a pixel, the
 // values it composites, its gradient: composite_forward, composite_backward).
 // Public, under flat/render/shared/, because the gaussians and surfels
@@ -11,10 +12,13 @@
 #include <algorithm>
 #include <cstdint>
 #include <numeric>
+#include <string>
 #include <vector>
 
 #include <ATen/ATen.h>
 
+#include "flat/core/error.h"
+#include "flat/render/rasterize.h"
 #include "flat/render/shared/compositing.h"
 #include "flat/render/shared/view_geometry.h"
 
@@ -266,6 +270,77 @@ void composite_backward(Prim& prim, const ViewSums<T>& fwd, int64_t W, const std
       }
     prim.finish(r);
   }
+}
+
+// Whether a CPU reference runs in double: float64 inputs do (the finite
+// difference tests), float32 ones in float; any other dtype is refused,
+// naming the rasterizer.
+inline bool runs_in_double(at::ScalarType dtype, const char* rasterizer) {
+  if (dtype == at::kDouble) return true;
+  FLAT_CHECK(dtype == at::kFloat, std::string(rasterizer) + " (cpu): expected float32 or float64 tensors");
+  return false;
+}
+
+// forward_views() in T: each view composited, its images written.
+template <class T, class Prim, class Inputs>
+void forward_views_in(const Inputs& in, RenderOutput& out) {
+  const int64_t HW = in.height * in.width;
+  const at::Tensor& background = in.background;
+  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
+    Prim prim(in, view);
+    const ViewSums<T> sums = composite_forward<T>(prim, in.width, HW, in.k, out.max_weight.data_ptr<T>());
+    write_view_images(view, HW, sums, background.data_ptr<T>(), out.rgb, out.alpha, out.depth, out.normal,
+                      out.median_depth);
+    prim.write_own_images(view, out);
+  }
+}
+
+// The forward of every view in turn into `out` (the images, uninitialised;
+// normal undefined for a primitive without one), in double or float as the
+// primitives' input `rows` (N rows, one a primitive) is; max_weight is made
+// here. Prim<T>(in, view) holds a view's visible primitives (composite_forward);
+// write_own_images(view, out) writes the images only it has (the surfels'
+// distortion). Returns `out`.
+template <template <class> class Prim, class Inputs>
+RenderOutput forward_views(const Inputs& in, const at::Tensor& rows, RenderOutput out, const char* rasterizer) {
+  out.max_weight = at::zeros({rows.size(0)}, rows.options());
+  if (runs_in_double(rows.scalar_type(), rasterizer))
+    forward_views_in<double, Prim<double>>(in, out);
+  else
+    forward_views_in<float, Prim<float>>(in, out);
+  return out;
+}
+
+// backward_views() in T: each view's forward replayed (the state its backward
+// starts from), then composite_backward with that view's upstream gradients.
+template <class T, class Prim, class Inputs, class Grads>
+void backward_views_in(const Inputs& in, int64_t primitives, const std::vector<at::Tensor>& upstream, Grads& grads) {
+  const int64_t HW = in.height * in.width;
+  const at::Tensor& background = in.background;
+  std::vector<T> scratch_max(primitives, T(0));  // the replay's max_weight, not an output
+  for (int64_t view = 0; view < in.w2c.size(0); ++view) {
+    Prim prim(in, view);
+    prim.grads = &grads;
+    const ViewSums<T> fwd = composite_forward<T>(prim, in.width, HW, in.k, scratch_max.data());
+    prim.forward_done(fwd);
+    composite_backward<T>(prim, fwd, in.width, interleave_grads<T>(upstream, view, HW), background.data_ptr<T>());
+  }
+}
+
+// The backward of every view in turn, summed into `grads` (zeros of the
+// inputs' shapes), in double or float as the forward_views(). Prim<T>(in,
+// view) holds a view's primitives as in the forward; its `grads` receives the
+// inputs' gradients, and forward_done(fwd) hands it the replayed forward's
+// state before the backward starts. upstream: the output gradients in Prim's
+// channel order (interleave_grads()). Returns `grads`.
+template <template <class> class Prim, class Inputs, class Grads>
+Grads backward_views(const Inputs& in, const at::Tensor& rows, Grads grads, const std::vector<at::Tensor>& upstream,
+                     const char* rasterizer) {
+  if (runs_in_double(rows.scalar_type(), rasterizer))
+    backward_views_in<double, Prim<double>>(in, rows.size(0), upstream, grads);
+  else
+    backward_views_in<float, Prim<float>>(in, rows.size(0), upstream, grads);
+  return grads;
 }
 
 }  // namespace flat::render::cpu
