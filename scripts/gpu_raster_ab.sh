@@ -18,14 +18,10 @@
 # in $OUT/ab_logs.tgz (the device tool returns at most 8 files).
 set -uo pipefail
 source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
-gpu_archive_logs ab_logs
-AB_DIR="${AB_DIR:-$ROOT/.ab}"
-BIN="${AB_BIN_DIR:-/tmp/flat_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
+source "$ROOT/scripts/ab_variants.sh"  # AB_DIR, names; ab_setup, ab_build_bench, ab_patch_variants
+ab_setup ab 2  # BIN, ROUNDS
 WORKLOADS="${RASTER_WORKLOADS:-anchor-large anchor-small}"
-ROUNDS="${AB_ROUNDS:-2}"
-gpu_card
 gpu_configure -DFLAT_CUTLASS=OFF ${AB_NCU:+-DCMAKE_CUDA_FLAGS=-lineinfo}
-names=(base)
 run_tests() {  # $1: index
   gpu_build flat_test_render flat_test_bench
   (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_render -s 2>&1 | grep -E "cuda-vs-cpu|passed|failed|FAILED" \
@@ -33,20 +29,11 @@ run_tests() {  # $1: index
   (cd "$BUILD" && FLAT_TEST_TMP="$BUILD/test_tmp" ./tests/flat_test_bench 2>&1 | tail -1)
 }
 build_variant() {  # $1: index
-  local t0; t0=$(date +%s)
-  sync_mtimes "$ROOT" "$BUILD"
-  gpu_build flat_bench
-  cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
-  echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
+  ab_build_bench "$1"
   [ "${RASTER_TESTS:-0}" = each ] && run_tests "$1"
 }
 build_variant 0
-i=0
-for p in ${AB_PATCHES:-}; do
-  i=$((i + 1)); names+=("$p")
-  patch -p1 -s -d "$ROOT" <"$AB_DIR/$p.patch" || { echo "patch $p does not apply"; exit 1; }
-  build_variant $i
-done
+ab_patch_variants build_variant
 [ "${RASTER_TESTS:-0}" = 1 ] && run_tests "$i"
 for r in $(seq 1 "$ROUNDS"); do
   for v in $(seq 0 $i); do

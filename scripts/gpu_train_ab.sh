@@ -18,33 +18,20 @@
 # peak, by part) and every log in $OUT/train_ab_logs.tgz.
 set -uo pipefail
 source "$(dirname "$0")/gpu_common.sh"  # ROOT, OUT, BUILD; gpu_card, gpu_configure, gpu_build
-gpu_archive_logs train_ab_logs
-AB_DIR="${AB_DIR:-$ROOT/.ab}"
-BIN="${AB_BIN_DIR:-/tmp/flat_train_ab}"; rm -rf "$BIN"; mkdir -p "$BIN"
+source "$ROOT/scripts/ab_variants.sh"  # AB_DIR, names; ab_setup, ab_build_bench, ab_patch_variants
+ab_setup train_ab 1  # BIN, ROUNDS
 DATA="${AB_DATA_DIR:-/tmp/flat_train_ab_data}"
 STAGES="${AB_STAGES:-1}"
-ROUNDS="${AB_ROUNDS:-1}"
 STEPS="${AB_STEPS:-10}"
-gpu_card
 gpu_configure ${GPU_CMAKE_ARGS:-}
 source "$ROOT/scripts/stage_sizes.sh"
-names=(base)
-build_variant() {  # $1: index; $2: extra targets
-  local t0; t0=$(date +%s)
-  sync_mtimes "$ROOT" "$BUILD"
-  gpu_build flat_bench $2
-  cp "$BUILD/flat_bench" "$BIN/flat_bench_$1"
+build_variant() {  # $1: index; the rest: extra targets
+  ab_build_bench "$@"
   rm -rf "$BIN/configs_$1"; cp -a "$ROOT/configs" "$BIN/configs_$1"
-  echo "== variant $1 (${names[$1]}) built in $(( $(date +%s) - t0 )) s"
 }
-build_variant 0 "flat_synth flat_latents"
+build_variant 0 flat_synth flat_latents
 cp "$BUILD/flat_synth" "$BUILD/flat_latents" "$BIN/"
-i=0
-for p in ${AB_PATCHES:-}; do
-  i=$((i + 1)); names+=("$p")
-  patch -p1 -s -d "$ROOT" <"$AB_DIR/$p.patch" || { echo "patch $p does not apply"; exit 1; }
-  build_variant $i ""
-done
+ab_patch_variants build_variant
 for stage in $STAGES; do
   stage_sizes "$stage" || exit 1
   D="$DATA/stage$stage"
