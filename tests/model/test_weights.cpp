@@ -21,21 +21,26 @@ WanVAEConfig tiny_config() {
 }  // namespace
 
 TEST_CASE("diffusers key names follow the documented renames", "[model][weights]") {
-  CHECK(wan_to_diffusers("conv1.weight") == "quant_conv.weight");
-  CHECK(wan_to_diffusers("conv2.bias") == "post_quant_conv.bias");
-  CHECK(wan_to_diffusers("decoder.conv1.weight") == "decoder.conv_in.weight");
-  CHECK(wan_to_diffusers("decoder.head.0.gamma") == "decoder.norm_out.gamma");
-  CHECK(wan_to_diffusers("decoder.head.2.weight") == "decoder.conv_out.weight");
-  CHECK(wan_to_diffusers("decoder.middle.0.residual.0.gamma") == "decoder.mid_block.resnets.0.norm1.gamma");
-  CHECK(wan_to_diffusers("decoder.middle.2.residual.6.bias") == "decoder.mid_block.resnets.1.conv2.bias");
-  CHECK(wan_to_diffusers("decoder.middle.1.to_qkv.weight") == "decoder.mid_block.attentions.0.to_qkv.weight");
-  CHECK(wan_to_diffusers("encoder.downsamples.3.shortcut.weight") == "encoder.down_blocks.3.conv_shortcut.weight");
-  CHECK(wan_to_diffusers("encoder.downsamples.5.time_conv.weight") == "encoder.down_blocks.5.time_conv.weight");
-  CHECK(wan_to_diffusers("decoder.upsamples.4.residual.2.weight") == "decoder.up_blocks.1.resnets.0.conv1.weight");
-  CHECK(wan_to_diffusers("decoder.upsamples.14.residual.3.gamma") == "decoder.up_blocks.3.resnets.2.norm2.gamma");
-  CHECK(wan_to_diffusers("decoder.upsamples.7.resample.1.weight") ==
-        "decoder.up_blocks.1.upsamplers.0.resample.1.weight");
-  CHECK(wan_to_diffusers("heads.depth.2.weight") == "heads.depth.2.weight");
+  // (Wan name, diffusers name), each renamed both ways; heads are not the VAE's and keep their names.
+  const std::pair<std::string, std::string> renames[] = {
+      {"conv1.weight", "quant_conv.weight"},
+      {"conv2.bias", "post_quant_conv.bias"},
+      {"decoder.conv1.weight", "decoder.conv_in.weight"},
+      {"decoder.head.0.gamma", "decoder.norm_out.gamma"},
+      {"decoder.head.2.weight", "decoder.conv_out.weight"},
+      {"decoder.middle.0.residual.0.gamma", "decoder.mid_block.resnets.0.norm1.gamma"},
+      {"decoder.middle.2.residual.6.bias", "decoder.mid_block.resnets.1.conv2.bias"},
+      {"decoder.middle.1.to_qkv.weight", "decoder.mid_block.attentions.0.to_qkv.weight"},
+      {"encoder.downsamples.3.shortcut.weight", "encoder.down_blocks.3.conv_shortcut.weight"},
+      {"encoder.downsamples.5.time_conv.weight", "encoder.down_blocks.5.time_conv.weight"},
+      {"decoder.upsamples.4.residual.2.weight", "decoder.up_blocks.1.resnets.0.conv1.weight"},
+      {"decoder.upsamples.14.residual.3.gamma", "decoder.up_blocks.3.resnets.2.norm2.gamma"},
+      {"decoder.upsamples.7.resample.1.weight", "decoder.up_blocks.1.upsamplers.0.resample.1.weight"},
+      {"heads.depth.2.weight", "heads.depth.2.weight"}};
+  for (const auto& [wan, diffusers] : renames) {
+    CHECK(wan_to_diffusers(wan) == diffusers);
+    CHECK(diffusers_to_wan(diffusers) == wan);
+  }
   // Every key of the VAE survives the round trip, and the naming is detected.
   WanVAE vae(tiny_config());
   std::vector<std::string> wan_keys, diff_keys;
