@@ -17,26 +17,27 @@ flat::distributed::DistributedEnv read(const std::map<std::string, std::string>&
   });
 }
 
+// Every field of `env` against `expected`, one CHECK each (a failure names the field).
+void check_fields(const flat::distributed::DistributedEnv& env, const flat::distributed::DistributedEnv& expected) {
+  CHECK(env.rank == expected.rank);
+  CHECK(env.world_size == expected.world_size);
+  CHECK(env.local_rank == expected.local_rank);
+  CHECK(env.master_addr == expected.master_addr);
+  CHECK(env.port == expected.port);
+}
+
 }  // namespace
 
 TEST_CASE("distributed env: nothing set is one process", "[distributed]") {
   const auto env = read({});
-  CHECK(env.rank == 0);
-  CHECK(env.world_size == 1);
-  CHECK(env.local_rank == 0);
-  CHECK(env.master_addr == "127.0.0.1");
-  CHECK(env.port == 29500);
+  check_fields(env, {/*rank=*/0, /*world_size=*/1, /*local_rank=*/0, "127.0.0.1", 29500});
   CHECK_FALSE(env.distributed());
 }
 
 TEST_CASE("distributed env: torchrun's variables are read", "[distributed]") {
   const auto env = read({{"RANK", "3"}, {"WORLD_SIZE", "4"}, {"LOCAL_RANK", "1"}, {"MASTER_ADDR", "node7"},
                          {"MASTER_PORT", "12345"}});
-  CHECK(env.rank == 3);
-  CHECK(env.world_size == 4);
-  CHECK(env.local_rank == 1);
-  CHECK(env.master_addr == "node7");
-  CHECK(env.port == 12345);
+  check_fields(env, {/*rank=*/3, /*world_size=*/4, /*local_rank=*/1, "node7", 12345});
   CHECK(env.distributed());
   // Without LOCAL_RANK a one-host job's rank is its GPU.
   CHECK(read({{"RANK", "1"}, {"WORLD_SIZE", "2"}}).local_rank == 1);
