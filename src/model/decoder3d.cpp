@@ -7,6 +7,7 @@
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
 #include "flat/model/encoder3d.h"
+#include "model/vae_blocks.h"
 
 namespace flat::model {
 
@@ -21,26 +22,16 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant, con
 
   conv1 = register_module("conv1",
                           CausalConv3d(config.z_dim, dims[0], Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend));
-  auto middle = register_module("middle", std::make_shared<torch::nn::Module>());
-  mid1 = ResidualBlock(dims[0], dims[0], kernels);
-  mid_attn = AttentionBlock(dims[0], kernels);
-  mid2 = ResidualBlock(dims[0], dims[0], kernels);
-  middle->register_module("0", mid1);
-  middle->register_module("1", mid_attn);
-  middle->register_module("2", mid2);
+  add_middle(*this, dims[0], kernels, mid1, mid_attn, mid2);
 
   auto upsamples = register_module("upsamples", std::make_shared<torch::nn::Module>());
-  int index = 0;
   const size_t stages = config.dim_mult.size();
   for (size_t i = 0; i < stages; ++i) {
     // After an upsampling stage the width is halved by the Resample's Conv2d.
     int64_t in = (i == 0) ? dims[i] : dims[i] / 2;
     const int64_t out = dims[i + 1];
     for (int64_t r = 0; r < config.num_res_blocks + 1; ++r) {
-      ResidualBlock block(in, out, kernels);
-      upsamples->register_module(std::to_string(index++), block);
-      up_res.push_back(block);
-      up_kind.push_back(0);
+      append_block(*upsamples, ResidualBlock(in, out, kernels), up_res, up_kind);
       in = out;
     }
     if (i + 1 != stages) {
@@ -50,20 +41,11 @@ Decoder3dImpl::Decoder3dImpl(const WanVAEConfig& config, bool scene_variant, con
         FLAT_CHECK(mode == ResampleMode::upsample2d, "Decoder3d: the scene variant expects a spatial-only last upsample");
         mode = ResampleMode::conv_only;
       }
-      Resample resample(out, mode, kernels);
-      upsamples->register_module(std::to_string(index++), resample);
-      up_resample.push_back(resample);
-      up_kind.push_back(1);
+      append_block(*upsamples, Resample(out, mode, kernels), up_resample, up_kind);
     }
   }
   out_features_ = dims.back();
-  if (!scene_variant) {
-    auto head = register_module("head", std::make_shared<torch::nn::Module>());
-    head_norm = RMSNorm(out_features_, /*images=*/false, kernels.fused_norm);
-    head_conv = CausalConv3d(out_features_, 3, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend);
-    head->register_module("0", head_norm);
-    head->register_module("2", head_conv);
-  }
+  if (!scene_variant) add_head(*this, out_features_, 3, kernels, head_norm, head_conv);
 }
 
 at::Tensor Decoder3dImpl::forward(const at::Tensor& z, StreamCache* cache) {

@@ -4,6 +4,7 @@
 
 #include "flat/core/error.h"
 #include "flat/core/shape.h"
+#include "model/vae_blocks.h"
 
 namespace flat::model {
 
@@ -16,39 +17,21 @@ Encoder3dImpl::Encoder3dImpl(const WanVAEConfig& config, const KernelChoices& ke
 
   conv1 = register_module("conv1", CausalConv3d(3, dims[0], Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend));
   auto downsamples = register_module("downsamples", std::make_shared<torch::nn::Module>());
-  int index = 0;
   const size_t stages = config.dim_mult.size();
   for (size_t i = 0; i < stages; ++i) {
     int64_t in = dims[i];
     const int64_t out = dims[i + 1];
     for (int64_t r = 0; r < config.num_res_blocks; ++r) {
-      ResidualBlock block(in, out, kernels);
-      downsamples->register_module(std::to_string(index++), block);
-      down_res.push_back(block);
-      down_kind.push_back(0);
+      append_block(*downsamples, ResidualBlock(in, out, kernels), down_res, down_kind);
       in = out;
     }
     if (i + 1 != stages) {
-      Resample resample(out, config.temporal_downsample[i] ? ResampleMode::downsample3d : ResampleMode::downsample2d,
-                        kernels);
-      downsamples->register_module(std::to_string(index++), resample);
-      down_resample.push_back(resample);
-      down_kind.push_back(1);
+      const ResampleMode mode = config.temporal_downsample[i] ? ResampleMode::downsample3d : ResampleMode::downsample2d;
+      append_block(*downsamples, Resample(out, mode, kernels), down_resample, down_kind);
     }
   }
-  const int64_t top = dims.back();
-  auto middle = register_module("middle", std::make_shared<torch::nn::Module>());
-  mid1 = ResidualBlock(top, top, kernels);
-  mid_attn = AttentionBlock(top, kernels);
-  mid2 = ResidualBlock(top, top, kernels);
-  middle->register_module("0", mid1);
-  middle->register_module("1", mid_attn);
-  middle->register_module("2", mid2);
-  auto head = register_module("head", std::make_shared<torch::nn::Module>());
-  head_norm = RMSNorm(top, /*images=*/false, kernels.fused_norm);
-  head_conv = CausalConv3d(top, 2 * config.z_dim, Int3{3, 3, 3}, Int3{1, 1, 1}, Int3{1, 1, 1}, backend);
-  head->register_module("0", head_norm);
-  head->register_module("2", head_conv);
+  add_middle(*this, dims.back(), kernels, mid1, mid_attn, mid2);
+  add_head(*this, dims.back(), 2 * config.z_dim, kernels, head_norm, head_conv);
 }
 
 at::Tensor Encoder3dImpl::forward(const at::Tensor& x, StreamCache* cache) {
