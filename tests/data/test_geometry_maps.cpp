@@ -57,8 +57,9 @@ at::Tensor flip_yz(const at::Tensor& n) {
 
 std::string timestamp(int64_t i) { return std::to_string(1000000 + 33366 * i); }
 
-// A RealEstate10K clip: cams.txt and frames/<timestamp>.png.
-void write_re10k(const fs::path& root, const data::SynthScene& s) {
+// A RealEstate10K clip in the fresh folder `name` (returned): cams.txt and frames/<timestamp>.png.
+fs::path write_re10k(const std::string& name, const data::SynthScene& s) {
+  const fs::path root = test::fresh_dir(name);
   fs::create_directories(root / "frames");
   std::ofstream txt(root / "cams.txt");
   txt << "https://www.youtube.com/watch?v=xxxxxxxxxxx\n" << std::setprecision(17);
@@ -72,10 +73,13 @@ void write_re10k(const fs::path& root, const data::SynthScene& s) {
     txt << "\n";
     data::write_rgb((root / "frames" / (timestamp(i) + ".png")).string(), s.images[i]);
   }
+  return root;
 }
 
-// A NeRF capture: capture/transforms.json (OpenGL c2w) and capture/images/f<i>.png.
-void write_transforms(const fs::path& root, const data::SynthScene& s, double k1 = 0) {
+// A NeRF capture in the fresh folder `name` (returned): capture/transforms.json
+// (OpenGL c2w) and capture/images/f<i>.png.
+fs::path write_transforms(const std::string& name, const data::SynthScene& s, double k1 = 0) {
+  const fs::path root = test::fresh_dir(name);
   nlohmann::json doc;
   doc["w"] = kW;
   doc["h"] = kH;
@@ -97,6 +101,7 @@ void write_transforms(const fs::path& root, const data::SynthScene& s, double k1
     doc["frames"].push_back({{"file_path", file}, {"transform_matrix", rows}});
   }
   std::ofstream(root / "capture" / "transforms.json") << doc.dump();
+  return root;
 }
 
 // Normals as an 8-bit PNG in the 0.5 n + 0.5 encoding.
@@ -134,9 +139,8 @@ data::FrameBatch load_all(const std::string& dir, bool depth = true, bool normal
 
 TEST_CASE("geometry maps: RE10K with NPY depth and OpenGL 8-bit PNG normals", "[data][geometry_maps]") {
   if (!image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the clip is written as PNG");
-  auto root = test::fresh_dir("geo_re10k");
   auto s = room();
-  write_re10k(root, s);
+  const fs::path root = write_re10k("geo_re10k", s);
   auto o = with_map_folders(root, 0.5);
   o.geometry.normals_convention = "opengl";
   for (int64_t i = 0; i < kFrames; ++i) {
@@ -179,9 +183,8 @@ TEST_CASE("geometry maps: RE10K with NPY depth and OpenGL 8-bit PNG normals", "[
 
 TEST_CASE("geometry maps: transforms.json with 16-bit PNG depth and OpenCV NPY normals", "[data][geometry_maps]") {
   if (!image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the capture is written as PNG");
-  auto root = test::fresh_dir("geo_transforms");
   auto s = room();
-  write_transforms(root, s);
+  const fs::path root = write_transforms("geo_transforms", s);
   auto o = with_map_folders(root, 2.0);
   const double unit = 0.001;  // millimetres
   o.geometry.depth_png_scale = unit;
@@ -216,9 +219,8 @@ TEST_CASE("geometry maps: transforms.json with 16-bit PNG depth and OpenCV NPY n
 TEST_CASE("geometry maps follow a resized image with nearest samples (EXR depth, (3,H,W) float16 NPY normals)",
           "[data][geometry_maps]") {
   if (!image_io_available() || !exr_available()) FLAT_SKIP("this build has no OpenImageIO: EXR depth");
-  auto root = test::fresh_dir("geo_resize");
   auto s = room();
-  write_transforms(root, s);
+  const fs::path root = write_transforms("geo_resize", s);
   auto o = with_map_folders(root, 1.5);
   o.max_size = kW / 2;  // 16x12 -> 8x6
   for (int64_t i = 0; i < kFrames; ++i) {
@@ -239,10 +241,9 @@ TEST_CASE("geometry maps follow a resized image with nearest samples (EXR depth,
 
 TEST_CASE("geometry maps are undistorted with the image's remap, sampled nearest", "[data][geometry_maps]") {
   if (!image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the capture is written as PNG");
-  auto root = test::fresh_dir("geo_distort");
   auto s = room();
   const double k1 = 0.3;
-  write_transforms(root, s, k1);
+  const fs::path root = write_transforms("geo_distort", s, k1);
   fs::create_directories(root / "depth");
   for (int64_t i = 0; i < kFrames; ++i)
     write_npy((root / "depth" / ("f" + std::to_string(i) + ".npy")).string(), s.depth[i]);  // (1,H,W)
@@ -278,9 +279,8 @@ TEST_CASE("geometry maps are undistorted with the image's remap, sampled nearest
 
 TEST_CASE("geometry maps: every defect fails naming its file or frame", "[data][geometry_maps]") {
   if (!image_io_available()) FLAT_SKIP("this build has no OpenImageIO: the clip is written as PNG");
-  auto root = test::fresh_dir("geo_errors");
   auto s = room();
-  write_re10k(root, s);
+  const fs::path root = write_re10k("geo_errors", s);
   auto depth_dir = [&](const std::string& name, const std::function<void(int64_t, const fs::path&)>& write) {
     fs::create_directories(root / name);
     for (int64_t i = 0; i < kFrames; ++i) write(i, root / name / timestamp(i));
