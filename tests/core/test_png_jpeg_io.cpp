@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <string>
 #include <vector>
@@ -123,6 +124,16 @@ at::Tensor smooth_image(int64_t channels, int64_t height, int64_t width) {
 
 float max_abs(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<float>(); }
 
+// fn(bits, channels) for every PNG layout: 8 and 16 bit, gray, gray+alpha,
+// RGB and RGBA; a failure names the layout.
+void for_each_png_layout(const std::function<void(int, int64_t)>& fn) {
+  for (int bits : {8, 16})
+    for (int64_t channels = 1; channels <= 4; ++channels) {
+      INFO("bits " << bits << ", channels " << channels);
+      fn(bits, channels);
+    }
+}
+
 }  // namespace
 
 TEST_CASE("hand-made PNGs decode to OpenImageIO 2.4's values", "[core][png_jpeg]") {
@@ -180,27 +191,24 @@ TEST_CASE("hand-made PNGs decode to OpenImageIO 2.4's values", "[core][png_jpeg]
 TEST_CASE("PNG round trip: 8 and 16 bit, gray, gray+alpha, RGB, RGBA", "[core][png_jpeg]") {
   REQUIRE_PNG_JPEG();
   auto dir = flat::test::scratch_dir("png_roundtrip");
-  for (int bits : {8, 16}) {
-    for (int64_t channels = 1; channels <= 4; ++channels) {
-      INFO("bits " << bits << ", channels " << channels);
-      auto img = random_image(channels, 5, 7, 10 + channels);
-      const bool alpha = channels == 2 || channels == 4;
-      if (alpha) img[channels - 1].fill_(1.0f);  // opaque: stored exactly as quantised
-      img[0][1][1] = -0.5f;                       // clamped to 0
-      img[0][1][2] = 1.5f;                        // clamped to 1
-      img[0][1][3] = std::numeric_limits<float>::quiet_NaN();  // written as 0
-      const std::string path = (dir / ("img" + std::to_string(bits) + "_" + std::to_string(channels) + ".png")).string();
-      flat::write_png(path, img, bits == 16);
-      auto back = flat::read_png(path);
-      REQUIRE(back.sizes() == img.sizes());
-      CHECK(at::equal(back, quantised(img, bits)));
-      CHECK(back[0][1][3].item<float>() == 0.0f);
-      // The file is what was asked for: bit depth (IHDR byte 24) and colour type (byte 25).
-      const std::string bytes = read_file(path);
-      CHECK(int(bytes[24]) == bits);
-      CHECK(int(bytes[25]) == (channels == 1 ? 0 : channels == 2 ? 4 : channels == 3 ? 2 : 6));
-    }
-  }
+  for_each_png_layout([&](int bits, int64_t channels) {
+    auto img = random_image(channels, 5, 7, 10 + channels);
+    const bool alpha = channels == 2 || channels == 4;
+    if (alpha) img[channels - 1].fill_(1.0f);  // opaque: stored exactly as quantised
+    img[0][1][1] = -0.5f;                       // clamped to 0
+    img[0][1][2] = 1.5f;                        // clamped to 1
+    img[0][1][3] = std::numeric_limits<float>::quiet_NaN();  // written as 0
+    const std::string path = (dir / ("img" + std::to_string(bits) + "_" + std::to_string(channels) + ".png")).string();
+    flat::write_png(path, img, bits == 16);
+    auto back = flat::read_png(path);
+    REQUIRE(back.sizes() == img.sizes());
+    CHECK(at::equal(back, quantised(img, bits)));
+    CHECK(back[0][1][3].item<float>() == 0.0f);
+    // The file is what was asked for: bit depth (IHDR byte 24) and colour type (byte 25).
+    const std::string bytes = read_file(path);
+    CHECK(int(bytes[24]) == bits);
+    CHECK(int(bytes[25]) == (channels == 1 ? 0 : channels == 2 ? 4 : channels == 3 ? 2 : 6));
+  });
   // With alpha < 1, colour is stored divided by alpha and multiplied back on
   // reading: the round trip keeps associated colour to a few codes.
   for (int bits : {8, 16}) {
@@ -328,31 +336,28 @@ TEST_CASE("a tensor of the wrong shape or channel count is refused and writes no
 TEST_CASE("PNG: the backend and OpenImageIO read each other's files identically", "[core][png_jpeg][oiio]") {
   REQUIRE_PNG_JPEG();
   auto dir = flat::test::scratch_dir("png_vs_oiio");
-  for (int bits : {8, 16}) {
-    for (int64_t channels = 1; channels <= 4; ++channels) {
-      INFO("bits " << bits << ", channels " << channels);
-      auto img = random_image(channels, 13, 17, 100 + 10 * bits + channels);
-      if (channels == 4) img[0][2][2] = 0.9f;  // colour above alpha: clamped after the division
-      const std::string stem = std::to_string(bits) + "_" + std::to_string(channels);
-      const std::string ours = (dir / ("ours" + stem + ".png")).string();
-      const std::string theirs = (dir / ("oiio" + stem + ".png")).string();
-      flat::write_png(ours, img, bits == 16);
-      flat::write_image(theirs, img, bits == 16);  // OpenImageIO
-      const auto ours_by_us = flat::read_png(ours), ours_by_oiio = flat::read_image(ours);
-      const auto theirs_by_us = flat::read_png(theirs), theirs_by_oiio = flat::read_image(theirs);
-      CHECK(at::equal(ours_by_us, ours_by_oiio));
-      CHECK(at::equal(theirs_by_us, theirs_by_oiio));
-      CHECK(at::equal(ours_by_us, theirs_by_us));  // the two writers store the same codes
-      if (channels == 4) {
-        // With a gAMA chunk (1/2.2) OpenImageIO associates with alpha^2.2: so does the backend.
-        const std::string gamma = (dir / ("gamma" + stem + ".png")).string();
-        write_bytes(gamma, with_chunks_after_ihdr(read_file(ours), gama_chunk(45455)));
-        const auto gamma_by_us = flat::read_png(gamma);
-        CHECK(at::equal(gamma_by_us, flat::read_image(gamma)));
-        CHECK_FALSE(at::equal(gamma_by_us, ours_by_us));  // the chunk was read and changed the colours
-      }
+  for_each_png_layout([&](int bits, int64_t channels) {
+    auto img = random_image(channels, 13, 17, 100 + 10 * bits + channels);
+    if (channels == 4) img[0][2][2] = 0.9f;  // colour above alpha: clamped after the division
+    const std::string stem = std::to_string(bits) + "_" + std::to_string(channels);
+    const std::string ours = (dir / ("ours" + stem + ".png")).string();
+    const std::string theirs = (dir / ("oiio" + stem + ".png")).string();
+    flat::write_png(ours, img, bits == 16);
+    flat::write_image(theirs, img, bits == 16);  // OpenImageIO
+    const auto ours_by_us = flat::read_png(ours), ours_by_oiio = flat::read_image(ours);
+    const auto theirs_by_us = flat::read_png(theirs), theirs_by_oiio = flat::read_image(theirs);
+    CHECK(at::equal(ours_by_us, ours_by_oiio));
+    CHECK(at::equal(theirs_by_us, theirs_by_oiio));
+    CHECK(at::equal(ours_by_us, theirs_by_us));  // the two writers store the same codes
+    if (channels == 4) {
+      // With a gAMA chunk (1/2.2) OpenImageIO associates with alpha^2.2: so does the backend.
+      const std::string gamma = (dir / ("gamma" + stem + ".png")).string();
+      write_bytes(gamma, with_chunks_after_ihdr(read_file(ours), gama_chunk(45455)));
+      const auto gamma_by_us = flat::read_png(gamma);
+      CHECK(at::equal(gamma_by_us, flat::read_image(gamma)));
+      CHECK_FALSE(at::equal(gamma_by_us, ours_by_us));  // the chunk was read and changed the colours
     }
-  }
+  });
 }
 
 TEST_CASE("JPEG: the backend and OpenImageIO read each other's files alike", "[core][png_jpeg][oiio]") {
