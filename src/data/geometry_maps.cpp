@@ -152,16 +152,28 @@ CLI::Validator maps_folder(const std::string& what) {
       "DIR", "folder, or batch pattern with " + std::string(kClipPlaceholder));
 }
 
+// --<kind>, the folder of maps (maps_folder()), and --<kind>-format, the
+// file kind (auto or one of `formats`), which needs it. Returns --<kind>.
+CLI::Option* add_maps_options(CLI::App& app, const std::string& kind, std::string& folder,
+                              const std::string& folder_help, std::string& format,
+                              const std::vector<std::string>& formats) {
+  auto* folder_option = app.add_option("--" + kind, folder, folder_help)->check(maps_folder(kind));
+  std::vector<std::string> allowed{"auto"};
+  allowed.insert(allowed.end(), formats.begin(), formats.end());
+  app.add_option("--" + kind + "-format", format,
+                 kind + " file kind: auto (first of exr, npy, png), " + join(formats, ", "))
+      ->check(CLI::IsMember(allowed))
+      ->needs(folder_option);
+  return folder_option;
+}
+
 }  // namespace
 
 void add_geometry_options(CLI::App& app, GeometryOptions& o) {
-  auto* depth = app.add_option("--depth", o.depth_dir,
-                               "folder of per-frame depth maps from a predictor (e.g. MapAnything): <image stem>.exr, "
-                               ".npy or .png; metric z-depth, 0 = unknown")
-                    ->check(maps_folder("depth"));
-  app.add_option("--depth-format", o.depth_format, "depth file kind: auto (first of exr, npy, png), exr, npy, png16")
-      ->check(CLI::IsMember({"auto", "exr", "npy", "png16"}))
-      ->needs(depth);
+  auto* depth = add_maps_options(app, "depth", o.depth_dir,
+                                 "folder of per-frame depth maps from a predictor (e.g. MapAnything): <image stem>.exr, "
+                                 ".npy or .png; metric z-depth, 0 = unknown",
+                                 o.depth_format, {"exr", "npy", "png16"});
   app.add_option("--depth-png-scale", o.depth_png_scale,
                  "metres per unit of 16-bit PNG depth (e.g. 0.001 for millimetres); required for PNG depth")
       ->check(CLI::PositiveNumber)
@@ -170,13 +182,10 @@ void add_geometry_options(CLI::App& app, GeometryOptions& o) {
                "the depth maps are already in metres (MapAnything's metric depth): --scale applies to the poses "
                "only (default: to poses and depth alike)")
       ->needs(depth);
-  auto* normals = app.add_option("--normals", o.normals_dir,
-                                 "folder of per-frame camera-space normal maps from a predictor (e.g. NormalCrafter): "
-                                 "<image stem>.exr, .npy or .png (0.5 n + 0.5); 0 = unknown")
-                      ->check(maps_folder("normals"));
-  app.add_option("--normals-format", o.normals_format, "normals file kind: auto (first of exr, npy, png), exr, npy, png")
-      ->check(CLI::IsMember({"auto", "exr", "npy", "png"}))
-      ->needs(normals);
+  auto* normals = add_maps_options(app, "normals", o.normals_dir,
+                                   "folder of per-frame camera-space normal maps from a predictor (e.g. "
+                                   "NormalCrafter): <image stem>.exr, .npy or .png (0.5 n + 0.5); 0 = unknown",
+                                   o.normals_format, {"exr", "npy", "png"});
   app.add_option("--normals-convention", o.normals_convention,
                  "camera axes of the normal maps: opencv (x right, y down, z forward) or opengl (x right, y up, "
                  "z backward; converted by negating y and z)")
