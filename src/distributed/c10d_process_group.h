@@ -9,6 +9,7 @@
 
 #include <spdlog/spdlog.h>
 #include <torch/csrc/distributed/c10d/Backend.hpp>
+#include <torch/csrc/distributed/c10d/Store.hpp>
 
 #include "flat/core/error.h"
 #include "flat/distributed/process_group.h"
@@ -90,5 +91,18 @@ class C10dProcessGroup : public ProcessGroup {
   std::string name_;
   bool failed_ = false;
 };
+
+// A C10dProcessGroup over a new c10d backend `Backend` (c10d::ProcessGroupGloo,
+// c10d::ProcessGroupNCCL) of rank `rank`, which meets its peers through
+// `store`; `options`: the backend's own (its timeout among them).
+template <class Backend>
+std::unique_ptr<ProcessGroup> make_c10d_process_group(const c10::intrusive_ptr<c10d::Store>& store, int64_t rank,
+                                                      int64_t world_size,
+                                                      c10::intrusive_ptr<typename Backend::Options> options,
+                                                      const std::string& name) {
+  auto backend =
+      c10::make_intrusive<Backend>(store, static_cast<int>(rank), static_cast<int>(world_size), std::move(options));
+  return std::make_unique<C10dProcessGroup>(std::move(backend), name, rank, world_size);
+}
 
 }  // namespace flat::distributed::detail

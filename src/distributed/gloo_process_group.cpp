@@ -24,9 +24,7 @@ std::unique_ptr<ProcessGroup> make_gloo_process_group(c10::intrusive_ptr<c10d::S
   auto opts = c10d::ProcessGroupGloo::Options::create();
   opts->timeout = timeout;
   opts->devices.push_back(c10d::ProcessGroupGloo::createDefaultDevice());
-  auto pg = c10::make_intrusive<c10d::ProcessGroupGloo>(store, static_cast<int>(rank), static_cast<int>(world_size),
-                                                        opts);
-  return std::make_unique<C10dProcessGroup>(std::move(pg), "gloo", rank, world_size);
+  return make_c10d_process_group<c10d::ProcessGroupGloo>(store, rank, world_size, opts, "gloo");
 }
 #else
 std::unique_ptr<ProcessGroup> make_gloo_process_group(c10::intrusive_ptr<c10d::Store>, int64_t, int64_t,

@@ -22,9 +22,7 @@ std::unique_ptr<ProcessGroup> make_nccl_process_group(c10::intrusive_ptr<c10d::S
                                                       int64_t world_size, std::chrono::milliseconds timeout) {
   auto opts = c10d::ProcessGroupNCCL::Options::create();
   opts->timeout = timeout;  // NCCL's watchdog aborts a collective that outlives it
-  auto pg = c10::make_intrusive<c10d::ProcessGroupNCCL>(store, static_cast<int>(rank), static_cast<int>(world_size),
-                                                        opts);
-  return std::make_unique<C10dProcessGroup>(std::move(pg), "nccl", rank, world_size);
+  return make_c10d_process_group<c10d::ProcessGroupNCCL>(store, rank, world_size, opts, "nccl");
 }
 #else
 std::unique_ptr<ProcessGroup> make_nccl_process_group(c10::intrusive_ptr<c10d::Store>, int64_t, int64_t,
