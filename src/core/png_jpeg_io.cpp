@@ -304,17 +304,29 @@ void jpeg_emit_message_fn(j_common_ptr cinfo, int level) {
   }
 }
 
-void install_jpeg_errors(JpegFailure& failure) {
-  jpeg_std_error(&failure.manager);
-  failure.manager.error_exit = jpeg_error_exit_fn;
-  failure.manager.emit_message = jpeg_emit_message_fn;
-}
+void create_jpeg_struct(jpeg_decompress_struct* cinfo) { jpeg_create_decompress(cinfo); }
+void create_jpeg_struct(jpeg_compress_struct* cinfo) { jpeg_create_compress(cinfo); }
 
-struct JpegReadGuard {
-  jpeg_decompress_struct cinfo;
+// A libjpeg decompressor or compressor (Cinfo) with its error handling: its
+// errors jump to failure.jump, so create() it after setjmp there; destroyed
+// with the guard.
+template <class Cinfo>
+struct JpegGuard {
+  JpegFailure failure;
+  Cinfo cinfo;
   bool created = false;
-  ~JpegReadGuard() {
-    if (created) jpeg_destroy_decompress(&cinfo);
+  JpegGuard() {
+    jpeg_std_error(&failure.manager);
+    failure.manager.error_exit = jpeg_error_exit_fn;
+    failure.manager.emit_message = jpeg_emit_message_fn;
+    cinfo.err = &failure.manager;
+  }
+  void create() {
+    create_jpeg_struct(&cinfo);
+    created = true;
+  }
+  ~JpegGuard() {
+    if (created) jpeg_destroy(reinterpret_cast<j_common_ptr>(&cinfo));
   }
 };
 
@@ -324,16 +336,13 @@ struct JpegImage {
 };
 
 bool decode_jpeg(const std::vector<unsigned char>& bytes, JpegImage& out, std::string& error) {
-  JpegFailure failure;
-  JpegReadGuard guard;
-  install_jpeg_errors(failure);
-  guard.cinfo.err = &failure.manager;
+  JpegGuard<jpeg_decompress_struct> guard;
+  JpegFailure& failure = guard.failure;
   if (setjmp(failure.jump)) {
     error = failure.message;
     return false;
   }
-  jpeg_create_decompress(&guard.cinfo);
-  guard.created = true;
+  guard.create();
   jpeg_mem_src(&guard.cinfo, bytes.data(), static_cast<unsigned long>(bytes.size()));
   jpeg_read_header(&guard.cinfo, TRUE);
   switch (guard.cinfo.jpeg_color_space) {
@@ -369,30 +378,23 @@ bool decode_jpeg(const std::vector<unsigned char>& bytes, JpegImage& out, std::s
   return true;
 }
 
-struct JpegWriteGuard {
-  jpeg_compress_struct cinfo;
-  bool created = false;
-  unsigned char* buffer = nullptr;  // jpeg_mem_dest's, malloc'ed by libjpeg
+// jpeg_mem_dest's output, malloc'ed by libjpeg.
+struct JpegMemoryDestination {
+  unsigned char* buffer = nullptr;
   unsigned long size = 0;
-  ~JpegWriteGuard() {
-    if (created) jpeg_destroy_compress(&cinfo);
-    std::free(buffer);
-  }
+  ~JpegMemoryDestination() { std::free(buffer); }
 };
 
 bool encode_jpeg(const std::vector<unsigned char>& pixels, int64_t width, int64_t height, int64_t channels,
                  int quality, std::ostream& stream, std::string& error) {
-  JpegFailure failure;
-  JpegWriteGuard guard;
-  install_jpeg_errors(failure);
-  guard.cinfo.err = &failure.manager;
-  if (setjmp(failure.jump)) {
-    error = failure.message;
+  JpegMemoryDestination destination;  // freed after the compressor is destroyed
+  JpegGuard<jpeg_compress_struct> guard;
+  if (setjmp(guard.failure.jump)) {
+    error = guard.failure.message;
     return false;
   }
-  jpeg_create_compress(&guard.cinfo);
-  guard.created = true;
-  jpeg_mem_dest(&guard.cinfo, &guard.buffer, &guard.size);
+  guard.create();
+  jpeg_mem_dest(&guard.cinfo, &destination.buffer, &destination.size);
   guard.cinfo.image_width = JDIMENSION(width);
   guard.cinfo.image_height = JDIMENSION(height);
   guard.cinfo.input_components = int(channels);
@@ -406,7 +408,7 @@ bool encode_jpeg(const std::vector<unsigned char>& pixels, int64_t width, int64_
     jpeg_write_scanlines(&guard.cinfo, &row, 1);
   }
   jpeg_finish_compress(&guard.cinfo);
-  stream.write(reinterpret_cast<const char*>(guard.buffer), std::streamsize(guard.size));
+  stream.write(reinterpret_cast<const char*>(destination.buffer), std::streamsize(destination.size));
   return true;
 }
 
