@@ -56,6 +56,7 @@ GPUS_PER_SEED="${GPUS_PER_SEED:-2}"
 WINDOW=(17 49 49 49)
 VAE_DIM="${VAE_DIM:-32}"
 read -r -a EXTRA <<< "${EXTRA_SET:-}"                              # more --set for every stage
+read -r -a EXTRA4 <<< "${STAGE4_EXTRA_SET:-}"                      # more --set for stage 4 only
 T0=$(date +%s)
 note() { echo "[four stages $(( $(date +%s) - T0 )) s] $1" | tee -a "$OUT/four_stages.txt"; }
 cd "$ROOT"
@@ -69,6 +70,7 @@ stage_args() {
     --set data.height="${SET[$i]%x*}" --set data.width="${SET[$i]#*x}" --set steps="${STEP[$i]}" \
     --set init.path="$init" --set pipeline.model.vae.dim="$VAE_DIM" \
     --set validation.scenes="$VAL" --set validation.max_views="$VAL_VIEWS" --set validation.every="${STEP[$i]}" "${EXTRA[@]}")
+  [ "$st" = 4 ] && ARGS+=("${EXTRA4[@]}")
   # validation: all held-out rooms at the start and the end, VAL_VIEWS views each.
 }
 
@@ -92,7 +94,7 @@ if [ "$PHASE" = rooms ] || [ "$PHASE" = all ]; then
     --out "$D/fresh" --count "$VAL" --seed "$FRESH_SEED" --family room --frames $FRAMES \
     --size "$big" --motion mixed --log-level warn >"$S/synth_fresh.log" 2>&1 &
   wait
-  note "rooms: $(ls "$D/train" | wc -l) training, $(ls "$D/val" | wc -l) held-out, $FRAMES frames of $big"
+  note "rooms: $(ls "$D/train" | grep -c room) training, $(ls "$D/val" | grep -c room) held-out, $(ls "$D/fresh" | grep -c room) fresh, $FRAMES frames of $big"
 fi
 
 if [ "$PHASE" = latents ] || [ "$PHASE" = all ]; then

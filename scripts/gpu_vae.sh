@@ -140,8 +140,10 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
       # AB_A / AB_B: each variant's name and its --set arguments for every stage.
       OUT="$R/out/${AB_A_NAME:-as_shipped}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" MESH_ROOMS="${MESH_ROOMS:-8}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
+      # AB_B_STAGE4_SET: --set arguments for variant B's stage 4 only.
       OUT="$R/out/${AB_B_NAME:-random_background_everywhere}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
         STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="${AB_B_SET:---set loss.random_background=true}" \
+        STAGE4_EXTRA_SET="${AB_B_STAGE4_SET:-}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       wait
     else
