@@ -38,7 +38,7 @@ ROOMS="${ROOMS:-128}"; VAL="${VAL:-16}"; FRAMES=49
 FRESH_SEED="${FRESH_SEED:-9241}"
 read -r -a SET <<< "${SETS:-176x320 176x320 360x640 432x768}"     # each stage's HxW
 # Each stage's steps are what one H100 a seed gets through in its bound, so
-# the cosine schedule reaches its end instead of being cut at its peak. The
+# the cosine schedule reaches its end instead of being cut before it decays. The
 # training steps alone took 0.16 / 0.52 / 0.91 / 0.34 s at stages 1-4 (four
 # seeds side by side, 2026-11-28); start-up and the two validations take the
 # rest (55 / 70 s each at stages 3 / 4 over 16 rooms x 9 views, so the trainer
