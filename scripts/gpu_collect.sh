@@ -7,6 +7,7 @@
 #   logs.tgz     the stage logs and metrics (*.jsonl)
 #   grids.tgz    seed 0's last validation grid of every stage, both variants
 #   vae.tgz      the VAE runs' metrics and logs
+#   raster.tgz   RASTER_BENCH's timings, profile and gsplat logs
 set -uo pipefail
 source "$(dirname "$0")/gpu_common.sh"   # ROOT, OUT, BUILD
 R="${VAE_RUNS:-/tmp/flat_vae}"
@@ -30,5 +31,6 @@ cd /tmp && tar czf "$OUT/results.tgz" $(ls -d flat_stages*/eval_*/results.json f
 tar czf "$OUT/logs.tgz" $(ls flat_stages*/*.log flat_stages*/seed*/stage*/metrics/*.jsonl flat_stages*/seed*/stage*/logs/*.jsonl 2>/dev/null)
 tar czf "$OUT/grids.tgz" $(for d in flat_stages*/seed0/stage*/renders; do ls "$d"/*.png 2>/dev/null | tail -1; done) \
   $(ls flat_stages/mesh/mesh_room_*/renders/compare.png 2>/dev/null | head -1)
+[ -d "$R/raster" ] && tar czf "$OUT/raster.tgz" -C "$R" raster
 tar czf "$OUT/vae.tgz" -C "$R" $(cd "$R" && ls -d fixed_*/metrics fixed_*/logs fixed_*.log 2>/dev/null)
 ls -la "$OUT"

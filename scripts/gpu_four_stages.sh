@@ -115,17 +115,27 @@ if [ "$PHASE" = latents ] || [ "$PHASE" = all ]; then
   note "latents: $(cd "$D/val/$(ls "$D/val" | grep -v log | head -1)" && ls latents_* | tr "\n" " ")"
 fi
 
-# One seed's four stages on the GPUs given (comma list), flat_eval of each beside the next.
+# One seed's four stages on the GPUs given (comma list), flat_eval of each
+# beside the next. START_STAGE=k (with INIT_RUNS, another run's $S): start at
+# stage k from that run's stage k-1 of the same seed, once it is written
+# (its .done marker): an A/B of stage k alone, from one shared model.
 chain() {
-  local seed=$1 devs=$2 prev="$VAE_FILE" n ARGS=()
+  local seed=$1 devs=$2 prev="$VAE_FILE" n ARGS=() first=${START_STAGE:-1}
   n=$(echo "$devs" | tr ',' '\n' | wc -l)
-  for st in 1 2 3 4; do
+  if [ "$first" -gt 1 ]; then
+    prev="${INIT_RUNS:?START_STAGE needs INIT_RUNS}/seed$seed/stage$((first - 1))"
+    while [ ! -f "$prev.done" ]; do sleep 5; done
+    note "seed $seed: stage $first from $prev"
+  fi
+  for st in $(seq "$first" 4); do
     local i=$((st - 1)) run="$S/seed$seed/stage$st" t0
     t0=$(date +%s)
     stage_args $st "$seed" "$run" "$prev"
     CUDA_VISIBLE_DEVICES=$devs timeout -s TERM "${LIMIT[$i]}" "$BUILD/flat_train" --nproc "$n" \
       "${ARGS[@]}" --set threads=4 --set data.workers=3 >"$S/seed${seed}_stage$st.log" 2>&1
-    echo "seed $seed stage $st: rc $? in $(( $(date +%s) - t0 )) s, $(grep -oE 'validation @ step [0-9]+: PSNR [0-9.]+ dB' "$S/seed${seed}_stage$st.log" | tail -1)" \
+    local rc=$?
+    touch "$run.done"   # for a run that starts its own chain here (START_STAGE)
+    echo "seed $seed stage $st: rc $rc in $(( $(date +%s) - t0 )) s, $(grep -oE 'validation @ step [0-9]+: PSNR [0-9.]+ dB' "$S/seed${seed}_stage$st.log" | tail -1)" \
       | tee -a "$OUT/four_stages.txt"
     (for set in val fresh; do
       CUDA_VISIBLE_DEVICES=${devs%%,*} OMP_NUM_THREADS=4 "$BUILD/flat_eval" --model "$run" --scenes "heldout=$D/$set" \
@@ -152,6 +162,13 @@ if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
     for _ in $(seq 1 "$GPUS_PER_SEED"); do devs="$devs${devs:+,}$(( gpus > 0 ? g % gpus : 0 ))"; g=$((g + 1)); done
     chain "$seed" "$devs" &
   done
+  # The mesh phase as soon as the first seed's stage 4 is written (beside the
+  # flat_evals of both seeds' last stage).
+  mesh_pid=""
+  if [ "${MESH_ROOMS:-0}" -gt 0 ]; then
+    ( while [ ! -f "$S/seed${SEED_LIST[0]}/stage4.done" ]; do sleep 5; done; bash "$0" mesh ) &
+    mesh_pid=$!
+  fi
   wait
   for set in val fresh; do
     evals=$(ls -d "$S"/eval_${set}_seed*/ 2>/dev/null)
@@ -161,7 +178,6 @@ if [ "$PHASE" = train ] || [ "$PHASE" = all ]; then
   done
   tar czf "$OUT/four_stages_results.tgz" -C "$S" $(cd "$S" && ls -d eval_*/results.json eval_*/*.md eval_*/*.csv 2>/dev/null) 2>/dev/null
   tar czf "$OUT/four_stages_logs.tgz" -C "$S" $(cd "$S" && ls *.log seed*/stage*/metrics/*.jsonl 2>/dev/null) 2>/dev/null
-  [ "${MESH_ROOMS:-0}" -gt 0 ] && bash "$0" mesh
   tar czf "$OUT/four_stages_grids.tgz" -C "$S" $(cd "$S" && ls seed0/stage*/renders/*.png 2>/dev/null | sort | awk -F/ '{k=$1"/"$2; last[k]=$0} END {for (k in last) print last[k]}') 2>/dev/null
   note "four stages done"
 fi

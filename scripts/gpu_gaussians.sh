@@ -45,21 +45,35 @@ print('gsplat', gsplat.__version__, 'built:', _C is not None); sys.exit(0 if _C 
   GS_PID=$!
 fi
 
-gpu_configure -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF
-# GPU_TESTS: the suites whose [cuda] cases run (default: the two Gaussian rasterizers).
-read -r -a SUITES <<< "${GPU_TESTS:-flat_test_gaussians flat_test_surfels}"
-gpu_build -j "${BUILD_JOBS:-12}" "${SUITES[@]}" flat_bench
-say "built"
-for n in "${SUITES[@]}"; do
-  t="$(find "$BUILD" -name "$n" -type f | head -1)"
-  timeout 240 "$t" "[cuda]" >"$OUT/$n.log" 2>&1; echo "$n [cuda]: rc=$? $(grep -E 'passed|failed' "$OUT/$n.log" | tail -1)"
-  grep -E -A6 "FAILED" "$OUT/$n.log" | head -40
-done
-say "tests done"
+# BENCH_ONLY=1: flat_bench is built already (scripts/gpu_vae.sh prep with
+# RASTER_BENCH=1), the tests run elsewhere: the benchmarks alone.
+if [ "${BENCH_ONLY:-0}" != 1 ]; then
+  gpu_configure -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF
+  # GPU_TESTS: the suites whose [cuda] cases run (default: the two Gaussian rasterizers).
+  read -r -a SUITES <<< "${GPU_TESTS:-flat_test_gaussians flat_test_surfels}"
+  gpu_build -j "${BUILD_JOBS:-12}" "${SUITES[@]}" flat_bench
+  say "built"
+  for n in "${SUITES[@]}"; do
+    t="$(find "$BUILD" -name "$n" -type f | head -1)"
+    timeout 240 "$t" "[cuda]" >"$OUT/$n.log" 2>&1; echo "$n [cuda]: rc=$? $(grep -E 'passed|failed' "$OUT/$n.log" | tail -1)"
+    grep -E -A6 "FAILED" "$OUT/$n.log" | head -40
+  done
+  say "tests done"
+fi
+# PROFILE_GPU=k: GPU time per kernel of one forward+backward step of each
+# primitive (flat_bench raster --profile) on GPU k, beside the timings.
+PROF_PID=""
+if [ -n "${PROFILE_GPU:-}" ]; then
+  CUDA_VISIBLE_DEVICES=$PROFILE_GPU timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda \
+    --workload ${WORKLOADS:-anchor-large anchor-small} --primitives triangles 3dgs 2dgs --repeats 1 --profile \
+    >"$OUT/bench_profile.log" 2>&1 &
+  PROF_PID=$!
+fi
 timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workload ${WORKLOADS:-anchor-large anchor-small} \
   --primitives triangles 3dgs 2dgs --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_raster.log" 2>&1
 echo "flat_bench raster rc=$?"; grep -E "^\|" "$OUT/bench_raster.log"; grep -E "error" "$OUT/bench_raster.log" | head -5
 say "ours timed"
+[ -n "$PROF_PID" ] && { wait "$PROF_PID"; echo "flat_bench raster --profile rc=$?"; }
 if [ -n "$GS_PID" ]; then
   if ! wait "$GS_PID"; then
     echo "gpu_gaussians: gsplat did not build or import (log: $OUT/gsplat_build.log); the anchor did not run:" >&2

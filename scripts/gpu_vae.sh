@@ -23,6 +23,12 @@
 #                   (scripts/gpu_four_stages.sh; FOUR_STAGES_AB=1: two
 #                   variants, AB_A_NAME/AB_A_SET and AB_B_NAME/AB_B_SET, two
 #                   seeds each, one GPU a seed).
+#          VAE_SETS=A: set A alone (the four stages need only it);
+#          RASTER_BENCH=1: the rasterizer benchmarks on GPUs 2-3 meanwhile
+#          (scripts/gpu_gaussians.sh with BENCH_ONLY=1 PROFILE_GPU=3; its
+#          gsplat wheels in .deps/wheels, ../shared/bench as shared_bench);
+#          AB_B_START_STAGE=4: variant B trains stage 4 alone, from variant
+#          A's stage 3 (a stage-4 A/B from one model).
 #   wait   wait up to WAIT_SECONDS for the runs, then print each run's
 #          validation curve and falls; once all are done, tables and grids
 #          go to $OUT.
@@ -46,7 +52,8 @@ if [ "$PHASE" = "prep" ]; then
   # flat_synth first: the rooms are cast on the GPUs while the other tools build.
   ninja -C "$BUILD" flat_synth >"$R/build.log" 2>&1 || { grep -E "error|FAILED" "$R/build.log" | head -30; exit 1; }
   echo "flat_synth built in $(( $(date +%s) - t0 )) s"
-  ( ninja -C "$BUILD" flat_train flat_latents flat_eval flat_infer flat_mesh >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
+  bench=""; [ "${RASTER_BENCH:-0}" = 1 ] && bench=flat_bench
+  ( ninja -C "$BUILD" flat_train flat_latents flat_eval flat_infer flat_mesh $bench >"$R/build_tools.log" 2>&1 || echo "BUILD FAILED" >>"$R/build_tools.log" ) &
   builder=$!
   rm -rf "$R"/set* "$R"/ab_* "$R"/fixed_*
   [ "$gpus" -gt 0 ] || { echo "no GPU visible (nvidia-smi -L)"; exit 1; }
@@ -117,8 +124,14 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
       done >"$R/cuda_only.log"
       touch "$R/TESTS_DONE" ) &
   fi
+  # RASTER_BENCH=1 (issue #46): the rasterizer timings beside gsplat on GPU 2
+  # and the per-kernel profile on GPU 3, while those GPUs are free (no VAE
+  # sets B, C: VAE_SETS=A; variant B from stage 4: AB_B_START_STAGE=4).
+  [ "${RASTER_BENCH:-0}" = 1 ] && ( mkdir -p "$R/raster"
+    CUDA_VISIBLE_DEVICES=2 BENCH_ONLY=1 PROFILE_GPU=3 OUT="$R/raster" bash "$ROOT/scripts/gpu_gaussians.sh" \
+      >"$R/raster/raster_bench.log" 2>&1; touch "$R/RASTER_DONE" ) &
   g=1
-  for s in A B C; do
+  for s in ${VAE_SETS:-A B C}; do
     ( t0=$(date +%s)
       train_vae "fixed_${s}_image" $g $s configs/recipe/vae_image.yaml
       train_vae "fixed_$s" $g $s configs/recipe/vae.yaml --set init.path="$R/fixed_${s}_image"
@@ -141,9 +154,12 @@ if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session
       OUT="$R/out/${AB_A_NAME:-as_shipped}" GPUS_PER_SEED=1 EXTRA_SET="${AB_A_SET:-}" MESH_ROOMS="${MESH_ROOMS:-8}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       # AB_B_STAGE4_SET: --set arguments for variant B's stage 4 only.
+      # AB_B_START_STAGE=4: variant B trains stage 4 alone, from variant A's
+      # stage 3 of each seed (its GPUs idle until then: RASTER_BENCH uses them).
       OUT="$R/out/${AB_B_NAME:-random_background_everywhere}" GPUS_PER_SEED=1 FIRST_GPU=2 STAGES_RUNS=/tmp/flat_stages_b \
         STAGES_DATA=/tmp/flat_stages/data EXTRA_SET="${AB_B_SET:---set loss.random_background=true}" \
-        STAGE4_EXTRA_SET="${AB_B_STAGE4_SET:-}" \
+        STAGE4_EXTRA_SET="${AB_B_STAGE4_SET:-}" START_STAGE="${AB_B_START_STAGE:-1}" INIT_RUNS=/tmp/flat_stages \
+        MESH_ROOMS="${AB_B_MESH_ROOMS:-0}" \
         bash "$ROOT/scripts/gpu_four_stages.sh" train &
       wait
     else
@@ -210,6 +226,10 @@ if [ "$PHASE" = "wait" ]; then
     tar czf "$OUT/tests.tgz" -C "$R" $(cd "$R" && ls ctest.log cuda_vs_cpu.log cuda_only.log build_tests.log 2>/dev/null)
   fi
   tail -12 "$R/out/four_stages.txt" 2>/dev/null
+  if [ -f "$R/RASTER_DONE" ]; then   # RASTER_BENCH: the tables, into raster.tgz
+    tail -25 "$R/raster/raster_bench.log"; grep -E "^\|" "$R/raster/bench_raster.log" "$R/raster/bench_gsplat.log" 2>/dev/null
+    tar czf "$OUT/raster.tgz" -C "$R" raster
+  fi
   for v in "$R"/out/*/; do [ -f "$v/four_stages.txt" ] && { echo "== $(basename "$v")"; tail -10 "$v/four_stages.txt"; }; done
   for s in A B C; do [ -f "$R/fixed_$s.seconds" ] && echo "fixed recipe on set $s: $(cat "$R/fixed_$s.seconds") s from launch to the VAE file"; done | tee -a "$OUT/vae_curves.txt"
   if [ -f "$R/ALL_DONE" ]; then

@@ -46,7 +46,7 @@ void add_raster(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--write-workload", opts->write_dir,
                   "write each generated workload as DIR/<name>.ply and DIR/<name>_cameras.json, then time it");
-  sub->add_flag("--profile", opts->profile, "also print GPU time per kernel of one forward+backward step");
+  sub->add_flag("--profile", opts->profile, "also print GPU time per kernel of one forward+backward step of each --primitives");
   sub->callback([opts] { run_raster_benchmark(*opts); });
 }
 

@@ -72,28 +72,6 @@ void print_gpu_idle(std::vector<GpuActivity> spans) {
   for (size_t i = 0; i < rows.size() && i < 12; ++i) std::printf("  %8.3f  %s\n", rows[i].first, rows[i].second.c_str());
 }
 
-// One forward+backward step under the libtorch (Kineto) profiler: GPU time per
-// kernel name, summed over the step (where the time goes, without nsys).
-void profile_scene(const RasterWorkload& sc, const render::RasterSettings& settings) {
-  auto v = sc.vertices.detach().requires_grad_(true), c = sc.colors.detach().requires_grad_(true);
-  auto o = sc.opacities.detach().requires_grad_(true), s = sc.sigmas.detach().requires_grad_(true);
-  double t0 = 0, t_fwd_host = 0, t_bwd_host = 0;
-  const auto spans = record_gpu_activities([&] {
-    t0 = now_ms();
-    auto r = render::rasterize(v, c, o, s, sc.targets, sc.height, sc.width, settings);
-    t_fwd_host = now_ms();
-    (r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.normal.sum()).backward();
-    t_bwd_host = now_ms();
-  });
-  const double t_end = now_ms();
-  std::printf("profile %s: host returned from the forward after %.2f ms, from the backward call after %.2f ms, "
-              "GPU done after %.2f ms (with the profiler's overhead)\n",
-              sc.name.c_str(), t_fwd_host - t0, t_bwd_host - t0, t_end - t0);
-  print_gpu_idle(spans);
-  print_grouped("profile " + sc.name + " (one fwd+bwd step, per kernel)", spans, 14,
-                [](const std::string& n) { return n.substr(0, 60); });
-}
-
 // Mean and maximum over views of the load counts (one forward).
 struct LoadSummary {
   double visible = 0, pairs = 0, entries = 0;
@@ -134,6 +112,33 @@ primitives::ScenePrimitives workload_primitives(const RasterWorkload& sc, const 
   if (representation == primitives::kTriangles) return primitives::ScenePrimitives::of(t);
   return primitives::ScenePrimitives::of(
       primitives::gaussians_from_triangles(t, representation == primitives::kGaussians3d ? 3 : 2));
+}
+
+// One forward+backward step of `representation` under the libtorch (Kineto)
+// profiler: GPU time per kernel name, summed over the step (where the time
+// goes, without nsys), and where the GPU idles.
+void profile_scene(const RasterWorkload& sc, const render::RasterSettings& settings,
+                   const std::string& representation) {
+  const auto leaves = workload_primitives(sc, representation).map([](const at::Tensor& x) {
+    return x.detach().requires_grad_(true);
+  });
+  double t0 = 0, t_fwd_host = 0, t_bwd_host = 0;
+  const auto spans = record_gpu_activities([&] {
+    t0 = now_ms();
+    auto r = pipeline::rasterize_scene(leaves, sc.targets, sc.height, sc.width, settings);
+    t_fwd_host = now_ms();
+    auto loss = r.rgb.sum() + r.alpha.sum() + r.depth.sum();
+    if (r.normal.defined()) loss = loss + r.normal.sum();  // 3DGS renders no normal
+    loss.backward();
+    t_bwd_host = now_ms();
+  });
+  const double t_end = now_ms();
+  std::printf("profile %s %s: host returned from the forward after %.2f ms, from the backward call after %.2f ms, "
+              "GPU done after %.2f ms (with the profiler's overhead)\n",
+              sc.name.c_str(), representation.c_str(), t_fwd_host - t0, t_bwd_host - t0, t_end - t0);
+  print_gpu_idle(spans);
+  print_grouped("profile " + sc.name + " " + representation + " (one fwd+bwd step, per kernel)", spans, 14,
+                [](const std::string& n) { return n.substr(0, 60); });
 }
 
 void time_scene(const RasterWorkload& sc, const render::RasterSettings& settings, int repeats,
@@ -227,8 +232,6 @@ void write_workload(const RasterWorkload& sc, const std::string& dir) {
 void run_raster_benchmark(const RasterBenchOptions& o) {
   const torch::Device dev = cli::resolve_device(o.device);
   FLAT_CHECK(!o.profile || dev.is_cuda(), "flat_bench raster: --profile needs --device cuda (GPU kernel times)");
-  FLAT_CHECK(!o.profile || o.representations == std::vector<std::string>{"triangles"},
-             "flat_bench raster: --profile times the triangle rasterizer only (--primitives triangles)");
   render::RasterSettings settings;
   settings.window = o.window;
   settings.views_per_bin = o.views_per_bin;
@@ -236,8 +239,10 @@ void run_raster_benchmark(const RasterBenchOptions& o) {
               "entries / px | forward ms | fwd+bwd ms | peak GiB |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   auto run = [&](const RasterWorkload& sc) {
     if (!o.write_dir.empty()) write_workload(sc, o.write_dir);
-    for (const auto& rep : o.representations) time_scene(sc, settings, o.repeats, rep);
-    if (o.profile) profile_scene(sc, settings);
+    for (const auto& rep : o.representations) {
+      time_scene(sc, settings, o.repeats, rep);
+      if (o.profile) profile_scene(sc, settings, rep);
+    }
   };
   if (!o.ply.empty()) {
     FLAT_CHECK(!o.cams.empty(), "flat_bench raster: --triangles needs --cameras");
