@@ -47,7 +47,9 @@ int main(int argc, char** argv) {
   flat::cli::add_model_options(app, o.config, o.overrides, "pipeline.raster.window=ts", o.device, threads,
                                o.precision);
   app.add_flag("--full-sequence", full_sequence, "decode all latent frames at once (default: streaming, bounded memory)");
-  app.add_option("--prune-opacity", o.prune_opacity, "drop triangles below this opacity")->capture_default_str();
+  app.add_option("--prune-opacity", o.prune_opacity,
+                 "drop triangles below this opacity (default: the model's pipeline.prune_opacity, the threshold it was "
+                 "trained with, e.g. 0.4 at stage 4; 0.05 for a model trained without pruning)");
   app.add_option("--novel", novel, "novel trajectory: orbit | dolly | none | a cameras JSON file")->capture_default_str();
   app.add_option("--novel-frames", o.novel.frames, "views of an orbit/dolly preset")->capture_default_str();
   app.add_option("--orbit-degrees", o.novel.degrees, "orbit: half the sweep")->capture_default_str();

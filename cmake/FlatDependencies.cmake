@@ -184,6 +184,14 @@ target_compile_definitions(flat_deps INTERFACE
   FLAT_WITH_CUDA=$<BOOL:${FLAT_WITH_CUDA}> FLAT_WITH_OIIO=$<BOOL:${FLAT_WITH_OIIO}>
   FLAT_WITH_CUTLASS=$<BOOL:${FLAT_WITH_CUTLASS}>
   GLM_FORCE_XYZW_ONLY)
+# Only a non-default tile size adds a definition: the default build's flags
+# (and its compiled objects) stay as they are.
+if(NOT FLAT_SPLAT_TILE_SIZE EQUAL 16)
+  if(NOT FLAT_SPLAT_TILE_SIZE MATCHES "^(8|16)$")
+    message(FATAL_ERROR "FLAT_SPLAT_TILE_SIZE=${FLAT_SPLAT_TILE_SIZE}: expected 8 or 16")
+  endif()
+  target_compile_definitions(flat_deps INTERFACE FLAT_SPLAT_TILE_SIZE=${FLAT_SPLAT_TILE_SIZE})
+endif()
 if(FLAT_WITH_OIIO)
   target_link_libraries(flat_deps INTERFACE OpenImageIO::OpenImageIO)
 endif()

@@ -60,6 +60,16 @@ if [ "${BENCH_ONLY:-0}" != 1 ]; then
   done
   say "tests done"
 fi
+# SPLAT_TILE_AB=8: the 3DGS / 2DGS kernels with 8 x 8 tiles (-DFLAT_SPLAT_TILE_SIZE=8,
+# a second build folder, built in the background from here), their [cuda]
+# tests and timings after the shipped ones, on the same GPU.
+AB_PID=""; AB_BUILD="$BUILD-tile${SPLAT_TILE_AB:-}"
+if [ -n "${SPLAT_TILE_AB:-}" ]; then
+  ( BUILD="$AB_BUILD" gpu_cmake -DFLAT_BUILD_TESTS=ON -DFLAT_CUTLASS=OFF -DFLAT_SPLAT_TILE_SIZE="$SPLAT_TILE_AB" &&
+      ninja -C "$AB_BUILD" -j "${BUILD_JOBS:-12}" flat_bench flat_test_gaussians flat_test_surfels ) \
+    >"$OUT/build_tile$SPLAT_TILE_AB.log" 2>&1 &
+  AB_PID=$!
+fi
 # PROFILE_GPU=k: GPU time per kernel of one forward+backward step of each
 # primitive (flat_bench raster --profile) on GPU k, beside the timings.
 PROF_PID=""
@@ -74,6 +84,24 @@ timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workl
 echo "flat_bench raster rc=$?"; grep -E "^\|" "$OUT/bench_raster.log"; grep -E "error" "$OUT/bench_raster.log" | head -5
 say "ours timed"
 [ -n "$PROF_PID" ] && { wait "$PROF_PID"; echo "flat_bench raster --profile rc=$?"; }
+if [ -n "$AB_PID" ]; then
+  if wait "$AB_PID"; then
+    say "tile-$SPLAT_TILE_AB variant built"
+    for n in flat_test_gaussians flat_test_surfels; do
+      timeout 240 "$AB_BUILD/tests/$n" "[cuda]" >"$OUT/${n}_tile$SPLAT_TILE_AB.log" 2>&1
+      echo "$n [cuda], tiles of $SPLAT_TILE_AB: rc=$? $(grep -E 'passed|failed' "$OUT/${n}_tile$SPLAT_TILE_AB.log" | tail -1)"
+    done
+    timeout "${BENCH_SECONDS:-200}" "$AB_BUILD/flat_bench" raster --device cuda --workload ${WORKLOADS:-anchor-large anchor-small} \
+      --primitives 3dgs 2dgs --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_raster_tile$SPLAT_TILE_AB.log" 2>&1
+    echo "flat_bench raster, tiles of $SPLAT_TILE_AB: rc=$?"; grep -E "^\|" "$OUT/bench_raster_tile$SPLAT_TILE_AB.log"
+    # The shipped build once more after it: both variants timed in the same minutes.
+    timeout "${BENCH_SECONDS:-200}" "$BUILD/flat_bench" raster --device cuda --workload ${WORKLOADS:-anchor-large anchor-small} \
+      --primitives 3dgs 2dgs --repeats "${RASTER_REPEATS:-5}" >"$OUT/bench_raster_again.log" 2>&1
+    echo "flat_bench raster, shipped again: rc=$?"; grep -E "^\|" "$OUT/bench_raster_again.log"
+  else
+    echo "the tile-$SPLAT_TILE_AB variant did not build:"; grep -E "error|FAILED" "$OUT/build_tile$SPLAT_TILE_AB.log" | head -20
+  fi
+fi
 if [ -n "$GS_PID" ]; then
   if ! wait "$GS_PID"; then
     echo "gpu_gaussians: gsplat did not build or import (log: $OUT/gsplat_build.log); the anchor did not run:" >&2

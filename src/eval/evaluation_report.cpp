@@ -318,12 +318,13 @@ std::string table1_markdown(const std::vector<EvalResults>& runs) {
   }
   os << "\nScenes: scored / attempted; means cover the scored scenes only (failures are listed in each run's "
         "results).\n";
-  // What is rendered: flat_infer exports triangles pruned at its --prune-opacity (0.05 by default).
+  // What is rendered: flat_infer exports the triangles of the same threshold unless its --prune-opacity says otherwise.
   os << "\nRendered triangles: opacity at or above ";
   for (size_t i = 0; i < runs.size(); ++i)
     os << (i ? "; " : "") << (std::isnan(runs[i].prune_opacity) ? std::string("(not recorded)") : cell(runs[i].prune_opacity, 3))
        << (runs.size() > 1 ? " (" + runs[i].name + ")" : "");
-  os << " (the model's pipeline.prune_opacity; flat_infer prunes at its --prune-opacity, 0.05 by default).\n";
+  os << " (the model's pipeline.prune_opacity, as flat_infer exports by default; 0.05 there for a model without "
+        "one).\n";
   os << "\nBaselines (↳ rows, PSNR on the same views): the mean-colour oracle paints each view its own mean colour; "
         "the dataset mean predicts every view as the other scenes' mean frame of the same index; swap scores each "
         "scene's renders against the next scene's frames of the same index. A model that ignores its input scores "

@@ -117,8 +117,8 @@ void Evaluation::prepare_scoring() {
   results_.settings = owner_.settings;
   results_.ssim = ssim_convention_name(o_.settings.ssim);
   results_.prune_opacity = trained_.config.prune_opacity;
-  spdlog::info("flat_eval: rendering the triangles of opacity >= {} (the model's pipeline.prune_opacity; flat_infer "
-               "exports those >= its --prune-opacity, 0.05 by default: --set prune_opacity=0.05 scores the same)",
+  spdlog::info("flat_eval: rendering the triangles of opacity >= {} (the model's pipeline.prune_opacity, what "
+               "flat_infer exports by default; --set pipeline.prune_opacity=X scores its --prune-opacity X)",
                trained_.config.prune_opacity);
 }
 

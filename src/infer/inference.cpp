@@ -113,7 +113,7 @@ void Inference::start() {
   FLAT_CHECK(o_.precision == "fp32" || o_.precision == "bf16",
              "--precision: expected fp32 or bf16, got '" + o_.precision + "'");
   bf16_ = device_.is_cuda() && o_.precision == "bf16";  // the CPU computes in fp32
-  FLAT_CHECK(o_.prune_opacity >= 0 && o_.prune_opacity < 1, "--prune-opacity must be in [0, 1)");
+  FLAT_CHECK(o_.prune_opacity < 1, "--prune-opacity must be in [0, 1) (or negative: the model's own)");
 }
 
 void Inference::load_model_and_input() {
@@ -136,8 +136,13 @@ void Inference::load_model_and_input() {
   novel_file_ = o_.novel.preset != "orbit" && o_.novel.preset != "dolly" && o_.novel.preset != "none";
   if (novel_file_) novel_ = camera::read_cameras_json(o_.novel.preset).cameras;
 
+  // A model trained with pruning renders as it was trained: triangles under
+  // its threshold never received a gradient (stage 4's 0.4).
+  s_.prune_opacity = o_.prune_opacity >= 0 ? o_.prune_opacity
+                     : trained_.config.prune_opacity > 0 ? trained_.config.prune_opacity
+                                                         : kDefaultPruneOpacity;
   auto config = trained_.config;
-  config.prune_opacity = o_.prune_opacity;
+  config.prune_opacity = s_.prune_opacity;
   trained_.decoder->to(device_);
   pipe_.emplace(config, trained_.decoder);
 }
@@ -164,13 +169,12 @@ void Inference::decode() {
   for (const auto& [name, x] : all.named_tensors())
     FLAT_CHECK(at::isfinite(x).all().item<bool>(), input_.label + ": the decoded " + all.representation +
                                                        " hold NaN or infinite " + name + " (bad latents or weights)");
-  scene_ = pipeline::prune(all, o_.prune_opacity);
-  s_.prune_opacity = o_.prune_opacity;
+  scene_ = pipeline::prune(all, s_.prune_opacity);
   s_.triangles_kept = scene_.size();
   const std::string what = scene_.is_triangles() ? "triangles" : scene_.representation + " Gaussians";
   spdlog::info("decode: {} {} in {:.2f} s ({}), {} kept at opacity >= {}", s_.triangles_decoded, what,
-               s_.decode_seconds, o_.streaming ? "streaming" : "full sequence", s_.triangles_kept, o_.prune_opacity);
-  if (s_.triangles_kept == 0) spdlog::warn("no primitive reaches opacity {}: the exports are empty", o_.prune_opacity);
+               s_.decode_seconds, o_.streaming ? "streaming" : "full sequence", s_.triangles_kept, s_.prune_opacity);
+  if (s_.triangles_kept == 0) spdlog::warn("no primitive reaches opacity {}: the exports are empty", s_.prune_opacity);
 }
 
 void Inference::export_scene() {
@@ -283,7 +287,7 @@ nlohmann::json Inference::summary_json() const {
                       {"precision", bf16_ ? "bf16" : "fp32"},
                       {"streaming", o_.streaming},
                       {"representation", s.representation},
-                      {"prune_opacity", o_.prune_opacity},
+                      {"prune_opacity", s_.prune_opacity},
                       {"triangles_decoded", s.triangles_decoded},
                       {"triangles_kept", s.triangles_kept},
                       {"input_views", s.input_views},

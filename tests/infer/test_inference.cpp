@@ -135,6 +135,31 @@ TEST_CASE("flat_infer: pruning keeps exactly the triangles at or above the thres
   CHECK(kept.opacities.min().item<double>() >= float(threshold));
 }
 
+TEST_CASE("flat_infer: by default it prunes as the model was trained, else at 0.05", "[infer]") {
+  auto s = setup("infer_prune_default");
+  auto o = ply_only_options(s, "all");
+  infer::run_inference(o);
+  const auto all = exporter::read_triangle_ply(o.out_dir + "/scene.ply");
+  const float threshold = all.opacities.median().item<float>();
+  // A model trained with pruning (its pipeline.prune_opacity, here layered over
+  // the tiny model's config): the export keeps what it was trained to render.
+  auto trained = ply_only_options(s, "model_threshold");
+  trained.prune_opacity = -1;  // the default
+  char key[64];
+  std::snprintf(key, sizeof key, "prune_opacity=%.9g", threshold);
+  trained.overrides = {key};
+  auto summary = infer::run_inference(trained);
+  CHECK(summary.prune_opacity == Approx(threshold));
+  CHECK(exporter::read_triangle_ply(trained.out_dir + "/scene.ply").vertices.size(0) ==
+        (all.opacities >= threshold).sum().item<int64_t>());
+  // A model trained without pruning: 0.05.
+  auto untrained = ply_only_options(s, "no_threshold");
+  untrained.prune_opacity = -1;
+  summary = infer::run_inference(untrained);
+  CHECK(summary.prune_opacity == Approx(infer::kDefaultPruneOpacity));
+  CHECK(summary.triangles_kept == (all.opacities >= float(infer::kDefaultPruneOpacity)).sum().item<int64_t>());
+}
+
 TEST_CASE("flat_infer: streaming and full-sequence decoding export the same triangles", "[infer]") {
   auto s = setup("infer_streaming");
   auto a = ply_only_options(s, "streaming");

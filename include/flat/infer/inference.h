@@ -23,6 +23,9 @@
 
 namespace flat::infer {
 
+// flat_infer's pruning for a model trained without any (pipeline.prune_opacity 0).
+constexpr double kDefaultPruneOpacity = 0.05;
+
 struct InferOptions {
   std::string model;                   // run folder | checkpoint folder | model file
   std::string config;                  // pipeline keys (YAML) layered over the model's own config
@@ -33,7 +36,10 @@ struct InferOptions {
   std::string device = "auto";     // auto (cuda when present) | cpu | cuda
   std::string precision = "bf16";  // bf16 (on CUDA; the CPU computes in fp32) | fp32
   bool streaming = true;           // bounded-memory decoding, one latent frame at a time
-  double prune_opacity = 0.05;     // triangles below this opacity are dropped before export and rendering
+  // Triangles below this opacity are dropped before export and rendering;
+  // < 0: the model's pipeline.prune_opacity (the threshold it was trained
+  // with, 0.4 at stage 4), or kDefaultPruneOpacity for a model without one.
+  double prune_opacity = -1;
   camera::TrajectorySpec novel;    // preset "none" = no novel renders; a file name = cameras JSON
   int64_t height = 0, width = 0;   // render size (0 = the input frames')
   int64_t render_chunk = 8;        // views per rasterizer call

@@ -1,6 +1,6 @@
-// Backward compositing: one block per 16x16 tile, one thread per pixel,
+// Backward compositing: one block per tile (kTileSize x kTileSize: 16 x 16 as shipped), one thread per pixel,
 // replaying the tile's list back to front from the last entry any of its
-// pixels blended (the forward's `last`), 256 records a batch through shared
+// pixels blended (the forward's `last`), kBlockSize records a batch through shared
 // memory. Each pixel runs the 3DGS recurrence of the CPU reference
 // (gaussians/cpu/raster_gaussians_cpu.cpp) over the entries before its own
 // last one; the Gaussian's screen gradients (ScreenGrad's 10 fields) are

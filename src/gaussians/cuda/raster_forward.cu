@@ -1,5 +1,5 @@
-// Forward compositing: one block per 16x16 tile, one thread per pixel. The
-// tile's list (front to back) is staged through shared memory 256 records at
+// Forward compositing: one block per tile (kTileSize x kTileSize: 16 x 16 as shipped), one thread per pixel. The
+// tile's list (front to back) is staged through shared memory kBlockSize records at
 // a time; each pixel composites them as the CPU reference does (shade(),
 // alpha_min skip, stop before T < t_min). A warp leaves a batch once all its
 // pixels are done, the block once all its pixels are. The largest blending

@@ -1,4 +1,4 @@
-// Backward compositing: one block per 16x16 tile, one thread per pixel, the
+// Backward compositing: one block per tile (kTileSize x kTileSize: 16 x 16 as shipped), one thread per pixel, the
 // tile's list replayed back to front in rounds of kBlockSize surfels staged in
 // shared memory, from the block's furthest last blended entry down. Each pixel
 // runs the 3DGS-style recurrence of surfels/cpu/raster_surfels_cpu.cpp (it

@@ -1,4 +1,4 @@
-// Forward compositing: one block per 16x16 tile, one thread per pixel. The
+// Forward compositing: one block per tile (kTileSize x kTileSize: 16 x 16 as shipped), one thread per pixel. The
 // block reads the tile's depth-sorted list in rounds of kBlockSize surfels
 // staged in shared memory (one record a thread); each pixel walks the round
 // front to back with shade() (surfels/surfel_math.h) and stops before its

@@ -1,5 +1,5 @@
 // The tiles of the 3DGS and 2DGS CUDA kernels (gaussians/cuda, surfels/cuda):
-// 16 x 16 pixels, one thread a pixel, and the per-view parameters they read.
+// kTileSize x kTileSize pixels (16 x 16 as shipped), one thread a pixel, and the per-view parameters they read.
 // Splats cover tens of pixels each, unlike FLAT's ~2x2-pixel triangles (8 x 8
 // tiles, render/cuda/raster_kernels.h): larger tiles, fewer pairs. Plain
 // header (no torch, no CUDA intrinsics); the device helpers of their
@@ -11,7 +11,12 @@
 
 namespace flat::render::splat {
 
-constexpr int kTileSize = 16;
+// FLAT_SPLAT_TILE_SIZE (CMake, 8 or 16) builds the other variant for timing.
+#ifndef FLAT_SPLAT_TILE_SIZE
+#define FLAT_SPLAT_TILE_SIZE 16
+#endif
+constexpr int kTileSize = FLAT_SPLAT_TILE_SIZE;
+static_assert(kTileSize == 8 || kTileSize == 16, "FLAT_SPLAT_TILE_SIZE: 8 or 16 (whole warps a block)");
 constexpr int kBlockSize = kTileSize * kTileSize;
 
 using ViewParams = TileView<CompositingConstants>;
