@@ -5,7 +5,8 @@
 #   results.tgz  every flat_eval's results.json and table, both variants'
 #                four_stages.txt and compare tables, the mesh table
 #   logs.tgz     the stage logs and metrics (*.jsonl)
-#   grids.tgz    seed 0's last validation grid of every stage, both variants
+#   grids_*.tgz  seed 0's last validation grid of stages 2 and 4, each variant
+#                (grids_stages_s2.tgz ...), and one mesh comparison
 #   vae.tgz      the VAE runs' metrics and logs
 #   raster.tgz   RASTER_BENCH's timings, profile and gsplat logs
 set -uo pipefail
@@ -29,8 +30,16 @@ cd /tmp && tar czf "$OUT/results.tgz" $(ls -d flat_stages*/eval_*/results.json f
   flat_stages*/mesh/*.log 2>/dev/null) \
   -C "$R" $(cd "$R" && ls out/*/*.txt out/*/*.md 2>/dev/null)   # not out's archives: copies, and the 16 MiB a file
 tar czf "$OUT/logs.tgz" $(ls flat_stages*/*.log flat_stages*/seed*/stage*/metrics/*.jsonl flat_stages*/seed*/stage*/logs/*.jsonl 2>/dev/null)
-tar czf "$OUT/grids.tgz" $(for d in flat_stages*/seed0/stage*/renders; do ls "$d"/*.png 2>/dev/null | tail -1; done) \
-  $(ls flat_stages/mesh/mesh_room_*/renders/compare.png 2>/dev/null | head -1)
+# Seed 0's last grid of stages 2 and 4 of each variant, one archive each: all
+# of them in one passed the device's 16 MiB a file (21 MB on 2026-11-28).
+for S in flat_stages flat_stages_b; do
+  for st in 2 4; do
+    g=$(ls $S/seed0/stage$st/renders/*.png 2>/dev/null | tail -1)
+    [ -n "$g" ] && tar czf "$OUT/grids_${S#flat_}_s$st.tgz" "$g"
+  done
+done
+m=$(ls flat_stages/mesh/mesh_room_*/renders/compare.png 2>/dev/null | head -1)
+[ -n "$m" ] && tar czf "$OUT/grids_mesh.tgz" "$m"
 [ -d "$R/raster" ] && tar czf "$OUT/raster.tgz" -C "$R" raster
 tar czf "$OUT/vae.tgz" -C "$R" $(cd "$R" && ls -d fixed_*/metrics fixed_*/logs fixed_*.log 2>/dev/null)
 ls -la "$OUT"

@@ -185,21 +185,25 @@ fi
 # flat_mesh on the recipe's held-out rooms (issue #44): the first MESH_ROOMS
 # rooms of the held-out set, decoded by seed 0's stage 4 (flat_infer's soup,
 # pruned as the model says), refined and converted with flat_mesh's defaults
-# (every 4th frame held out), two rooms at a time on each of this run's GPUs.
+# (every 4th frame held out), two rooms at a time on each GPU.
 if [ "$PHASE" = mesh ]; then
   model="$S/seed${SEED_LIST[0]}/stage4"; M="$S/mesh"; rm -rf "$M"; mkdir -p "$M"
   [ -f "$model/model.safetensors" ] || { note "mesh: no stage-4 model in $model"; exit 1; }
-  g0=${FIRST_GPU:-0}; ngpu=$(( GPUS_PER_SEED * ${#SEED_LIST[@]} )); slots=$(( ngpu * 2 ))
+  # Every GPU of the machine, two rooms each at once (the other variant's
+  # stage 4 ends about when this starts); flat_mesh's conversion is CPU work
+  # (204 s of a 263 s room at 432x768 on 2026-11-28), so the cores are shared out.
+  ngpu=$(( gpus > 0 ? gpus : 1 )); slots=$(( ngpu * 2 ))
+  threads=$(( $(nproc) / slots )); [ "$threads" -lt 1 ] && threads=1
   rooms=$(ls "$D/val" | grep room | head -"${MESH_ROOMS:-8}")
   k=0
   for room in $rooms; do
-    dev=$(( gpus > 0 ? (g0 + k % ngpu) % gpus : 0 ))
+    dev=$(( k % ngpu ))
     # The rooms hold every stage's latent set: stage 4's is named.
     ( CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_infer" --model "$model" --scene "$D/val/$room" --out "$M/infer_$room" \
         --latent-set "${MESH_LATENT_SET:-${SET[3]}_f${WINDOW[3]}}" \
         --device "$DEVICE" --no-video --no-viewer --no-renders --novel none >"$M/infer_$room.log" 2>&1 &&
-      CUDA_VISIBLE_DEVICES=$dev "$BUILD/flat_mesh" --from "$M/infer_$room" --out "$M/mesh_$room" --device "$DEVICE" \
-        --no-viewer >"$M/mesh_$room.log" 2>&1
+      CUDA_VISIBLE_DEVICES=$dev OMP_NUM_THREADS=$threads "$BUILD/flat_mesh" --from "$M/infer_$room" --out "$M/mesh_$room" \
+        --device "$DEVICE" --no-viewer >"$M/mesh_$room.log" 2>&1
       echo "mesh $room: rc $?" >>"$M/rc.txt" ) &
     k=$((k + 1)); [ $(( k % slots )) -eq 0 ] && wait
   done

@@ -96,10 +96,11 @@ train_vae() {
 }
 
 if [ "$PHASE" = "start" ]; then
-  [ -d "$R/setC/val" ] || { echo "no room sets under $R: run prep first (same warm machine)"; exit 1; }
+  first_set=$(echo ${VAE_SETS:-A B C} | cut -d' ' -f1)
+  [ -d "$R/set$first_set/val" ] || { echo "no room set $first_set under $R: run prep first (same warm machine)"; exit 1; }
   rm -f "$R/ALL_DONE"
   setsid bash "$0" runs >"$R/runs.log" 2>&1 </dev/null &
-  echo "started the A/B (GPU 0) and the fixed recipe on sets A, B, C (GPUs 1-3) under $R"
+  echo "started the GPU-0 work and the VAE recipe on set(s) ${VAE_SETS:-A B C} under $R"
 fi
 
 if [ "$PHASE" = "runs" ]; then  # started by "start", in its own process session

@@ -126,6 +126,26 @@ at::Tensor batch_loss(loss::Objective& objective, const data::Batch& batch,
   return total;
 }
 
+// Each scene of `scene` rendered into its target views, pruned below
+// `prune_opacity` (< 0: the pipeline's), over random backgrounds drawn from
+// background_seed when >= 0; the rendered primitives are added to `triangles`.
+std::vector<pipeline::RenderedViews> render_targets(const pipeline::ScenePipeline& pipeline,
+                                                    const primitives::ScenePrimitives& scene, const data::Batch& batch,
+                                                    const at::Device& device, int64_t background_seed,
+                                                    double prune_opacity, int64_t& triangles) {
+  std::vector<pipeline::RenderedViews> rendered;
+  const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
+  for (int64_t b = 0; b < scene.batch(); ++b) {
+    rendered.push_back(pipeline.render(scene.scene(b), batch.target_cameras(b).to(device), H, W,
+                                       prune_opacity >= 0 ? prune_opacity : pipeline.config().prune_opacity));
+    triangles += rendered.back().triangles;
+    if (background_seed >= 0)
+      use_random_background(rendered.back(), pipeline.config().raster.background,
+                            uint64_t(background_seed) * 1000003ull + uint64_t(b));
+  }
+  return rendered;
+}
+
 // Which loss terms and which renders are not finite.
 std::string nonfinite_loss(const std::map<std::string, double>& terms,
                            const std::vector<pipeline::RenderedViews>& rendered) {
@@ -161,16 +181,8 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   }
 
   const auto leaf = leaf_copies(scene);
-  std::vector<pipeline::RenderedViews> rendered;
-  for (int64_t b = 0; b < scene.batch(); ++b) {
-    const int64_t H = batch.target_images.size(3), W = batch.target_images.size(4);
-    rendered.push_back(pipeline.render(leaf.scene.scene(b), batch.target_cameras(b).to(device), H, W,
-                                       prune_opacity >= 0 ? prune_opacity : pipeline.config().prune_opacity));
-    r.triangles += rendered.back().triangles;
-    if (background_seed >= 0)
-      use_random_background(rendered.back(), pipeline.config().raster.background,
-                            uint64_t(background_seed) * 1000003ull + uint64_t(b));
-  }
+  const auto rendered =
+      render_targets(pipeline, leaf.scene, batch, device, background_seed, prune_opacity, r.triangles);
   clock.lap(&StepTimes::render_forward);
 
   const at::Tensor total = batch_loss(objective, batch, rendered, leaf.scene, device, r.terms);
@@ -186,6 +198,19 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
   clock.lap(&StepTimes::render_loss_backward);
   backward_into_decoder(leaf);
   clock.lap(&StepTimes::decoder_backward);
+  return r;
+}
+
+StepResult score_decoded(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
+                         const primitives::ScenePrimitives& scene, int64_t background_seed, double prune_opacity) {
+  at::NoGradGuard no_grad;
+  StepResult r;
+  const auto device = pipeline.decoder()->conv2->weight.device();
+  const auto rendered = render_targets(pipeline, scene, batch, device, background_seed, prune_opacity, r.triangles);
+  batch_loss(objective, batch, rendered, scene, device, r.terms);
+  r.loss = r.terms["total"];
+  r.finite = std::isfinite(r.loss);
+  if (!r.finite) r.nonfinite = nonfinite_loss(r.terms, rendered);
   return r;
 }
 

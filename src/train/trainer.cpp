@@ -28,6 +28,7 @@
 #include "flat/train/data_report.h"
 #include "flat/train/lr_schedule.h"
 #include "flat/train/metrics_log.h"
+#include "flat/train/opacity_calibration.h"
 #include "flat/train/train_step.h"
 #include "flat/train/training_session.h"
 #include "flat/train/validation.h"
@@ -81,6 +82,10 @@ class Run {
   // The training loader (this rank's share of each batch) and the validation
   // loader, and what validation compares with.
   void open_loaders();
+  // A fresh start that prunes, with opacity_shift_calibration: the opacity
+  // shift its pruned renders fit best (train/opacity_calibration.h), from now
+  // on in the pipeline, the signature and the config the run folder keeps.
+  void calibrate_opacity_shift();
   // Everything has loaded: only now is the run folder replaced (--overwrite)
   // or created, and written in.
   void open_run_folder();
@@ -111,8 +116,8 @@ class Run {
   const ModelSignature& signature() const { return session_->signature; }
   bool bf16() const { return session_->bf16; }
 
-  const TrainConfig& cfg_;
-  const std::string& config_yaml_;
+  TrainConfig cfg_;          // the caller's, but for a calibrated opacity shift
+  std::string config_yaml_;  // what config.yaml and the checkpoints keep (to_yaml of cfg_ once calibrated)
   const StartMode mode_;
   const distributed::DistributedEnv& env_;
   const bool rank0_;  // rank 0: the only rank that writes in the run folder
@@ -281,6 +286,27 @@ void Run::pick_held_out_scenes() {
                val_scenes_.scenes.size(), names, latent_set,
                cfg_.validation.max_views ? "at most " + std::to_string(cfg_.validation.max_views) : "all",
                cfg_.validation.max_views, latent_set);
+}
+
+void Run::calibrate_opacity_shift() {
+  if (session_->vae_task() || cfg_.opacity_shift_calibration == 0 || cfg_.pipeline.prune_opacity <= 0 ||
+      state_.step > 0)
+    return;
+  const double prune = cfg_.pipeline.prune_opacity;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto c = train::calibrate_opacity_shift(*session_->pipeline, *session_->objective, *train_loader_,
+                                                cfg_.opacity_shift_calibration, prune, bf16(),
+                                                cfg_.loss.random_background ? int64_t(cfg_.seed) : -1, dp_.get());
+  spdlog::info("opacity calibration: {} training batch(es), rendered pruned at {} as the steps will be, {:.1f} s:{}",
+               cfg_.opacity_shift_calibration, prune,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), c.table());
+  if (c.best == cfg_.pipeline.triangles.opacity_shift) return;
+  session_->set_opacity_shift(c.best);
+  cfg_.pipeline.triangles.opacity_shift = c.best;
+  config_yaml_ = config::to_yaml(cfg_);
+  state_.config_yaml = config_yaml_;
+  spdlog::info("opacity calibration: training with pipeline.triangles.opacity_shift {} (in config.yaml, the "
+               "checkpoints and the model file)", c.best);
 }
 
 void Run::open_run_folder() {
@@ -587,6 +613,7 @@ TrainSummary run_training(const TrainConfig& cfg, const std::string& config_yaml
   if (const char* s = std::getenv(kSignalInStartupEnv)) std::raise(std::atoi(s));
   run.resume_or_start_fresh();
   run.open_loaders();
+  run.calibrate_opacity_shift();
   run.open_run_folder();
   const Run::LoopEnd end = run.train();
   return run.finish(end);

@@ -112,6 +112,12 @@ TrainingSession::TrainingSession(const TrainConfig& cfg, const at::Device& on) :
   optimiser = std::make_unique<optim::AdamW>(decoder->named_parameters().pairs(), adamw);
 }
 
+void TrainingSession::set_opacity_shift(double shift) {
+  FLAT_CHECK(pipeline, "set_opacity_shift: the VAE stage has no pipeline");
+  pipeline->set_opacity_shift(shift);
+  signature = model_signature(pipeline->config());
+}
+
 void TrainingSession::use_data_parallel(DataParallel* dp) {
   dp_ = dp;
   if (!dp_) return;

@@ -118,6 +118,9 @@ class ScenePipeline {
 
   const PipelineConfig& config() const { return config_; }
   model::SceneDecoder& decoder() { return decoder_; }
+  // triangles.opacity_shift from now on (the trainer's opacity calibration at
+  // the start of a pruning stage, train/opacity_calibration.h).
+  void set_opacity_shift(double shift) { config_.triangles.opacity_shift = shift; }
 
  private:
   PipelineConfig config_;

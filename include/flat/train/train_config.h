@@ -192,6 +192,9 @@ struct TrainConfig {
   // instead of removing most of the previous stage's soft triangles at step 0
   // (pruned triangles get no gradient). Validation prunes at the full value.
   int64_t prune_warmup_steps = 0;
+  // A fresh start that prunes: the training batches on which opacity shifts
+  // are tried before step 0 (train/opacity_calibration.h); 0: none.
+  int64_t opacity_shift_calibration = 0;
   std::string device = "cuda";
   std::string precision = "bf16";  // bf16: autocast on CUDA, fp32 master weights; fp32
   int64_t seed = 0;
@@ -220,6 +223,10 @@ struct TrainConfig {
     v.field("prune_warmup_steps", prune_warmup_steps, config::non_negative(),
             "steps over which the training renders' pruning threshold rises linearly from 0 to "
             "pipeline.prune_opacity (0: the full threshold from step 0; validation always uses the full one)");
+    v.field("opacity_shift_calibration", opacity_shift_calibration, config::non_negative(),
+            "a fresh start with pipeline.prune_opacity > 0: on this many training batches, try "
+            "pipeline.triangles.opacity_shift lowered by 0 to 4 in steps of 0.5 (every opacity raised together) and "
+            "train with the one whose pruned renders fit best; written into the run's config and model (0: off)");
     v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
     v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
     v.field("seed", seed, "seed of the weights' initialisation and every random draw");

@@ -54,6 +54,15 @@ StepResult forward_backward(pipeline::ScenePipeline& pipeline, loss::Objective& 
                             bool bf16, StepTimes* times = nullptr, int64_t background_seed = -1,
                             double prune_opacity = -1);
 
+// The loss of primitives already decoded from `batch`, without a backward:
+// forward_backward's renders (pruned below prune_opacity, < 0: the
+// pipeline's; random backgrounds drawn from background_seed >= 0) and
+// objective. The opacity calibration (train/opacity_calibration.h) scores
+// one decode under several opacity scales with it.
+StepResult score_decoded(pipeline::ScenePipeline& pipeline, loss::Objective& objective, const data::Batch& batch,
+                         const primitives::ScenePrimitives& scene, int64_t background_seed = -1,
+                         double prune_opacity = -1);
+
 // The training renders' pruning threshold at `step`: `target` (the pipeline's
 // prune_opacity) times min(1, step / warmup_steps); `target` when warmup_steps is 0.
 double training_prune_opacity(double target, int64_t warmup_steps, int64_t step);

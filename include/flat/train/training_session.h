@@ -45,6 +45,10 @@ class TrainingSession {
   // the norm, and the ranks agree on the skip and the stop.
   StepOutcome step(const data::Batch& batch, int64_t step, StepTimes* times = nullptr, int stop_signal = 0);
 
+  // The scene decoder's triangles.opacity_shift from now on, in its pipeline
+  // and in the signature that checkpoints and the model file carry.
+  void set_opacity_shift(double shift);
+
   // From now on step() averages gradients over `dp`'s ranks (dp outlives this
   // session's steps); call after the weights are final (init, resume, shared).
   void use_data_parallel(DataParallel* dp);
