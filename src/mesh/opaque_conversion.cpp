@@ -164,10 +164,10 @@ primitives::IndexedMesh fused_grid_mesh(const primitives::TriangleSoup& soup, co
   r.unwelded_vertices = fr.unwelded_vertices;
   r.weld_dropped_faces = fr.dropped_faces;
   require_some(mesh.num_faces(), "the view-grid fusion");
-  r.stage_psnr.emplace_back("fused grids", mesh_psnr(mesh, targets, o));
+  r.end_stage("fused grids", mesh_psnr(mesh, targets, o));
   mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces, /*through_edges=*/true);
   require_some(mesh.num_faces(), "floater pruning");
-  r.stage_psnr.emplace_back("floaters", mesh_psnr(mesh, targets, o));
+  r.end_stage("floaters", mesh_psnr(mesh, targets, o));
   return mesh;
 }
 
@@ -190,28 +190,28 @@ primitives::IndexedMesh stitched_mesh(const primitives::TriangleSoup& soup, cons
                                       const OpaqueOptions& o, ConversionReport& r) {
   auto selected = select_opaque(soup, targets, o, r);
   r.after_selection = selected.vertices.size(0);
-  r.stage_psnr.emplace_back("selection", psnr_over_views(selected, targets, o.raster));
+  r.end_stage("selection", psnr_over_views(selected, targets, o.raster));
   selected = keep_supported(selected, targets, o);
   r.after_support = selected.vertices.size(0);
-  r.stage_psnr.emplace_back("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
+  r.end_stage("support", psnr_over_views(selected, targets, opaque_raster(o.raster)));
 
   auto mesh = primitives::mesh_from_soup({selected.vertices.cpu(), selected.colors.cpu(), selected.opacities.cpu(),
                                           selected.sigmas.cpu()});
   const StitchOptions stitch{o.stitch_distance, o.stitch_color_distance, o.stitch_rounds};
   StitchReport sr;
-  r.stage_psnr.emplace_back("as mesh", mesh_psnr(mesh, targets, o));
+  r.end_stage("as mesh", mesh_psnr(mesh, targets, o));
   mesh = stitch_boundary_vertices(mesh, stitch, &sr);
   r.stitched_pairs += sr.merged_pairs;
   r.collapsed_faces += sr.collapsed_faces;
-  r.stage_psnr.emplace_back("stitch 1", mesh_psnr(mesh, targets, o));
+  r.end_stage("stitch 1", mesh_psnr(mesh, targets, o));
   mesh = densify_boundary(mesh, o.densify_edge * r.median_edge, &r.densified_faces);
   mesh = stitch_boundary_vertices(mesh, stitch, &sr);
   r.stitched_pairs += sr.merged_pairs;
   r.collapsed_faces += sr.collapsed_faces;
-  r.stage_psnr.emplace_back("stitch 2", mesh_psnr(mesh, targets, o));
+  r.end_stage("stitch 2", mesh_psnr(mesh, targets, o));
   mesh = remove_small_components(mesh, o.min_component_faces, &r.floater_faces);
   require_some(mesh.num_faces(), "floater pruning");
-  r.stage_psnr.emplace_back("floaters", mesh_psnr(mesh, targets, o));
+  r.end_stage("floaters", mesh_psnr(mesh, targets, o));
   return mesh;
 }
 
@@ -229,11 +229,20 @@ void log_conversion(const ConversionReport& r, const OpaqueOptions& o, int64_t v
                  r.soup_triangles, r.after_selection, r.after_support, o.support_min, r.mesh_vertices, r.mesh_faces,
                  r.stitched_pairs, r.collapsed_faces, r.densified_faces, r.floater_faces, r.seconds);
   std::string trail;
-  for (const auto& [stage, psnr] : r.stage_psnr) trail += fmt::format("{}{} {:.2f} dB", trail.empty() ? "" : ", ", stage, psnr);
-  spdlog::info("opaque conversion, PSNR over the fitted views after each stage: {}", trail);
+  for (size_t i = 0; i < r.stage_psnr.size(); ++i)
+    trail += fmt::format("{}{} {:.2f} dB ({:.1f} s)", i ? ", " : "", r.stage_psnr[i].first, r.stage_psnr[i].second,
+                         r.stage_seconds[i]);
+  spdlog::info("opaque conversion, PSNR over the fitted views after each stage (and the stage's time): {}", trail);
 }
 
 }  // namespace
+
+void ConversionReport::end_stage(const std::string& stage, double psnr) {
+  const auto now = std::chrono::steady_clock::now();
+  stage_psnr.emplace_back(stage, psnr);
+  stage_seconds.push_back(std::chrono::duration<double>(now - stage_start_).count());
+  stage_start_ = now;
+}
 
 render::RasterSettings opaque_raster(const render::RasterSettings& base) {
   auto s = base;
@@ -270,7 +279,7 @@ primitives::IndexedMesh convert_to_opaque_mesh(const primitives::TriangleSoup& s
   mesh = o.conversion == "grid" && o.repair_soup_normals > 0
              ? repair(mesh, with_soup_normals(soup, targets, o.raster), o, r)
              : repair(mesh, targets, o, r);
-  r.stage_psnr.emplace_back("repaired", mesh_psnr(mesh, targets, o));
+  r.end_stage("repaired", mesh_psnr(mesh, targets, o));
   r.mesh_vertices = mesh.num_vertices();
   r.mesh_faces = mesh.num_faces();
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 
 #include "flat/core/error.h"
+#include "flat/core/progress.h"
 #include "flat/mesh/normal_guided_depth.h"
 #include "flat/mesh/seam_weld.h"
 
@@ -38,6 +39,9 @@ primitives::IndexedMesh fuse_view_grids(const primitives::TriangleSoup& soup, co
   // Accumulated on the CPU; each view's faces offset by the vertices before it.
   primitives::IndexedMesh fused{at::zeros({0, 3}, at::kFloat), at::zeros({0, 3}, at::kFloat),
                                 at::zeros({0, 3}, at::kLong)};
+  // Minutes at the paper's size (37 views of 432x768: 204 s for the whole
+  // conversion, 2026-11-28): a line with the rate and ETA.
+  Progress progress("view fusion", targets.size());
   for (int64_t v : fusion_order(targets.size())) {
     const auto view = at::tensor({v}, at::kLong);
     auto cam = targets.cameras.index(view.to(targets.cameras.c2w.device()));
@@ -75,7 +79,10 @@ primitives::IndexedMesh fuse_view_grids(const primitives::TriangleSoup& soup, co
                           : all;
     spdlog::debug("view fusion: view {}: {} of {} samples covered, {} grid faces, {} new", v,
                   valid.sum().item<int64_t>(), H * W, all.num_faces(), grid.num_faces());
-    if (grid.num_faces() == 0) continue;
+    if (grid.num_faces() == 0) {
+      progress.step(1, {{"faces", double(fused.num_faces())}});
+      continue;
+    }
     if (skip.defined() && o.weld) {
       SeamWeldReport wr;
       fused = weld_view_seam(fused, grid, skip, cam.intrinsics[0].cpu(), cam.c2w[0].cpu(),
@@ -87,7 +94,9 @@ primitives::IndexedMesh fuse_view_grids(const primitives::TriangleSoup& soup, co
       fused = {at::cat({fused.vertices, grid.vertices}), at::cat({fused.colors, grid.colors}),
                at::cat({fused.faces, grid.faces + fused.num_vertices()})};
     }
+    progress.step(1, {{"faces", double(fused.num_faces())}});
   }
+  progress.finish();
   r.fused_faces = fused.num_faces();
   if (report) *report = r;
   return fused;

@@ -68,7 +68,9 @@ OpacityShiftCalibration calibrate_opacity_shift(pipeline::ScenePipeline& pipelin
       const StepResult r = score_decoded(pipeline, objective, batch, with_opacities(scene, o), seed, prune_opacity);
       FLAT_CHECK(r.finite, fmt::format("opacity calibration: the loss at opacity_shift {} is not finite ({})", t.shift,
                                        r.nonfinite));
-      t.rgb += r.terms.at("rgb") / double(batches);
+      // The rgb term (what pruning takes away); the total when the objective has none.
+      const auto rgb = r.terms.find("rgb");
+      t.rgb += (rgb != r.terms.end() ? rgb->second : r.loss) / double(batches);
       t.kept += (o >= prune_opacity).to(at::kFloat).mean().item<double>() / double(batches);
     }
   }

@@ -101,6 +101,14 @@ TEST_CASE("opaque conversion: a soup of a wall becomes a connected opaque mesh t
   check_renders_the_wall(m, w, o);
   // Opaque: the render's alpha is ~1 wherever the mesh is.
   CHECK(r.stage_psnr.size() >= 4);
+  // Each stage's wall time beside its PSNR (the log's trail), adding up to at most the whole.
+  REQUIRE(r.stage_seconds.size() == r.stage_psnr.size());
+  double stages = 0;
+  for (double s : r.stage_seconds) {
+    CHECK(s >= 0);
+    stages += s;
+  }
+  CHECK(stages <= r.seconds + 1e-3);
 }
 
 TEST_CASE("opaque conversion (view grids): the wall becomes one flat, edge-connected sheet that renders it", "[mesh]") {

@@ -38,6 +38,7 @@
 // evaluation) with opaque_raster(): FLAT window with almost no support beyond
 // the edges, sharpness sigma_end, opacity snap_opacity.
 #pragma once
+#include <chrono>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -122,7 +123,13 @@ struct ConversionReport {
   std::vector<double> selection_losses, repair_losses;
   // PSNR over the fitted views after each stage: selection, support, stitched, repaired.
   std::vector<std::pair<std::string, double>> stage_psnr;
+  std::vector<double> stage_seconds;  // wall time of each of those stages, its PSNR included
   double seconds = 0;
+  // A stage ends: its PSNR and the time since the previous stage ended.
+  void end_stage(const std::string& stage, double psnr);
+
+ private:
+  std::chrono::steady_clock::time_point stage_start_ = std::chrono::steady_clock::now();
 };
 
 // soup: one scene with RGB colours, on the targets' device. The mesh comes
