@@ -6,6 +6,7 @@
 #include <cstdio>
 
 #include "flat/gaussians/rasterize_gaussians.h"
+#include "flat/render/shared/splat_tiles.h"
 #include "gaussian_scenes.h"
 #include "support/raster_checks.h"
 #include "test_support.h"
@@ -48,7 +49,8 @@ flat::test::Rendered run(const flat::test::Gaussians& g, const flat::camera::Cam
 void compare(int64_t n, int64_t V, int64_t H, int64_t W, const CompositingSettings& s, uint64_t seed, double lo = 0.08,
              double hi = 0.3) {
   auto g = flat::test::random_gaussians(n, torch::kFloat, seed, lo, hi);
-  auto cams = flat::test::test_cameras(V);
+  // Many views cycle through 4 that see the scene.
+  auto cams = V > 4 ? flat::test::cycled_test_cameras(V, 4) : flat::test::test_cameras(V);
   torch::manual_seed(seed);
   const flat::test::Probe w(V, H, W, {}, std::nullopt, torch::kFloat);
   auto cpu = run(g, cams, H, W, s, torch::kCPU, w);
@@ -102,6 +104,16 @@ TEST_CASE("rasterize_gaussians cuda: matches the CPU reference (V = 3, partial t
   CompositingSettings s;
   s.background = {0.3, 0.6, 0.1};
   compare(500, 3, 45, 70, s, 202);
+}
+
+TEST_CASE("rasterize_gaussians cuda: 18 views, two launches' chunks of views (16 + 2), match the CPU reference",
+          "[gaussians][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  // Views are binned and composited a chunk at a time (chunk_views(): at most
+  // 16): element e = v * N + i, tile ids counting on through the views, the
+  // chain summing a Gaussian's views. A wrong offset moves whole views.
+  REQUIRE(flat::render::splat::chunk_views(18, 300) == 16);
+  compare(300, 18, 33, 47, CompositingSettings{}, 303);
 }
 
 TEST_CASE("rasterize_gaussians cuda: many Gaussians per tile (several shared-memory batches), large ones",

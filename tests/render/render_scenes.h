@@ -47,4 +47,15 @@ inline camera::Cameras test_cameras(int64_t views) {
   return c;
 }
 
+// `views` cameras cycling through test_cameras(distinct): many views that all
+// see the test scenes (test_cameras turns further with every view).
+inline camera::Cameras cycled_test_cameras(int64_t views, int64_t distinct) {
+  const auto base = test_cameras(distinct);
+  const auto idx = torch::arange(views, torch::kLong).remainder(distinct);
+  camera::Cameras c;
+  c.intrinsics = base.intrinsics.index_select(0, idx);
+  c.c2w = base.c2w.index_select(0, idx);
+  return c;
+}
+
 }  // namespace flat::test

@@ -7,6 +7,7 @@
 #include <torch/torch.h>
 
 #include "flat/surfels/rasterize_surfels.h"
+#include "flat/render/shared/splat_tiles.h"
 #include "support/raster_checks.h"
 #include "surfel_scenes.h"
 #include "test_support.h"
@@ -57,7 +58,8 @@ flat::test::Rendered run(const flat::test::Surfels& s, const flat::camera::Camer
 void compare(int64_t n, int64_t V, int64_t H, int64_t W, const CompositingSettings& s, uint64_t seed, double scale_lo = 0.03,
              double scale_hi = 0.4, bool only_distortion = false) {
   auto scene = flat::test::random_surfels(n, torch::kFloat, seed, scale_lo, scale_hi);
-  auto cams = flat::test::test_cameras(V);
+  // Many views cycle through 4 that see the scene.
+  auto cams = V > 4 ? flat::test::cycled_test_cameras(V, 4) : flat::test::test_cameras(V);
   torch::manual_seed(seed);
   flat::test::ProbeOutputs which;
   which.normal = which.distortion = true;
@@ -127,6 +129,15 @@ TEST_CASE("rasterize_surfels cuda: matches the CPU reference (V = 3, partial til
   s.background = {0.3, 0.6, 0.1};
   s.alpha_max = 0.9;
   compare(500, 3, 45, 70, s, 202);
+}
+
+TEST_CASE("rasterize_surfels cuda: 18 views, two launches' chunks of views (16 + 2), match the CPU reference",
+          "[surfels][cuda]") {
+  FLAT_REQUIRE_CUDA();
+  REQUIRE(flat::render::splat::chunk_views(18, 300) == 16);  // as the 3DGS case: a wrong offset moves whole views
+  CompositingSettings s;
+  s.background = {0.2, 0.1, 0.4};
+  compare(300, 18, 33, 47, s, 303);
 }
 
 TEST_CASE("rasterize_surfels cuda: many surfels per tile (several shared-memory rounds) and large surfels",

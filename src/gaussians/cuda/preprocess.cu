@@ -1,11 +1,12 @@
-// Per-(view, Gaussian) kernels, one thread a Gaussian (the maths is
+// Per-(view, Gaussian) kernels over a chunk of views (the maths is
 // gaussians/gaussian_math.h, shared with the CPU reference):
-//   preprocess  screen data (ScreenGaussian), pixel box, depth key and the
-//               tiles the support reaches (tile_mask()), with the view's pair
-//               count (one atomic a block);
-//   chain       the backward's chain rule: a Gaussian's summed screen
-//               gradient of the view -> its mean, scales, quaternion, colour
-//               and opacity (one thread a Gaussian: no atomics, views in turn).
+//   preprocess  one thread an element (grid y: the view): screen data
+//               (ScreenGaussian), pixel box, depth key and the tiles the
+//               support reaches (tile_mask()), with the chunk's pair count
+//               (one atomic a block);
+//   chain       the backward's chain rule, one thread a Gaussian over the
+//               chunk's views: its summed screen gradient of each view -> its
+//               mean, scales, quaternion, colour and opacity (no atomics).
 #include "flat/render/shared/block_sum.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
@@ -38,11 +39,14 @@ __device__ uint32_t tile_mask(const ScreenGaussian<float>& g, const PixelBox& b)
 __global__ void __launch_bounds__(kThreads)
     preprocess_kernel(const float* __restrict__ means, const float* __restrict__ scales,
                       const float* __restrict__ rotations, const float* __restrict__ colors,
-                      const float* __restrict__ opacities, int64_t n, ViewParams vp,
+                      const float* __restrict__ opacities, const __grid_constant__ ViewChunk chunk,
                       ScreenGaussian<float>* __restrict__ screen, PixelBox* __restrict__ boxes,
                       uint32_t* __restrict__ depth_keys, uint32_t* __restrict__ tile_masks,
                       int32_t* __restrict__ tile_counts, unsigned long long* __restrict__ total) {
+  const int64_t n = chunk.per_view;
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
+  const ViewParams& vp = chunk.v[blockIdx.y];
+  const int64_t e = (int64_t)blockIdx.y * n + i;  // the element: Gaussian i in view blockIdx.y
   int32_t count = 0;
   if (i < n) {
     uint32_t key = kCulledKey;
@@ -57,14 +61,14 @@ __global__ void __launch_bounds__(kThreads)
       const uint32_t mask = tile_mask(g, b);
       count = mask == ~0u ? tiles_touched(b) : __popc(mask);
       if (count > 0) {
-        screen[i] = g;
-        boxes[i] = b;
-        tile_masks[i] = mask;
+        screen[e] = g;
+        boxes[e] = b;
+        tile_masks[e] = mask;
         key = render::depth_sort_key(g.z);
       }
     }
-    depth_keys[i] = key;
-    tile_counts[i] = count;
+    depth_keys[e] = key;
+    tile_counts[e] = count;
   }
   // The pair count, in 64 bits (it may pass 2^31: the host then fails clearly).
   render::cuda::add_block_sum<kThreads>(count, total);
@@ -72,29 +76,45 @@ __global__ void __launch_bounds__(kThreads)
 
 __global__ void __launch_bounds__(kThreads)
     chain_kernel(const float* __restrict__ means, const float* __restrict__ scales, const float* __restrict__ rotations,
-                 int64_t n, ViewParams vp, const int32_t* __restrict__ tile_counts, float* __restrict__ screen_grads,
-                 float* __restrict__ g_means, float* __restrict__ g_scales, float* __restrict__ g_rotations,
-                 float* __restrict__ g_colors, float* __restrict__ g_opacities) {
+                 const __grid_constant__ ViewChunk chunk, const int32_t* __restrict__ tile_counts,
+                 float* __restrict__ screen_grads, float* __restrict__ g_means, float* __restrict__ g_scales,
+                 float* __restrict__ g_rotations, float* __restrict__ g_colors, float* __restrict__ g_opacities) {
+  const int64_t n = chunk.per_view;
   const int64_t i = (int64_t)blockIdx.x * kThreads + threadIdx.x;
-  if (i >= n || tile_counts[i] == 0) return;  // culled in this view: its row was never written
-  float4* row = reinterpret_cast<float4*>(screen_grads + kGradStride * i);
-  float r[kGradStride];
-#pragma unroll
-  for (int v = 0; v < kGradStride / 4; ++v) {
-    const float4 a = row[v];
-    r[4 * v] = a.x, r[4 * v + 1] = a.y, r[4 * v + 2] = a.z, r[4 * v + 3] = a.w;
-    row[v] = make_float4(0.f, 0.f, 0.f, 0.f);  // ready for the next view
-  }
-  ScreenGrad<float> g;
-  g.mean2d[0] = r[0], g.mean2d[1] = r[1];
-  g.conic[0] = r[2], g.conic[1] = r[3], g.conic[2] = r[4];
-  g.opacity = r[5];
-  g.color[0] = r[6], g.color[1] = r[7], g.color[2] = r[8];
-  g.z = r[9];
-  for (int c = 0; c < 3; ++c) g_colors[3 * i + c] += g.color[c];
-  g_opacities[i] += g.opacity;
+  if (i >= n) return;
+  float gc[3] = {0.f, 0.f, 0.f}, go = 0.f;
   float gm[3] = {0.f, 0.f, 0.f}, gs[3] = {0.f, 0.f, 0.f}, gq[4] = {0.f, 0.f, 0.f, 0.f};
-  preprocess_backward(means + 3 * i, scales + 3 * i, rotations + 4 * i, vp.cam, vp.width, vp.height, g, gm, gs, gq);
+  bool any = false;
+  for (int v = 0; v < chunk.views; ++v) {
+    const int64_t e = v * n + i;
+    if (tile_counts[e] == 0) continue;  // culled in this view: its row was never written
+    any = true;
+    float4* row = reinterpret_cast<float4*>(screen_grads + kGradStride * e);
+    float r[kGradStride];
+#pragma unroll
+    for (int q = 0; q < kGradStride / 4; ++q) {
+      const float4 a = row[q];
+      r[4 * q] = a.x, r[4 * q + 1] = a.y, r[4 * q + 2] = a.z, r[4 * q + 3] = a.w;
+      row[q] = make_float4(0.f, 0.f, 0.f, 0.f);  // ready for the next chunk
+    }
+    ScreenGrad<float> g;
+    g.mean2d[0] = r[0], g.mean2d[1] = r[1];
+    g.conic[0] = r[2], g.conic[1] = r[3], g.conic[2] = r[4];
+    g.opacity = r[5];
+    g.color[0] = r[6], g.color[1] = r[7], g.color[2] = r[8];
+    g.z = r[9];
+    for (int c = 0; c < 3; ++c) gc[c] += g.color[c];
+    go += g.opacity;
+    // Each view's share is summed in the order of the views (as the CPU reference).
+    float vm[3] = {0.f, 0.f, 0.f}, vs[3] = {0.f, 0.f, 0.f}, vq[4] = {0.f, 0.f, 0.f, 0.f};
+    const ViewParams& vp = chunk.v[v];
+    preprocess_backward(means + 3 * i, scales + 3 * i, rotations + 4 * i, vp.cam, vp.width, vp.height, g, vm, vs, vq);
+    for (int c = 0; c < 3; ++c) gm[c] += vm[c], gs[c] += vs[c];
+    for (int c = 0; c < 4; ++c) gq[c] += vq[c];
+  }
+  if (!any) return;
+  for (int c = 0; c < 3; ++c) g_colors[3 * i + c] += gc[c];
+  g_opacities[i] += go;
   for (int c = 0; c < 3; ++c) g_means[3 * i + c] += gm[c], g_scales[3 * i + c] += gs[c];
   for (int c = 0; c < 4; ++c) g_rotations[4 * i + c] += gq[c];
 }
@@ -104,21 +124,23 @@ int blocks_of(int64_t n) { return (int)((n + kThreads - 1) / kThreads); }
 }  // namespace
 
 void launch_preprocess(const float* means, const float* scales, const float* rotations, const float* colors,
-                       const float* opacities, int64_t n, const ViewParams& vp, ScreenGaussian<float>* screen,
+                       const float* opacities, const ViewChunk& chunk, ScreenGaussian<float>* screen,
                        PixelBox* boxes, uint32_t* depth_keys, uint32_t* tile_masks, int32_t* tile_counts,
                        unsigned long long* total, cudaStream_t stream) {
   cudaMemsetAsync(total, 0, sizeof(unsigned long long), stream);
-  if (n == 0) return;
-  preprocess_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, colors, opacities, n, vp, screen,
-                                                           boxes, depth_keys, tile_masks, tile_counts, total);
+  if (chunk.per_view == 0 || chunk.views == 0) return;
+  const dim3 grid(blocks_of(chunk.per_view), chunk.views);
+  preprocess_kernel<<<grid, kThreads, 0, stream>>>(means, scales, rotations, colors, opacities, chunk, screen, boxes,
+                                                   depth_keys, tile_masks, tile_counts, total);
 }
 
-void launch_chain(const float* means, const float* scales, const float* rotations, int64_t n, const ViewParams& vp,
+void launch_chain(const float* means, const float* scales, const float* rotations, const ViewChunk& chunk,
                   const int32_t* tile_counts, float* screen_grads, float* g_means, float* g_scales, float* g_rotations,
                   float* g_colors, float* g_opacities, cudaStream_t stream) {
-  if (n == 0) return;
-  chain_kernel<<<blocks_of(n), kThreads, 0, stream>>>(means, scales, rotations, n, vp, tile_counts, screen_grads,
-                                                      g_means, g_scales, g_rotations, g_colors, g_opacities);
+  if (chunk.per_view == 0) return;
+  chain_kernel<<<blocks_of(chunk.per_view), kThreads, 0, stream>>>(means, scales, rotations, chunk, tile_counts,
+                                                                   screen_grads, g_means, g_scales, g_rotations,
+                                                                   g_colors, g_opacities);
 }
 
 }  // namespace flat::gaussians::cuda

@@ -5,7 +5,9 @@
 // (gaussians/cpu/raster_gaussians_cpu.cpp) over the entries before its own
 // last one; the Gaussian's screen gradients (ScreenGrad's 10 fields) are
 // summed over the warp with shuffles and added to its row once a warp with
-// 16-byte atomics (rows padded to kGradStride floats).
+// 16-byte atomics (rows padded to kGradStride floats, one row an element of
+// the chunk). One launch replays a chunk of views: block b is tile b % tiles
+// of view b / tiles.
 #include "flat/render/shared/splat_tiles.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
@@ -16,21 +18,22 @@ constexpr int kCh = 5;  // r, g, b, depth, alpha
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
-                           const ScreenGaussian<float>* __restrict__ screen, ViewParams vp, BackwardImages in,
-                           float* __restrict__ screen_grads) {
+                           const ScreenGaussian<float>* __restrict__ screen, const __grid_constant__ ViewChunk chunk,
+                           BackwardImages in, float* __restrict__ screen_grads) {
   __shared__ ScreenGaussian<float> sh_g[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
-  const int tile = blockIdx.x;
+  const ChunkPixel cp = chunk_pixel(chunk, ranges);
+  const ViewParams& vp = chunk.v[cp.view];
   const int tid = threadIdx.x, lane = tid & 31;
-  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
-  const int2 range = ranges[tile];
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  const auto [x, y, inside, px, py] = cp.at;
+  const int2 range = cp.range;
+  const int64_t p = cp.p;
   float G[kCh] = {0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f;
   int32_t last = 0;
   if (inside) {
 #pragma unroll
-    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p];
+    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[cp.p3 + c * cp.hw];
     G[3] = in.g_depth[p];
     G[4] = in.g_alpha[p];
     t_final = T = in.t_final[p];
@@ -95,8 +98,8 @@ __global__ void __launch_bounds__(kBlockSize)
 }  // namespace
 
 void launch_raster_backward(const int2* ranges, const int32_t* ids, const ScreenGaussian<float>* screen,
-                            const ViewParams& vp, const BackwardImages& in, float* screen_grads, cudaStream_t stream) {
-  launch_per_tile(raster_backward_kernel, vp, stream, ranges, ids, screen, vp, in, screen_grads);
+                            const ViewChunk& chunk, const BackwardImages& in, float* screen_grads, cudaStream_t stream) {
+  launch_per_chunk_tile(raster_backward_kernel, chunk, stream, ranges, ids, screen, chunk, in, screen_grads);
 }
 
 }  // namespace flat::gaussians::cuda

@@ -5,7 +5,8 @@
 // pixels are done, the block once all its pixels are. The largest blending
 // weight of each Gaussian is reduced over the warp (__reduce_max_sync), then
 // over the block in shared memory, and goes to global memory once a tile
-// (one atomicMax a tile and Gaussian, not a pixel or a warp).
+// (one atomicMax a tile and Gaussian, not a pixel or a warp). One launch
+// renders a chunk of views: block b is tile b % tiles of view b / tiles.
 #include "flat/render/shared/splat_tiles.cuh"
 #include "gaussians/cuda/gaussian_kernels.h"
 
@@ -14,21 +15,22 @@ namespace {
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ ids,
-                          const ScreenGaussian<float>* __restrict__ screen, ViewParams vp, ForwardImages out,
-                          unsigned int* __restrict__ max_weight_bits) {
+                          const ScreenGaussian<float>* __restrict__ screen, const __grid_constant__ ViewChunk chunk,
+                          ForwardImages out, unsigned int* __restrict__ max_weight_bits) {
   __shared__ ScreenGaussian<float> sh_g[kBlockSize];
   __shared__ int32_t sh_id[kBlockSize];
   __shared__ unsigned int sh_wmax[kBlockSize];  // the batch's largest weights (float bits)
-  const int tile = blockIdx.x;
+  const ChunkPixel cp = chunk_pixel(chunk, ranges);
+  const ViewParams& vp = chunk.v[cp.view];
   const int tid = threadIdx.x;
-  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
-  const int2 range = ranges[tile];
+  const auto [x, y, inside, px, py] = cp.at;
+  const int2 range = cp.range;
   float T = 1.f, acc[4] = {0.f, 0.f, 0.f, 0.f}, median = 0.f;
   int32_t last = 0;
   bool done = !inside;
   // Thread tid owns staged slot tid: it loads it and flushes its largest weight.
   auto flush = [&]() {
-    if (sh_wmax[tid] != 0u) atomicMax(max_weight_bits + sh_id[tid], sh_wmax[tid]);
+    if (sh_wmax[tid] != 0u) atomicMax(max_weight_bits + (sh_id[tid] - cp.first), sh_wmax[tid]);
   };
   bool staged = false;  // a batch is staged and not yet flushed (block-uniform)
   for (int start = range.x; start < range.y; start += kBlockSize) {
@@ -78,9 +80,9 @@ __global__ void __launch_bounds__(kBlockSize)
     flush();
   }
   if (!inside) return;
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  const int64_t p = cp.p;
 #pragma unroll
-  for (int c = 0; c < 3; ++c) out.rgb[c * HW + p] = acc[c] + T * vp.background[c];
+  for (int c = 0; c < 3; ++c) out.rgb[cp.p3 + c * cp.hw] = acc[c] + T * vp.background[c];
   out.alpha[p] = 1.f - T;
   out.depth[p] = acc[3];
   out.median[p] = median;
@@ -93,9 +95,9 @@ __global__ void __launch_bounds__(kBlockSize)
 }  // namespace
 
 void launch_raster_forward(const int2* ranges, const int32_t* ids, const ScreenGaussian<float>* screen,
-                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
+                           const ViewChunk& chunk, const ForwardImages& out, unsigned int* max_weight_bits,
                            cudaStream_t stream) {
-  launch_per_tile(raster_forward_kernel, vp, stream, ranges, ids, screen, vp, out, max_weight_bits);
+  launch_per_chunk_tile(raster_forward_kernel, chunk, stream, ranges, ids, screen, chunk, out, max_weight_bits);
 }
 
 }  // namespace flat::gaussians::cuda

@@ -1,10 +1,12 @@
-// libtorch glue of the CUDA Gaussian rasterizer: allocation, the per-view loop
-// and the launch checks. Per view: preprocess all Gaussians (screen data,
-// pixel boxes, depth keys, tile counts), wait for the view's pair count (the
-// one host sync a view; the input value checks ride on the first), bin the
-// boxes and tile masks (the shared binning, flat/render/shared/tile_lists.h),
-// composite. The backward recomputes the screen data per view
-// (one cheap kernel) instead of keeping it.
+// libtorch glue of the CUDA Gaussian rasterizer: allocation, the loop over
+// chunks of views and the launch checks. Per chunk (chunk_views(): up to 16
+// views, at most 2^24 (view, Gaussian) elements): preprocess every Gaussian in
+// every view of the chunk (screen data, pixel boxes, depth keys, tile
+// counts), wait for the chunk's pair count (the one host sync a chunk; the
+// input value checks ride on the first), bin the boxes and tile masks of all
+// its views at once (the shared binning, flat/render/shared/tile_lists.h),
+// composite all its views in one launch. The backward recomputes the screen
+// data per chunk (one cheap kernel) instead of keeping it.
 #include "gaussians/cuda/raster_gaussians_cuda.h"
 
 #include <ATen/cuda/CUDAContext.h>
@@ -32,8 +34,8 @@ constexpr int64_t kScreenFloats = sizeof(ScreenGaussian<float>) / sizeof(float);
 static_assert(sizeof(ScreenGaussian<float>) == 12 * sizeof(float), "ScreenGaussian layout (three float4)");
 static_assert(sizeof(ScreenGrad<float>) == kScreenGradSize * sizeof(float), "ScreenGrad layout");
 static_assert(sizeof(PixelBox) == 4 * sizeof(int), "PixelBox layout");
-// Per view, kept for the backward: sorted ids, tile ranges, final T, last entry.
-constexpr int64_t kViewState = 4;
+// Per chunk, kept for the backward: sorted ids, tile ranges, final T, last entry.
+constexpr int64_t kChunkState = 4;
 
 void check_dtype(const GaussianInputs& in) {
   FLAT_CHECK(in.means.scalar_type() == at::kFloat, "rasterize_gaussians (cuda): expected float32 tensors");
@@ -43,20 +45,21 @@ void check_dtype(const GaussianInputs& in) {
 
 uint32_t* u32(const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); }
 
-// One view's preprocessing state over all N Gaussians (reused across views).
+// One chunk's preprocessing state over its views x N elements (allocated for
+// the largest chunk, reused by the others).
 struct Preprocessed {
   at::Tensor screen, boxes, depth_keys, masks, counts, total;
-  explicit Preprocessed(int64_t n, const at::TensorOptions& f)
-      : screen(at::empty({n * kScreenFloats}, f)),
-        boxes(at::empty({n * 4}, f.dtype(at::kInt))),
-        depth_keys(at::empty({n}, f.dtype(at::kInt))),
-        masks(at::empty({n}, f.dtype(at::kInt))),
-        counts(at::empty({n}, f.dtype(at::kInt))),
+  explicit Preprocessed(int64_t elements, const at::TensorOptions& f)
+      : screen(at::empty({elements * kScreenFloats}, f)),
+        boxes(at::empty({elements * 4}, f.dtype(at::kInt))),
+        depth_keys(at::empty({elements}, f.dtype(at::kInt))),
+        masks(at::empty({elements}, f.dtype(at::kInt))),
+        counts(at::empty({elements}, f.dtype(at::kInt))),
         total(at::empty({1}, f.dtype(at::kLong))) {}
-  void run(const GaussianInputs& in, const ViewParams& vp, cudaStream_t stream) {
+  void run(const GaussianInputs& in, const ViewChunk& chunk, cudaStream_t stream) {
     launch_preprocess(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(),
-                      in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), in.means.size(0), vp, screen_ptr(),
-                      box_ptr(), key_ptr(), u32(masks), counts.data_ptr<int>(),
+                      in.colors.data_ptr<float>(), in.opacities.data_ptr<float>(), chunk, screen_ptr(), box_ptr(),
+                      key_ptr(), u32(masks), counts.data_ptr<int>(),
                       reinterpret_cast<unsigned long long*>(total.data_ptr<int64_t>()), stream);
     check_launch("preprocessing");
   }
@@ -75,46 +78,50 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
   const auto f = in.means.options();
   GaussianOutputs out = images_for(in);
   at::Tensor max_bits = at::zeros({N}, f.dtype(at::kInt));
-  Preprocessed pre(N, f);
+  const int per_chunk = chunk_views(V, N);
+  Preprocessed pre(per_chunk * N, f);
   at::Tensor host_total = at::zeros({1}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
   views.clear();
-  for (int64_t v = 0; v < V; ++v) {
-    const ViewParams vp = render::splat_view(in, v);
-    pre.run(in, vp, stream);
+  for (int64_t v0 = 0; v0 < V; v0 += per_chunk) {
+    const int count = int(std::min<int64_t>(per_chunk, V - v0));
+    const ViewChunk chunk = render::view_chunk(in, v0, count);
+    const ViewParams& vp = chunk.v[0];
+    pre.run(in, chunk, stream);
     FLAT_CHECK(cudaMemcpyAsync(host_total.data_ptr(), pre.total.data_ptr(), sizeof(int64_t), cudaMemcpyDeviceToHost,
                                stream) == cudaSuccess,
                "rasterize_gaussians (cuda): copying the pair count to the host failed");
     FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): preprocessing failed");
     // The statistics' copy was enqueued before: now on the host.
-    if (v == 0) render::check_splat_values(in, "rasterize_gaussians");
+    if (v0 == 0) render::check_splat_values(in, "rasterize_gaussians");
     const int64_t pairs = host_total.data_ptr<int64_t>()[0];
-    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(), "rasterize_gaussians (cuda): " + std::to_string(pairs) +
-                                                                " (Gaussian, tile) pairs in view " + std::to_string(v) +
-                                                                ", more than 2^31-1");
+    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(),
+               "rasterize_gaussians (cuda): " + std::to_string(pairs) + " (Gaussian, tile) pairs in views " +
+                   std::to_string(v0) + ".." + std::to_string(v0 + count - 1) + ", more than 2^31-1");
     render::cuda::RectFootprints fp;
     fp.depth_keys = pre.key_ptr();
     fp.tile_counts = pre.counts.data_ptr<int>();
     fp.rects = pre.box_ptr();
     fp.masks = u32(pre.masks);
-    fp.n = N;
-    const render::cuda::TileLists lists =
-        render::cuda::bin_rects(fp, pairs, kTileSize, vp.tiles_x, vp.tiles_y, f, stream, "rasterize_gaussians");
-    const at::Tensor &ids = lists.ids, &ranges = lists.ranges;
+    fp.n = count * N;
+    fp.per_view = N;
+    const render::cuda::TileLists lists = render::cuda::bin_rects(fp, pairs, kTileSize, vp.tiles_x, vp.tiles_y, count,
+                                                                  f, stream, "rasterize_gaussians");
     at::Tensor t_final, last;
     if (for_backward) {
-      t_final = at::empty({H, W}, f);
-      last = at::empty({H, W}, f.dtype(at::kInt));
+      t_final = at::empty({count, H, W}, f);
+      last = at::empty({count, H, W}, f.dtype(at::kInt));
     }
-    ForwardImages img{out.rgb.data_ptr<float>() + v * 3 * HW,
-                      out.alpha.data_ptr<float>() + v * HW,
-                      out.depth.data_ptr<float>() + v * HW,
-                      out.median_depth.data_ptr<float>() + v * HW,
+    ForwardImages img{out.rgb.data_ptr<float>() + v0 * 3 * HW,
+                      out.alpha.data_ptr<float>() + v0 * HW,
+                      out.depth.data_ptr<float>() + v0 * HW,
+                      out.median_depth.data_ptr<float>() + v0 * HW,
                       for_backward ? t_final.data_ptr<float>() : nullptr,
                       for_backward ? last.data_ptr<int>() : nullptr};
-    launch_raster_forward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), pre.screen_ptr(),
-                          vp, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()), stream);
+    launch_raster_forward(reinterpret_cast<const int2*>(lists.ranges.data_ptr<int>()), lists.ids.data_ptr<int>(),
+                          pre.screen_ptr(), chunk, img, reinterpret_cast<unsigned int*>(max_bits.data_ptr<int>()),
+                          stream);
     check_launch("forward compositing");
-    if (for_backward) views.insert(views.end(), {ids, ranges, t_final, last});
+    if (for_backward) views.insert(views.end(), {lists.ids, lists.ranges, t_final, last});
   }
   if (V == 0) {
     FLAT_CHECK(cudaStreamSynchronize(stream) == cudaSuccess, "rasterize_gaussians (cuda): value checks failed");
@@ -130,24 +137,27 @@ GaussianGrads backward(const GaussianInputs& in, const std::vector<at::Tensor>& 
   const c10::cuda::CUDAGuard guard(in.means.device());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream().stream();
   const int64_t V = in.w2c.size(0), HW = in.height * in.width, N = in.means.size(0);
-  FLAT_CHECK((int64_t)views.size() == V * kViewState,
+  const int per_chunk = chunk_views(V, N);
+  FLAT_CHECK((int64_t)views.size() == kChunkState * ((V + per_chunk - 1) / per_chunk),
              "rasterize_gaussians (cuda): backward state does not match the views");
   const auto f = in.means.options();
   GaussianGrads g = GaussianGrads::zeros_for(in);
-  at::Tensor screen_grads = at::zeros({N * kGradStride}, f);  // zeroed again row by row by the chain
-  Preprocessed pre(N, f);
-  for (int64_t v = 0; v < V; ++v) {
-    const ViewParams vp = render::splat_view(in, v);
-    pre.run(in, vp, stream);  // the forward's screen data, recomputed bit for bit
-    const at::Tensor& ids = views[kViewState * v];
-    const at::Tensor& ranges = views[kViewState * v + 1];
-    BackwardImages img{grads.rgb.data_ptr<float>() + v * 3 * HW, grads.alpha.data_ptr<float>() + v * HW,
-                       grads.depth.data_ptr<float>() + v * HW, views[kViewState * v + 2].data_ptr<float>(),
-                       views[kViewState * v + 3].data_ptr<int>()};
+  // Zeroed once; the chain zeroes again every row it reads.
+  at::Tensor screen_grads = at::zeros({per_chunk * N * kGradStride}, f);
+  Preprocessed pre(per_chunk * N, f);
+  for (int64_t v0 = 0, c = 0; v0 < V; v0 += per_chunk, ++c) {
+    const int count = int(std::min<int64_t>(per_chunk, V - v0));
+    const ViewChunk chunk = render::view_chunk(in, v0, count);
+    pre.run(in, chunk, stream);  // the forward's screen data, recomputed bit for bit
+    const at::Tensor& ids = views[kChunkState * c];
+    const at::Tensor& ranges = views[kChunkState * c + 1];
+    BackwardImages img{grads.rgb.data_ptr<float>() + v0 * 3 * HW, grads.alpha.data_ptr<float>() + v0 * HW,
+                       grads.depth.data_ptr<float>() + v0 * HW, views[kChunkState * c + 2].data_ptr<float>(),
+                       views[kChunkState * c + 3].data_ptr<int>()};
     launch_raster_backward(reinterpret_cast<const int2*>(ranges.data_ptr<int>()), ids.data_ptr<int>(), pre.screen_ptr(),
-                           vp, img, screen_grads.data_ptr<float>(), stream);
+                           chunk, img, screen_grads.data_ptr<float>(), stream);
     check_launch("backward compositing");
-    launch_chain(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(), N, vp,
+    launch_chain(in.means.data_ptr<float>(), in.scales.data_ptr<float>(), in.rotations.data_ptr<float>(), chunk,
                  pre.counts.data_ptr<int>(), screen_grads.data_ptr<float>(), g.means.data_ptr<float>(),
                  g.scales.data_ptr<float>(), g.rotations.data_ptr<float>(), g.colors.data_ptr<float>(),
                  g.opacities.data_ptr<float>(), stream);

@@ -30,10 +30,13 @@ __global__ void gather_counts_kernel(const int32_t* __restrict__ order, int64_t 
 __global__ void duplicate_rects_kernel(const int32_t* __restrict__ order, int64_t n, const int32_t* __restrict__ counts,
                                        const int32_t* __restrict__ offsets, const PixelRect* __restrict__ rects,
                                        const uint32_t* __restrict__ masks, int tile_size, int tiles_x,
-                                       uint32_t* __restrict__ pair_tiles, int32_t* __restrict__ pair_ids) {
+                                       int64_t per_view, int tiles_per_view, uint32_t* __restrict__ pair_tiles,
+                                       int32_t* __restrict__ pair_ids) {
   const int64_t r = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (r >= n || counts[r] == 0) return;
   const int32_t i = order[r];
+  // Element i of view i / per_view: its tiles count on after the views before.
+  const uint32_t first_tile = per_view > 0 ? (uint32_t)(i / per_view) * (uint32_t)tiles_per_view : 0u;
   const PixelRect b = rects[i];
   const uint32_t mask = masks ? masks[i] : ~0u;  // ~0u: every tile of the rectangle
   const int tx0 = b.x0 / tile_size, tx1 = (b.x1 - 1) / tile_size + 1;
@@ -43,7 +46,7 @@ __global__ void duplicate_rects_kernel(const int32_t* __restrict__ order, int64_
   for (int ty = ty0; ty < ty1; ++ty)
     for (int tx = tx0; tx < tx1; ++tx, ++bit) {
       if (mask != ~0u && !((mask >> bit) & 1u)) continue;
-      pair_tiles[off] = (uint32_t)(ty * tiles_x + tx);
+      pair_tiles[off] = first_tile + (uint32_t)(ty * tiles_x + tx);
       pair_ids[off] = i;
       ++off;
     }
@@ -195,10 +198,11 @@ void launch_gather_counts(const int32_t* order, int64_t n, const int32_t* tile_c
 
 void launch_duplicate_rects(const int32_t* order, int64_t n, const int32_t* counts, const int32_t* offsets,
                             const PixelRect* rects, const uint32_t* masks, int tile_size, int tiles_x,
-                            uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream) {
+                            int64_t per_view, int tiles_per_view, uint32_t* pair_tiles, int32_t* pair_ids,
+                            cudaStream_t stream) {
   if (n == 0) return;
   duplicate_rects_kernel<<<blocks_of(n), 256, 0, stream>>>(order, n, counts, offsets, rects, masks, tile_size, tiles_x,
-                                                           pair_tiles, pair_ids);
+                                                           per_view, tiles_per_view, pair_tiles, pair_ids);
 }
 
 void sort_by_depth(void* temp, size_t& temp_bytes, const uint32_t* depth_in, uint32_t* depth_out,

@@ -10,13 +10,20 @@
 
 namespace flat::render::cuda {
 
-TileLists bin_rects(const RectFootprints& fp, int64_t pairs, int tile_size, int tiles_x, int tiles_y,
+TileLists bin_rects(const RectFootprints& fp, int64_t pairs, int tile_size, int tiles_x, int tiles_y, int views,
                     const at::TensorOptions& opts, cudaStream_t stream, const char* fn) {
   auto check = [&](const char* what) {
     const cudaError_t err = cudaGetLastError();
     if (err != cudaSuccess) fail(std::string(fn) + " (cuda): " + what + " failed: " + cudaGetErrorString(err));
   };
-  const int tiles = tiles_x * tiles_y;
+  FLAT_CHECK(views >= 1 && (views == 1 || fp.per_view * views == fp.n),
+             std::string(fn) + " (cuda): binning " + std::to_string(views) + " views of " +
+                 std::to_string(fp.per_view) + " elements, but " + std::to_string(fp.n) + " elements");
+  const int view_tiles = tiles_x * tiles_y;
+  FLAT_CHECK(int64_t(view_tiles) * views < (int64_t(1) << 31),
+             std::string(fn) + " (cuda): " + std::to_string(views) + " views of " + std::to_string(view_tiles) +
+                 " tiles: more tile ids than 2^31");
+  const int tiles = view_tiles * views;
   const int64_t n = fp.n;
   const auto i32 = opts.dtype(at::kInt);
   auto u32 = [](const at::Tensor& t) { return reinterpret_cast<uint32_t*>(t.data_ptr<int>()); };
@@ -41,7 +48,8 @@ TileLists bin_rects(const RectFootprints& fp, int64_t pairs, int tile_size, int 
   scan_counts(temp.data_ptr(), scan_bytes, counts.data_ptr<int>(), offsets.data_ptr<int>(), n, stream);
   check("tile count scan");
   launch_duplicate_rects(order_sorted.data_ptr<int>(), n, counts.data_ptr<int>(), offsets.data_ptr<int>(), fp.rects,
-                         fp.masks, tile_size, tiles_x, u32(pair_tiles), pair_ids.data_ptr<int>(), stream);
+                         fp.masks, tile_size, tiles_x, views > 1 ? fp.per_view : 0, view_tiles, u32(pair_tiles),
+                         pair_ids.data_ptr<int>(), stream);
   check("pair duplication");
   sort_by_tile(temp.data_ptr(), tile_bytes, u32(pair_tiles), u32(tiles_sorted), pair_ids.data_ptr<int>(),
                out.ids.data_ptr<int>(), pairs, tiles, stream);

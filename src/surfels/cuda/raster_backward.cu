@@ -15,28 +15,31 @@ namespace {
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_backward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ values,
-                           const PixelSurfel<float>* __restrict__ surfels, ViewParams vp, BackwardImages in,
-                           float* __restrict__ surfel_grads) {
+                           const PixelSurfel<float>* __restrict__ surfels, const __grid_constant__ ViewChunk chunk,
+                           BackwardImages in, float* __restrict__ surfel_grads) {
   __shared__ PixelSurfel<float> stage[kBlockSize];
-  const int tile = blockIdx.x, tid = threadIdx.x, lane = tid & 31;
-  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
-  const int2 range = ranges[tile];
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  const ChunkPixel cp = chunk_pixel(chunk, ranges);
+  const ViewParams& vp = chunk.v[cp.view];
+  const int tid = threadIdx.x, lane = tid & 31;
+  const auto [x, y, inside, px, py] = cp.at;
+  const int2 range = cp.range;
+  // rgb, normal and dist: (views,3,H,W); the others (views,H,W).
+  const int64_t HW = cp.hw, p = cp.p, p3 = cp.p3;
   // Upstream gradients: r, g, b, depth, nx, ny, nz, alpha, distortion.
   float G[9] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   float T = 1.f, t_final = 1.f, m_ref = 0.f, m1 = 0.f, m2 = 0.f;
   int my_last = 0;
   if (inside) {
 #pragma unroll
-    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p], G[4 + c] = in.g_normal[c * HW + p];
+    for (int c = 0; c < 3; ++c) G[c] = in.g_rgb[c * HW + p3], G[4 + c] = in.g_normal[c * HW + p3];
     G[3] = in.g_depth[p];
     G[7] = in.g_alpha[p];
     G[8] = in.g_distortion[p];
     t_final = T = in.t_final[p];
     my_last = in.last[p];
-    m_ref = in.dist[p];
-    m1 = in.dist[HW + p];
-    m2 = in.dist[2 * HW + p];
+    m_ref = in.dist[p3];
+    m1 = in.dist[HW + p3];
+    m2 = in.dist[2 * HW + p3];
   }
   const float w_total = 1.f - t_final;
   // dL/dT_final through the background, times T_final.
@@ -92,8 +95,9 @@ __global__ void __launch_bounds__(kBlockSize)
 }  // namespace
 
 void launch_raster_backward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
-                            const ViewParams& vp, const BackwardImages& in, float* surfel_grads, cudaStream_t stream) {
-  launch_per_tile(raster_backward_kernel, vp, stream, ranges, values, surfels, vp, in, surfel_grads);
+                            const ViewChunk& chunk, const BackwardImages& in, float* surfel_grads,
+                            cudaStream_t stream) {
+  launch_per_chunk_tile(raster_backward_kernel, chunk, stream, ranges, values, surfels, chunk, in, surfel_grads);
 }
 
 }  // namespace flat::surfels::cuda

@@ -12,13 +12,15 @@ namespace {
 
 __global__ void __launch_bounds__(kBlockSize)
     raster_forward_kernel(const int2* __restrict__ ranges, const int32_t* __restrict__ values,
-                          const PixelSurfel<float>* __restrict__ surfels, ViewParams vp, ForwardImages out,
-                          unsigned int* __restrict__ max_weight_bits) {
+                          const PixelSurfel<float>* __restrict__ surfels, const __grid_constant__ ViewChunk chunk,
+                          ForwardImages out, unsigned int* __restrict__ max_weight_bits) {
   __shared__ PixelSurfel<float> stage[kBlockSize];
   __shared__ unsigned int wmax[kBlockSize];  // per staged surfel: its largest weight in the tile (float bits)
-  const int tile = blockIdx.x, tid = threadIdx.x;
-  const auto [x, y, inside, px, py] = tile_pixel(vp, tile, tid);
-  const int2 range = ranges[tile];
+  const ChunkPixel cp = chunk_pixel(chunk, ranges);
+  const ViewParams& vp = chunk.v[cp.view];
+  const int tid = threadIdx.x;
+  const auto [x, y, inside, px, py] = cp.at;
+  const int2 range = cp.range;
   bool done = !inside;
   float T = 1.f, acc[7] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f}, median = 0.f;
   float m_ref = 0.f, m1 = 0.f, m2 = 0.f, dist = 0.f;
@@ -54,14 +56,15 @@ __global__ void __launch_bounds__(kBlockSize)
       last = base + j - range.x + 1;
     }
     __syncthreads();
-    if (tid < count && wmax[tid] != 0u) atomicMax(&max_weight_bits[stage[tid].index], wmax[tid]);
+    if (tid < count && wmax[tid] != 0u) atomicMax(&max_weight_bits[stage[tid].index - cp.first], wmax[tid]);
   }
   if (!inside) return;
-  const int64_t HW = (int64_t)vp.width * vp.height, p = (int64_t)y * vp.width + x;
+  // rgb, normal and dist: (views,3,H,W); the others (views,H,W).
+  const int64_t HW = cp.hw, p = cp.p, p3 = cp.p3;
 #pragma unroll
   for (int c = 0; c < 3; ++c) {
-    out.rgb[c * HW + p] = acc[c] + T * vp.background[c];
-    out.normal[c * HW + p] = acc[4 + c];
+    out.rgb[c * HW + p3] = acc[c] + T * vp.background[c];
+    out.normal[c * HW + p3] = acc[4 + c];
   }
   out.alpha[p] = 1.f - T;
   out.depth[p] = acc[3];
@@ -69,17 +72,17 @@ __global__ void __launch_bounds__(kBlockSize)
   out.distortion[p] = dist;
   out.t_final[p] = T;
   out.last[p] = last;
-  out.dist[p] = m_ref;
-  out.dist[HW + p] = m1;
-  out.dist[2 * HW + p] = m2;
+  out.dist[p3] = m_ref;
+  out.dist[HW + p3] = m1;
+  out.dist[2 * HW + p3] = m2;
 }
 
 }  // namespace
 
 void launch_raster_forward(const int2* ranges, const int32_t* values, const PixelSurfel<float>* surfels,
-                           const ViewParams& vp, const ForwardImages& out, unsigned int* max_weight_bits,
+                           const ViewChunk& chunk, const ForwardImages& out, unsigned int* max_weight_bits,
                            cudaStream_t stream) {
-  launch_per_tile(raster_forward_kernel, vp, stream, ranges, values, surfels, vp, out, max_weight_bits);
+  launch_per_chunk_tile(raster_forward_kernel, chunk, stream, ranges, values, surfels, chunk, out, max_weight_bits);
 }
 
 }  // namespace flat::surfels::cuda

@@ -41,6 +41,16 @@ inline splat::ViewParams splat_view(const SplatInputs& in, int64_t view) {
                         in.height, splat::kTileSize, in.background.data_ptr<float>());
 }
 
+// Views [first, first + count) of `in` as one launch's chunk (count <=
+// splat::kMaxChunkViews).
+inline splat::ViewChunk view_chunk(const SplatInputs& in, int64_t first, int count) {
+  splat::ViewChunk c;
+  c.views = count;
+  c.per_view = in.means.size(0);
+  for (int v = 0; v < count; ++v) c.v[v] = splat_view(in, first + v);
+  return c;
+}
+
 // Upstream gradients, (V,C,H,W) each, defined (zeros where the output had
 // none); normal and distortion only where the rasterizer has those outputs.
 struct SplatOutputGrads {

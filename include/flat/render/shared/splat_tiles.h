@@ -25,6 +25,27 @@ using ViewParams = TileView<CompositingConstants>;
 FLAT_HD int tile_lo(int x0) { return x0 / kTileSize; }
 FLAT_HD int tile_hi(int x1) { return (x1 - 1) / kTileSize + 1; }
 
+// The views one launch renders (their images one after another): each
+// kernel reads view v's parameters from its launch's constant bank
+// (__grid_constant__), so a chunk is small enough to pass by value. Element
+// e = v * per_view + i is splat i in view v of the chunk.
+constexpr int kMaxChunkViews = 16;
+struct ViewChunk {
+  int views = 0;
+  int64_t per_view = 0;  // splats (N)
+  ViewParams v[kMaxChunkViews];
+};
+
+// The views a chunk holds for N splats: as many as kMaxChunkViews and
+// kChunkElements (views x splats: the per-element buffers) allow, at least
+// one. Forward and backward split the views alike.
+constexpr int64_t kChunkElements = int64_t(1) << 24;
+inline int chunk_views(int64_t views, int64_t splats) {
+  const int64_t fit = splats > 0 ? kChunkElements / splats : kMaxChunkViews;
+  const int64_t k = fit < 1 ? 1 : (fit > kMaxChunkViews ? kMaxChunkViews : fit);
+  return int(views < k ? (views < 1 ? 1 : views) : k);
+}
+
 // The number of tiles a pixel rectangle touches.
 FLAT_HD int tiles_touched(const PixelRect& r) {
   return (tile_hi(r.x1) - tile_lo(r.x0)) * (tile_hi(r.y1) - tile_lo(r.y0));

@@ -45,10 +45,13 @@ void launch_gather_counts(const int32_t* order, int64_t n, const int32_t* tile_c
 // (tiles of tile_size pixels, tiles_x a row) that its mask keeps (bit
 // (ty - ty0) * tw + (tx - tx0) of the rectangle's tile range; masks ==
 // nullptr or a mask of ~0u: every tile), written from offsets[r] on; counts
-// (in depth order) must be the kept tiles' number.
+// (in depth order) must be the kept tiles' number. Several views binned at
+// once: per_view > 0 primitives a view (element i belongs to view
+// i / per_view), whose tile ids count on by tiles_per_view a view; 0: one view.
 void launch_duplicate_rects(const int32_t* order, int64_t n, const int32_t* counts, const int32_t* offsets,
                             const PixelRect* rects, const uint32_t* masks, int tile_size, int tiles_x,
-                            uint32_t* pair_tiles, int32_t* pair_ids, cudaStream_t stream);
+                            int64_t per_view, int tiles_per_view, uint32_t* pair_tiles, int32_t* pair_ids,
+                            cudaStream_t stream);
 
 // Stable radix sort of the pairs by tile id (num_tiles: the bits it needs):
 // each tile's pairs stay front to back.
