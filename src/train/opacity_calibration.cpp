@@ -15,7 +15,7 @@ namespace flat::train {
 
 std::vector<double> opacity_shift_candidates(double current) {
   std::vector<double> shifts;
-  for (int k = 0; k <= 8; ++k) shifts.push_back(current - 0.5 * k);
+  for (int k = 0; k <= 12; ++k) shifts.push_back(current - 0.5 * k);
   return shifts;
 }
 

@@ -23,9 +23,9 @@ TEST_CASE("reshift_opacities gives the opacities the decoder gives under the oth
       CHECK((got - expected).abs().max().item<double>() < 1e-5);
     }
   const auto c = flat::train::opacity_shift_candidates(-1.0);
-  REQUIRE(c.size() == 9);
+  REQUIRE(c.size() == 13);
   CHECK(c.front() == -1.0);
-  CHECK(c.back() == -5.0);
+  CHECK(c.back() == -7.0);
 }
 
 TEST_CASE("flat_train: opacity_shift_calibration trains a pruning stage with the shift whose renders fit best",

@@ -225,7 +225,7 @@ struct TrainConfig {
             "pipeline.prune_opacity (0: the full threshold from step 0; validation always uses the full one)");
     v.field("opacity_shift_calibration", opacity_shift_calibration, config::non_negative(),
             "a fresh start with pipeline.prune_opacity > 0: on this many training batches, try "
-            "pipeline.triangles.opacity_shift lowered by 0 to 4 in steps of 0.5 (every opacity raised together) and "
+            "pipeline.triangles.opacity_shift lowered by 0 to 6 in steps of 0.5 (every opacity raised together) and "
             "train with the one whose pruned renders fit best; written into the run's config and model (0: off)");
     v.field("device", device, config::one_of({"cpu", "cuda"}), "cpu | cuda");
     v.field("precision", precision, config::one_of({"bf16", "fp32"}), "bf16 autocast (CUDA) or fp32");
