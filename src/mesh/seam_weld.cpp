@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <map>
-#include <set>
+#include <cstdint>
 #include <tuple>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include <fmt/format.h>
@@ -118,6 +118,11 @@ void unit_normal(const float* a, const float* b, const float* c, double n[3]) {
 // max_turn; otherwise the vertices of the face that broke a rule go back to
 // their own positions for all their faces (the face overlaps the rim there,
 // as before the weld), and the pass repeats until every face fits.
+// Only edges between two weld targets can be shared by a new face and a mesh
+// face (a new face's other corners are new vertices), so of the mesh only the
+// faces with two or more targets enter the edge tables: the fused mesh grows
+// to ~0.7 M faces at 432x768, and recording all of them on every pass of
+// every view took most of flat_mesh's 204-s conversion (2026-11-28).
 std::vector<int64_t> seam_faces(const primitives::IndexedMesh& mesh, const primitives::IndexedMesh& grid,
                                 std::vector<int64_t>& target, double max_turn, SeamWeldReport& r) {
   const int64_t nm = mesh.num_vertices();
@@ -129,30 +134,42 @@ std::vector<int64_t> seam_faces(const primitives::IndexedMesh& mesh, const primi
   const float *mv = mv_t.data_ptr<float>(), *gv = gv_t.data_ptr<float>();
   const auto at_ = [&](int64_t i) { return i < nm ? mv + 3 * i : gv + 3 * (i - nm); };
   const double min_cos = std::cos(max_turn);
+  // An edge a -> b as one key (vertex indices stay below 2^32).
+  const auto key = [](int64_t a, int64_t b) { return (uint64_t(a) << 32) | uint64_t(b); };
   std::vector<int64_t> faces;
+  std::vector<char> targeted(size_t(nm), 0);
   for (bool again = true; again;) {
     again = false;
-    std::set<std::pair<int64_t, int64_t>> directed;
-    std::map<std::pair<int64_t, int64_t>, int> uses;
+    std::unordered_set<uint64_t> directed;
+    std::unordered_map<uint64_t, int> uses;
     const auto fits = [&](const int64_t t[3]) {
       if (t[0] == t[1] || t[1] == t[2] || t[2] == t[0]) return false;
       for (int k = 0; k < 3; ++k) {
         const int64_t a = t[k], b = t[(k + 1) % 3];
-        const auto u = uses.find({std::min(a, b), std::max(a, b)});
-        if (directed.count({a, b}) || (u != uses.end() && u->second >= 2)) return false;
+        const auto u = uses.find(key(std::min(a, b), std::max(a, b)));
+        if (directed.count(key(a, b)) || (u != uses.end() && u->second >= 2)) return false;
       }
       return true;
     };
-    const auto record = [&](const int64_t t[3]) {
+    const auto record_edges = [&](const int64_t t[3]) {
       for (int k = 0; k < 3; ++k) {
-        directed.insert({t[k], t[(k + 1) % 3]});
-        ++uses[{std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3])}];
+        directed.insert(key(t[k], t[(k + 1) % 3]));
+        ++uses[key(std::min(t[k], t[(k + 1) % 3]), std::max(t[k], t[(k + 1) % 3]))];
       }
+    };
+    const auto record = [&](const int64_t t[3]) {
+      record_edges(t);
       faces.insert(faces.end(), t, t + 3);
     };
-    faces.clear();
+    std::fill(targeted.begin(), targeted.end(), 0);
+    for (int64_t b : target)
+      if (b >= 0) targeted[size_t(b)] = 1;
+    faces.assign(mf, mf + 3 * mesh.num_faces());
     r.dropped_faces = 0;
-    for (int64_t i = 0; i < mesh.num_faces(); ++i) record(mf + 3 * i);
+    for (int64_t i = 0; i < mesh.num_faces(); ++i) {
+      const int64_t* t = mf + 3 * i;
+      if (targeted[size_t(t[0])] + targeted[size_t(t[1])] + targeted[size_t(t[2])] >= 2) record_edges(t);
+    }
     for (int64_t i = 0; i < grid.num_faces(); ++i) {
       const int64_t* g = gf + 3 * i;
       const int64_t t[3] = {target[size_t(g[0])] >= 0 ? target[size_t(g[0])] : nm + g[0],
