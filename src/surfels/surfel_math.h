@@ -51,7 +51,7 @@ struct alignas(16) PixelSurfel {
   T opacity;
   T normal[3];  // camera-space t_w, facing the camera
   T color[3];
-  int32_t index;  // the surfel's row in the inputs
+  int32_t index;  // the CPU: the surfel's row in the inputs; CUDA: its element (view in the chunk * N + row)
 };
 
 // Gradient of the loss with respect to one surfel's PixelSurfel (18 values;

@@ -31,30 +31,21 @@ inline Soup random_soup(int64_t n, torch::Dtype dtype, uint64_t seed, double siz
 }
 
 // V cameras at small offsets from the origin, slightly rotated, all looking
-// towards +z; normalised intrinsics for a 4:3 image.
-inline camera::Cameras test_cameras(int64_t views) {
+// towards +z; normalised intrinsics for a 4:3 image. step scales the offset
+// and turn from one view to the next.
+inline camera::Cameras test_cameras(int64_t views, double step = 1.0) {
   camera::Cameras c;
   c.intrinsics = torch::tensor({0.9, 1.2, 0.5, 0.5}, torch::kFloat).repeat({views, 1});
   c.c2w = torch::eye(4, torch::kFloat).repeat({views, 1, 1});
   for (int64_t v = 0; v < views; ++v) {
-    const double a = 0.08 * double(v), b = -0.05 * double(v);
+    const double s = step * double(v);
+    const double a = 0.08 * s, b = -0.05 * s;
     auto R = torch::tensor({{std::cos(a), 0.0, std::sin(a)}, {0.0, 1.0, 0.0}, {-std::sin(a), 0.0, std::cos(a)}});
     auto Rx = torch::tensor({{1.0, 0.0, 0.0}, {0.0, std::cos(b), -std::sin(b)}, {0.0, std::sin(b), std::cos(b)}});
     c.c2w[v].narrow(0, 0, 3).narrow(1, 0, 3).copy_(torch::matmul(R, Rx));
-    c.c2w[v][0][3] = 0.1 * double(v);
-    c.c2w[v][1][3] = -0.05 * double(v);
+    c.c2w[v][0][3] = 0.1 * s;
+    c.c2w[v][1][3] = -0.05 * s;
   }
-  return c;
-}
-
-// `views` cameras cycling through test_cameras(distinct): many views that all
-// see the test scenes (test_cameras turns further with every view).
-inline camera::Cameras cycled_test_cameras(int64_t views, int64_t distinct) {
-  const auto base = test_cameras(distinct);
-  const auto idx = torch::arange(views, torch::kLong).remainder(distinct);
-  camera::Cameras c;
-  c.intrinsics = base.intrinsics.index_select(0, idx);
-  c.c2w = base.c2w.index_select(0, idx);
   return c;
 }
 

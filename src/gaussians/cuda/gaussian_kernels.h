@@ -41,8 +41,8 @@ struct ForwardImages {  // the chunk's first view; each view channel-major (C,H,
   float* alpha;
   float* depth;
   float* median;
-  float* t_final;  // (H,W): final transmittance, kept for the backward
-  int32_t* last;   // (H,W): list entries processed (of the pixel's tile), kept for the backward
+  float* t_final;  // (views,H,W): final transmittance, kept for the backward
+  int32_t* last;   // (views,H,W): list entries processed (of the pixel's tile), kept for the backward
 };
 
 // ranges: (views * tiles) rows; ids: element indices. max_weight_bits (N,

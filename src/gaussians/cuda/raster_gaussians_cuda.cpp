@@ -94,9 +94,12 @@ GaussianOutputs forward(const GaussianInputs& in, bool for_backward, std::vector
     // The statistics' copy was enqueued before: now on the host.
     if (v0 == 0) render::check_splat_values(in, "rasterize_gaussians");
     const int64_t pairs = host_total.data_ptr<int64_t>()[0];
-    FLAT_CHECK(pairs < std::numeric_limits<int32_t>::max(),
+    // The kernels index the pairs in int32 and step through a tile's list in batches of kBlockSize.
+    FLAT_CHECK(pairs <= std::numeric_limits<int32_t>::max() - kBlockSize,
                "rasterize_gaussians (cuda): " + std::to_string(pairs) + " (Gaussian, tile) pairs in views " +
-                   std::to_string(v0) + ".." + std::to_string(v0 + count - 1) + ", more than 2^31-1");
+                   std::to_string(v0) + ".." + std::to_string(v0 + count - 1) +
+                   " (one chunk), more than the ~2^31 the sort supports; render fewer views a call, or fewer or "
+                   "smaller Gaussians");
     render::cuda::RectFootprints fp;
     fp.depth_keys = pre.key_ptr();
     fp.tile_counts = pre.counts.data_ptr<int>();

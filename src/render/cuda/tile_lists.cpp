@@ -1,5 +1,5 @@
-// bin_rects(): the shared binning (tile_binning.h) of one view of rectangle
-// footprints, with its scratch allocated through libtorch.
+// bin_rects(): the shared binning (tile_binning.h) of one view, or a chunk of
+// views, of rectangle footprints, with its scratch allocated through libtorch.
 #include "flat/render/shared/tile_lists.h"
 
 #include <algorithm>

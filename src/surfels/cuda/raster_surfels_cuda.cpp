@@ -68,7 +68,8 @@ render::cuda::TileLists bin(const ScreenData& sd, const ViewChunk& chunk, cudaSt
   FLAT_CHECK(pairs <= std::numeric_limits<int32_t>::max() - kBlockSize,
              "rasterize_surfels (cuda): views " + std::to_string(first_view) + ".." +
                  std::to_string(first_view + chunk.views - 1) + " need " + std::to_string(pairs) +
-                 " (surfel, tile) pairs, more than the ~2^31 the sort supports; render fewer or smaller surfels");
+                 " (surfel, tile) pairs (one chunk), more than the ~2^31 the sort supports; render fewer views a call, or "
+                 "fewer or smaller surfels");
   render::cuda::RectFootprints fp;
   fp.depth_keys = reinterpret_cast<const uint32_t*>(sd.depth_keys.data_ptr<int>());
   fp.tile_counts = sd.tile_counts.data_ptr<int>();
